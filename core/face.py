@@ -1,0 +1,409 @@
+"""face.py
+----
+The Face: a triangle mesh in millimetres with optional texture, per-vertex
+colours and named landmarks stored as surface points.
+
+A landmark is a :class:`SurfacePoint` (triangle index + barycentric
+coordinates), never a free xyz: it stays on the surface and follows any
+deformation that keeps the topology (:meth:`Face.with_vertices`).
+
+Arrays are copied on construction and made read-only so that cached derived
+data (normals, adjacency, edges, spatial index) can never go stale.
+Topology-only caches (edges, adjacency, components) are shared between a face
+and the deformed copies made by :meth:`Face.with_vertices`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Iterable, Mapping
+
+import numpy as np
+import scipy.sparse
+import scipy.sparse.csgraph
+from scipy.spatial import cKDTree
+
+
+@dataclass(frozen=True)
+class SurfacePoint:
+    """A point on a mesh surface.
+
+    Attributes
+    ----------
+    triangle : int
+        Index into ``Face.triangles``.
+    barycentric : tuple of 3 float
+        Weights of the triangle's three corners; non-negative, sum 1.
+    """
+
+    triangle: int
+    barycentric: tuple[float, float, float]
+
+    def __post_init__(self):
+        bary = tuple(float(b) for b in self.barycentric)
+        if len(bary) != 3 or not np.all(np.isfinite(bary)):
+            raise ValueError(f"barycentric must be 3 finite numbers, got {self.barycentric!r}")
+        total = sum(bary)
+        if abs(total - 1.0) > 1e-4:
+            raise ValueError(f"barycentric weights must sum to 1, got {total:.6f}")
+        object.__setattr__(self, "triangle", int(self.triangle))
+        object.__setattr__(self, "barycentric", bary)
+
+
+@dataclass
+class FaceMetadata:
+    """Where a face came from and what was done to it on the way in.
+
+    ``notes`` are human-readable messages (unit conversion, repairs) that the
+    GUI shows after loading.
+    """
+
+    source: str | None = None
+    units: str = "mm"
+    notes: list[str] = field(default_factory=list)
+    name: str = "face"
+
+
+class _TopologyCache:
+    """Derived data that depends on the triangles only (shared by deformed copies)."""
+
+    def __init__(self, triangles: np.ndarray, n_vertices: int):
+        self.triangles = triangles
+        self.n_vertices = n_vertices
+        self._edges = None
+        self._adjacency = None
+        self._components = None
+
+    @property
+    def edges(self) -> np.ndarray:
+        if self._edges is None:
+            t = self.triangles
+            pairs = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+            pairs.sort(axis=1)
+            edges = np.unique(pairs, axis=0)
+            edges.setflags(write=False)
+            self._edges = edges
+        return self._edges
+
+    @property
+    def adjacency(self) -> scipy.sparse.csr_matrix:
+        if self._adjacency is None:
+            e = self.edges
+            n = self.n_vertices
+            data = np.ones(2 * len(e), dtype=np.int8)
+            rows = np.concatenate([e[:, 0], e[:, 1]])
+            cols = np.concatenate([e[:, 1], e[:, 0]])
+            self._adjacency = scipy.sparse.csr_matrix((data, (rows, cols)), shape=(n, n))
+        return self._adjacency
+
+    @property
+    def components(self) -> tuple[int, np.ndarray]:
+        if self._components is None:
+            self._components = scipy.sparse.csgraph.connected_components(
+                self.adjacency, directed=False
+            )
+        return self._components
+
+
+def _frozen(array: np.ndarray | None, dtype, shape_tail: tuple, name: str) -> np.ndarray | None:
+    if array is None:
+        return None
+    a = np.array(array, dtype=dtype, copy=True)
+    if a.ndim != 1 + len(shape_tail) or tuple(a.shape[1:]) != shape_tail:
+        expected = "(n, " + ", ".join(str(s) for s in shape_tail) + ")"
+        raise ValueError(f"{name} must have shape {expected}, got {a.shape}")
+    a.setflags(write=False)
+    return a
+
+
+class Face:
+    """A textured triangle mesh of a face with named surface landmarks.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+        Positions in millimetres. +x is the face's own left, +y up, +z out of
+        the face (MPEG-4 convention).
+    triangles : (m, 3) int
+        Vertex indices, counter-clockwise seen from outside.
+    uv : (n, 2) float, optional
+        Texture coordinates in [0, 1], v = 0 at the bottom of the image.
+    texture : (H, W, 3) uint8, optional
+        RGB texture image, row 0 at the top.
+    vertex_colors : (n, 3) uint8, optional
+        RGB per vertex.
+    landmarks : mapping of name -> SurfacePoint, optional
+    metadata : FaceMetadata, optional
+    """
+
+    def __init__(
+        self,
+        vertices,
+        triangles,
+        *,
+        uv=None,
+        texture=None,
+        vertex_colors=None,
+        landmarks: Mapping[str, SurfacePoint] | None = None,
+        metadata: FaceMetadata | None = None,
+        _topology: _TopologyCache | None = None,
+    ):
+        self._vertices = _frozen(vertices, np.float64, (3,), "vertices")
+        self._triangles = _frozen(triangles, np.int64, (3,), "triangles")
+        n = len(self._vertices)
+        if len(self._triangles) and (self._triangles.min() < 0 or self._triangles.max() >= n):
+            raise ValueError(
+                f"triangles reference vertex {int(self._triangles.max())} but there are only {n} vertices"
+            )
+        self._uv = _frozen(uv, np.float64, (2,), "uv")
+        if self._uv is not None and len(self._uv) != n:
+            raise ValueError(f"uv has {len(self._uv)} rows for {n} vertices")
+        if texture is not None:
+            texture = np.array(texture, dtype=np.uint8, copy=True)
+            if texture.ndim != 3 or texture.shape[2] != 3:
+                raise ValueError(f"texture must be an (H, W, 3) RGB image, got shape {texture.shape}")
+            texture.setflags(write=False)
+        self._texture = texture
+        self._vertex_colors = _frozen(vertex_colors, np.uint8, (3,), "vertex_colors")
+        if self._vertex_colors is not None and len(self._vertex_colors) != n:
+            raise ValueError(f"vertex_colors has {len(self._vertex_colors)} rows for {n} vertices")
+        self.metadata = metadata if metadata is not None else FaceMetadata()
+        self._landmarks: dict[str, SurfacePoint] = {}
+        for name, point in (landmarks or {}).items():
+            self.set_landmark(name, point)
+        if _topology is None or _topology.triangles is not self._triangles:
+            _topology = _TopologyCache(self._triangles, n)
+        self._topology = _topology
+        self._face_normals = None
+        self._vertex_normals = None
+        self._kdtree = None
+        self._trimesh = None
+
+    # ------------------------------------------------------------------ data
+    @property
+    def vertices(self) -> np.ndarray:
+        """(n, 3) float, mm, read-only."""
+        return self._vertices
+
+    @property
+    def triangles(self) -> np.ndarray:
+        """(m, 3) int, read-only."""
+        return self._triangles
+
+    @property
+    def uv(self) -> np.ndarray | None:
+        return self._uv
+
+    @property
+    def texture(self) -> np.ndarray | None:
+        return self._texture
+
+    @property
+    def vertex_colors(self) -> np.ndarray | None:
+        return self._vertex_colors
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self._vertices)
+
+    @property
+    def n_triangles(self) -> int:
+        return len(self._triangles)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) min and max corner, mm."""
+        return np.stack([self._vertices.min(axis=0), self._vertices.max(axis=0)])
+
+    # --------------------------------------------------------------- derived
+    @property
+    def edges(self) -> np.ndarray:
+        """(e, 2) int unique undirected edges, smaller index first."""
+        return self._topology.edges
+
+    @property
+    def adjacency(self) -> scipy.sparse.csr_matrix:
+        """(n, n) sparse vertex adjacency (1 where an edge joins two vertices)."""
+        return self._topology.adjacency
+
+    @property
+    def n_components(self) -> int:
+        """Number of connected components (isolated vertices count as components)."""
+        return self._topology.components[0]
+
+    @property
+    def component_labels(self) -> np.ndarray:
+        """(n,) int component index per vertex."""
+        return self._topology.components[1]
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        """(m, 3) unit triangle normals (zero for degenerate triangles)."""
+        if self._face_normals is None:
+            self._face_normals = triangle_normals(self._vertices, self._triangles)
+            self._face_normals.setflags(write=False)
+        return self._face_normals
+
+    @property
+    def vertex_normals(self) -> np.ndarray:
+        """(n, 3) unit vertex normals, area-weighted mean of adjacent triangle normals."""
+        if self._vertex_normals is None:
+            self._vertex_normals = vertex_normals(self._vertices, self._triangles)
+            self._vertex_normals.setflags(write=False)
+        return self._vertex_normals
+
+    @property
+    def kdtree(self) -> cKDTree:
+        """KD-tree over the vertices, for nearest-vertex queries."""
+        if self._kdtree is None:
+            self._kdtree = cKDTree(self._vertices)
+        return self._kdtree
+
+    def as_trimesh(self):
+        """A cached ``trimesh.Trimesh`` view (no processing) for proximity and ray queries."""
+        if self._trimesh is None:
+            import trimesh
+
+            self._trimesh = trimesh.Trimesh(self._vertices, self._triangles, process=False, validate=False)
+        return self._trimesh
+
+    # ------------------------------------------------------------ queries
+    def closest_surface_points(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest points on the surface.
+
+        Parameters
+        ----------
+        points : (k, 3) float, mm
+
+        Returns
+        -------
+        closest : (k, 3) float, mm
+        triangle : (k,) int
+        barycentric : (k, 3) float
+        """
+        import trimesh
+
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        closest, _distance, tri = trimesh.proximity.closest_point(self.as_trimesh(), pts)
+        corners = self._vertices[self._triangles[tri]]
+        bary = trimesh.triangles.points_to_barycentric(corners, closest)
+        bary = np.clip(bary, 0.0, None)
+        bary /= bary.sum(axis=1, keepdims=True)
+        return closest, np.asarray(tri, dtype=np.int64), bary
+
+    def surface_point(self, xyz) -> SurfacePoint:
+        """The surface point closest to ``xyz`` (3,), mm."""
+        _, tri, bary = self.closest_surface_points(np.asarray(xyz, dtype=float)[None])
+        return SurfacePoint(int(tri[0]), tuple(bary[0]))
+
+    def ray_hits(self, origins, directions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First intersection of rays with the surface.
+
+        Returns (locations (h, 3), ray_index (h,), triangle (h,)); rays that miss
+        are absent.
+        """
+        mesh = self.as_trimesh()
+        locations, ray_index, tri = mesh.ray.intersects_location(
+            np.asarray(origins, float).reshape(-1, 3),
+            np.asarray(directions, float).reshape(-1, 3),
+            multiple_hits=False,
+        )
+        return locations, ray_index, tri
+
+    # ------------------------------------------------------------ landmarks
+    @property
+    def landmark_names(self) -> list[str]:
+        return list(self._landmarks)
+
+    @property
+    def landmarks(self) -> dict[str, SurfacePoint]:
+        """A copy of the name -> SurfacePoint mapping."""
+        return dict(self._landmarks)
+
+    def set_landmark(self, name: str, point: SurfacePoint) -> None:
+        if not isinstance(point, SurfacePoint):
+            raise TypeError(f"landmark {name!r} must be a SurfacePoint, got {type(point).__name__}")
+        if not 0 <= point.triangle < len(self._triangles):
+            raise ValueError(
+                f"landmark {name!r} refers to triangle {point.triangle}, "
+                f"but the face has {len(self._triangles)} triangles"
+            )
+        self._landmarks[str(name)] = point
+
+    def remove_landmark(self, name: str) -> None:
+        self._landmarks.pop(name, None)
+
+    def landmark_position(self, name: str, vertices: np.ndarray | None = None) -> np.ndarray:
+        """(3,) position of one landmark on the current (or the given) vertices, mm."""
+        return self.landmark_positions([name], vertices)[0]
+
+    def landmark_positions(self, names: Iterable[str] | None = None, vertices: np.ndarray | None = None) -> np.ndarray:
+        """(k, 3) landmark positions, mm, in the order of ``names`` (all by default).
+
+        ``vertices`` (n, 3) lets a deformed pose be evaluated without building a Face.
+        """
+        names = list(self._landmarks) if names is None else list(names)
+        missing = [n for n in names if n not in self._landmarks]
+        if missing:
+            raise KeyError(f"face has no landmark(s) {', '.join(missing)}")
+        verts = self._vertices if vertices is None else np.asarray(vertices)
+        if not names:
+            return np.zeros((0, 3))
+        tri = np.array([self._landmarks[n].triangle for n in names])
+        bary = np.array([self._landmarks[n].barycentric for n in names])
+        return np.einsum("kj,kjd->kd", bary, verts[self._triangles[tri]])
+
+    # ------------------------------------------------------------ copies
+    def with_vertices(self, vertices) -> "Face":
+        """A face with the same topology, uv, texture and landmarks at new positions."""
+        vertices = np.asarray(vertices, dtype=np.float64)
+        if vertices.shape != self._vertices.shape:
+            raise ValueError(f"new vertices must have shape {self._vertices.shape}, got {vertices.shape}")
+        return Face(
+            vertices,
+            self._triangles,
+            uv=self._uv,
+            texture=self._texture,
+            vertex_colors=self._vertex_colors,
+            landmarks=self._landmarks,
+            metadata=dataclasses.replace(self.metadata, notes=list(self.metadata.notes)),
+            _topology=self._topology,
+        )
+
+    def without_texture(self) -> "Face":
+        return Face(
+            self._vertices, self._triangles, uv=self._uv, vertex_colors=self._vertex_colors,
+            landmarks=self._landmarks, metadata=self.metadata, _topology=self._topology,
+        )
+
+    def __repr__(self) -> str:
+        tex = f", texture {self._texture.shape[1]}x{self._texture.shape[0]}" if self._texture is not None else ""
+        return (
+            f"Face({self.metadata.name!r}: {self.n_vertices} vertices, {self.n_triangles} triangles"
+            f"{tex}, {len(self._landmarks)} landmarks)"
+        )
+
+
+def triangle_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(m, 3) unit normals of triangles (m, 3) over vertices (n, 3); zero when degenerate."""
+    v = vertices[triangles]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(n, 3) unit vertex normals: area-weighted sum of incident triangle normals.
+
+    Uses one bincount per axis (no Python loop over vertices).
+    """
+    v = vertices[triangles]
+    area_normals = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])  # length = 2 * area
+    n = len(vertices)
+    idx = triangles.ravel()
+    out = np.empty((n, 3))
+    for axis in range(3):
+        out[:, axis] = np.bincount(idx, weights=np.repeat(area_normals[:, axis], 3), minlength=n)
+    length = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, length, out=np.zeros_like(out), where=length > 0)
