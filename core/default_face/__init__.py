@@ -1,0 +1,15 @@
+"""The built-in default face: a procedural human face shaped like a single-view range scan.
+
+``load_default_face()`` reads the committed copy in ``resources/default_face``
+(fast); ``generate_face(params)`` builds any identity from scratch.
+Regenerate the committed copy with ``python -m core.default_face``.
+"""
+
+from .build import GRID_SPACING, TEXTURE_SIZE, feature_point_layout, generate_face
+from .params import FaceLayout, FaceParameters
+from .store import default_face_path, load_default_face, save_default_face
+
+__all__ = [
+    "FaceLayout", "FaceParameters", "generate_face", "feature_point_layout", "load_default_face",
+    "save_default_face", "default_face_path", "GRID_SPACING", "TEXTURE_SIZE",
+]

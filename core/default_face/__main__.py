@@ -1,0 +1,20 @@
+"""Regenerate the committed default face: ``python -m core.default_face [--out PATH]``."""
+
+import argparse
+import time
+
+from . import FaceParameters, generate_face, save_default_face
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", help="NPZ path (default: resources/default_face/default_face.npz)")
+    args = parser.parse_args()
+    start = time.perf_counter()
+    face = generate_face(FaceParameters())
+    path = save_default_face(face, args.out)
+    print(f"{face} -> {path} in {time.perf_counter() - start:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
