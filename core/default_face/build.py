@@ -24,7 +24,7 @@ from .params import FaceLayout, FaceParameters
 from .shape import FaceShape
 from .texture import eye_atlas_centre, paint_texture
 
-GRID_SPACING = 0.66  # mm: gives ~50k vertices over the face, like the thesis's scans
+GRID_SPACING = 0.645  # mm: gives ~50k vertices over the face, like the thesis's scans
 TEXTURE_SIZE = (640, 480)  # (width, height) pixels, the Vivid 910 colour image
 EYE_RINGS, EYE_SEGMENTS, EYE_CAP_DEG = 20, 64, 78.0
 
@@ -292,7 +292,7 @@ def _place_feature_points(layout, shape, face: Face, n_skin_tris: int, poles) ->
     flat_mesh = trimesh.Trimesh(flat, skin_tris, process=False, validate=False)
     nudge = {"upper": 0.05, "lower": -0.05, "rim_up": 0.05, "rim_low": -0.05, "skin": 0.0}
     out: dict[str, SurfacePoint] = {}
-    names, queries = [], []
+    names, queries, exact = [], [], []
     for name, (x, y, part) in feature_point_layout(layout, shape).items():
         if part in ("eye_l", "eye_r"):
             pole = poles[0 if part == "eye_l" else 1]
@@ -302,8 +302,11 @@ def _place_feature_points(layout, shape, face: Face, n_skin_tris: int, poles) ->
             continue
         names.append(name)
         queries.append((x, y + nudge[part], 0.0))
-    closest, _dist, tri = trimesh.proximity.closest_point(flat_mesh, np.array(queries))
-    bary = trimesh.triangles.points_to_barycentric(flat[skin_tris[tri]], closest)
+        exact.append((x, y, 0.0))
+    # The nudge picks the side of a seam or rim; the barycentric weights are
+    # then taken at the exact point (on the shared edge for seam points).
+    _closest, _dist, tri = trimesh.proximity.closest_point(flat_mesh, np.array(queries))
+    bary = trimesh.triangles.points_to_barycentric(flat[skin_tris[tri]], np.array(exact))
     bary = np.clip(bary, 0, None)
     bary /= bary.sum(axis=1, keepdims=True)
     for name, t, b in zip(names, tri, bary):
