@@ -1,0 +1,79 @@
+"""Face: validation, cached derived data, surface-point landmarks that follow deformation."""
+
+import numpy as np
+import pytest
+
+from core.face import Face, SurfacePoint, vertex_normals
+
+
+def unit_square(z=0.0):
+    v = np.array([[0, 0, z], [1, 0, z], [1, 1, z], [0, 1, z]], float)
+    t = np.array([[0, 1, 2], [0, 2, 3]])
+    return Face(v, t)
+
+
+def test_arrays_are_read_only_copies():
+    v = np.zeros((3, 3)); v[1, 0] = 1; v[2, 1] = 1
+    face = Face(v, [[0, 1, 2]])
+    v[0, 0] = 99.0
+    assert face.vertices[0, 0] == 0.0
+    with pytest.raises(ValueError):
+        face.vertices[0, 0] = 1.0
+
+
+def test_shape_and_index_validation():
+    with pytest.raises(ValueError, match="vertices must have shape"):
+        Face(np.zeros((3, 2)), [[0, 1, 2]])
+    with pytest.raises(ValueError, match="only 3 vertices"):
+        Face(np.zeros((3, 3)), [[0, 1, 3]])
+    with pytest.raises(ValueError, match="uv has 2 rows"):
+        Face(np.eye(3), [[0, 1, 2]], uv=np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="sum to 1"):
+        SurfacePoint(0, (0.5, 0.5, 0.5))
+
+
+def test_normals_edges_adjacency_components():
+    face = unit_square()
+    assert np.allclose(face.face_normals, [[0, 0, 1], [0, 0, 1]])
+    assert np.allclose(face.vertex_normals, np.tile([0, 0, 1], (4, 1)))
+    assert face.edges.tolist() == [[0, 1], [0, 2], [0, 3], [1, 2], [2, 3]]
+    assert face.adjacency[0].nnz == 3 and face.adjacency[1].nnz == 2
+    assert face.n_components == 1
+    two = Face(np.concatenate([face.vertices, face.vertices + 5]), np.concatenate([face.triangles, face.triangles + 4]))
+    assert two.n_components == 2
+
+
+def test_vertex_normals_of_a_sphere_point_outward():
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    n = vertex_normals(np.asarray(sphere.vertices), np.asarray(sphere.faces))
+    radial = sphere.vertices / np.linalg.norm(sphere.vertices, axis=1, keepdims=True)
+    assert np.einsum("ij,ij->i", n, radial).min() > 0.99
+
+
+def test_landmarks_follow_deformation_and_stay_on_surface():
+    face = unit_square()
+    face.set_landmark("centre", SurfacePoint(0, (1 / 3, 1 / 3, 1 / 3)))
+    assert face.landmark_position("centre") == pytest.approx([2 / 3, 1 / 3, 0])
+    lifted = face.vertices + [0, 0, 7.0]
+    moved = face.with_vertices(lifted)
+    assert moved.landmark_position("centre") == pytest.approx([2 / 3, 1 / 3, 7.0])
+    assert face.landmark_positions(vertices=lifted) == pytest.approx(np.array([[2 / 3, 1 / 3, 7.0]]))
+    # Topology caches are shared, not recomputed.
+    assert moved._topology is face._topology
+    with pytest.raises(ValueError, match="triangle 5"):
+        face.set_landmark("bad", SurfacePoint(5, (1, 0, 0)))
+    with pytest.raises(KeyError, match="nope"):
+        face.landmark_positions(["nope"])
+
+
+def test_closest_surface_point_and_rays():
+    face = unit_square()
+    point = face.surface_point([0.25, 0.75, 3.0])
+    assert face.triangles[point.triangle].tolist() == [0, 2, 3]
+    closest, tri, bary = face.closest_surface_points([[0.25, 0.75, 3.0], [2.0, 0.5, 0.0]])
+    assert closest == pytest.approx(np.array([[0.25, 0.75, 0.0], [1.0, 0.5, 0.0]]))
+    hits, ray, _tri = face.ray_hits([[0.5, 0.2, 5.0], [3.0, 3.0, 5.0]], [[0, 0, -1], [0, 0, -1]])
+    assert ray.tolist() == [0] and hits == pytest.approx(np.array([[0.5, 0.2, 0.0]]))
+    assert face.kdtree.query([0.9, 0.1, 0.0])[1] == 1
