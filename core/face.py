@@ -150,8 +150,14 @@ class Face:
         _topology: _TopologyCache | None = None,
     ):
         self._vertices = _frozen(vertices, np.float64, (3,), "vertices")
-        self._triangles = _frozen(triangles, np.int64, (3,), "triangles")
+        if _topology is not None:
+            # A deformed copy: reuse the (read-only) triangles and their caches.
+            self._triangles = _topology.triangles
+        else:
+            self._triangles = _frozen(triangles, np.int64, (3,), "triangles")
         n = len(self._vertices)
+        if _topology is not None and _topology.n_vertices != n:
+            raise ValueError(f"topology is for {_topology.n_vertices} vertices, got {n}")
         if len(self._triangles) and (self._triangles.min() < 0 or self._triangles.max() >= n):
             raise ValueError(
                 f"triangles reference vertex {int(self._triangles.max())} but there are only {n} vertices"
@@ -172,7 +178,7 @@ class Face:
         self._landmarks: dict[str, SurfacePoint] = {}
         for name, point in (landmarks or {}).items():
             self.set_landmark(name, point)
-        if _topology is None or _topology.triangles is not self._triangles:
+        if _topology is None:
             _topology = _TopologyCache(self._triangles, n)
         self._topology = _topology
         self._face_normals = None
