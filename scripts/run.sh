@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# Install everything Mimica needs (system libraries, virtual environment,
+# Python packages) and start the app on the built-in default face.
+# Extra arguments go to `mimica` (e.g. a face file to open).
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/bootstrap.sh" ""
+cd "$ROOT"
+if [ -z "${DISPLAY:-}" ] && [ -z "${WAYLAND_DISPLAY:-}" ]; then
+  echo "No display found: starting Mimica on a virtual X screen (Xvfb)."
+  exec xvfb-run -a -s "-screen 0 1600x1000x24" "$VENV/bin/mimica" "$@"
+fi
+exec "$VENV/bin/mimica" "$@"
