@@ -1,0 +1,40 @@
+"""Small synthetic faces built in code for the core tests (no files from outside the repo)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.face import Face, FaceMetadata, SurfacePoint
+
+
+def make_grid_face(nx: int = 6, ny: int = 5, size_mm: float = 200.0, seed: int = 0) -> Face:
+    """A bumpy height-field patch about ``size_mm`` across, with uv, texture and vertex colours.
+
+    Vertices (nx * ny, 3) in mm on a regular x/y grid; uv = normalised x/y so
+    that every vertex has exactly one uv; texture (7, 9, 3) random pixels;
+    three landmarks.
+    """
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.linspace(0.0, 1.0, nx), np.linspace(0.0, 1.0, ny))
+    uv = np.column_stack([x.ravel(), y.ravel()])
+    z = 0.1 * np.sin(3 * uv[:, 0]) * np.cos(2 * uv[:, 1]) + 0.01 * rng.random(len(uv))
+    vertices = np.column_stack([uv - 0.5, z]) * size_mm
+    index = np.arange(nx * ny).reshape(ny, nx)
+    a, b = index[:-1, :-1].ravel(), index[:-1, 1:].ravel()
+    c, d = index[1:, 1:].ravel(), index[1:, :-1].ravel()
+    triangles = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    texture = rng.integers(0, 256, size=(7, 9, 3), dtype=np.uint8)
+    colors = rng.integers(0, 256, size=(len(vertices), 3), dtype=np.uint8)
+    landmarks = {
+        "2.1": SurfacePoint(0, (0.2, 0.3, 0.5)),
+        "8.3": SurfacePoint(len(triangles) - 1, (1.0, 0.0, 0.0)),
+        "9.3": SurfacePoint(7, (1 / 3, 1 / 3, 1 / 3)),
+    }
+    return Face(vertices, triangles, uv=uv, texture=texture, vertex_colors=colors,
+                landmarks=landmarks, metadata=FaceMetadata(name="grid"))
+
+
+@pytest.fixture
+def grid_face() -> Face:
+    return make_grid_face()
