@@ -1,0 +1,173 @@
+"""cli.py
+----
+The ``mimica`` command.
+
+    mimica                       open the window on the default face
+    mimica gui [FACE]            open the window on FACE (or the default face)
+    mimica render [FACE] --out PNG [--view ...] [--size WxH] [--mode ...] [--landmarks]
+
+Heavy imports (Qt, VTK, mesh loaders) happen inside the subcommand handlers
+so ``mimica --help`` is instant and ``mimica render`` never loads Qt.
+User errors print one line on stderr and exit non-zero, without a traceback.
+Later subcommands (evaluate-landmarks, export, lipsync, demo) plug in via
+:data:`SUBCOMMANDS`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
+
+PROG = "mimica"
+
+VIEWS = ("front", "side", "three-quarter")
+MODES = ("textured", "shaded", "wireframe", "points")
+
+
+class CliError(Exception):
+    """A user-facing error: printed as one line, exit status 1 (or ``status``)."""
+
+    def __init__(self, message: str, status: int = 1):
+        super().__init__(message)
+        self.status = status
+
+
+# ------------------------------------------------------------------ helpers
+def _parse_size(text: str) -> tuple[int, int]:
+    """``"1200x900"`` -> (1200, 900)."""
+    parts = text.lower().replace("×", "x").split("x")
+    try:
+        width, height = (int(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 1200x900, got {text!r}") from None
+    if not (16 <= width <= 8192 and 16 <= height <= 8192):
+        raise argparse.ArgumentTypeError(f"size {width}x{height} out of range (16..8192 per side)")
+    return width, height
+
+
+def load_face_or_default(path: str | None):
+    """The face at ``path`` (via ``core.mesh_io``) or the default face; raises :class:`CliError`."""
+    if path is None:
+        try:
+            from core.default_face import load_default_face
+        except ImportError as exc:
+            raise CliError(f"the default face is not available ({exc}); give a face file") from None
+        return load_default_face()
+    p = Path(path)
+    if not p.exists():
+        raise CliError(f"no such file: {path}")
+    if p.is_dir():
+        raise CliError(f"{path} is a directory, not a face file")
+    try:
+        from core.mesh_io import MeshLoadError, load_face
+    except ImportError as exc:
+        raise CliError(f"mesh loading is not available ({exc})") from None
+    try:
+        return load_face(p)
+    except MeshLoadError as exc:
+        raise CliError(f"cannot load {path}: {exc}") from None
+
+
+# ---------------------------------------------------------------- commands
+def cmd_gui(args: argparse.Namespace) -> int:
+    """Start the desktop window."""
+    face = getattr(args, "face", None)
+    if face is not None and not Path(face).is_file():
+        raise CliError(f"no such file: {face}")
+    from app.main_window import run_gui
+
+    return run_gui(face)
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    """Render a face off screen to an image file."""
+    out = Path(args.out)
+    if out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise CliError(f"--out must end in .png or .jpg, got {args.out!r}")
+    if out.parent and not out.parent.exists():
+        raise CliError(f"output folder does not exist: {out.parent}")
+    face = load_face_or_default(args.face)
+    for note in getattr(face.metadata, "notes", []) or []:
+        print(f"note: {note}", file=sys.stderr)
+    from app.render import render_face_png
+
+    try:
+        render_face_png(face, out, view=args.view, size=args.size, mode=args.mode,
+                        show_landmarks=args.landmarks)
+    except OSError as exc:
+        raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
+    print(f"wrote {out} ({args.size[0]}x{args.size[1]}, {args.view}, {args.mode})")
+    return 0
+
+
+# ------------------------------------------------------------------ parser
+def _add_gui(sub) -> None:
+    p = sub.add_parser("gui", help="open the desktop window (the default when no command is given)",
+                       description="Open the Mimica window on FACE, or on the built-in default face.")
+    p.add_argument("face", nargs="?", metavar="FACE", help="mesh file to open (obj, ply, stl, glb, gltf)")
+    p.set_defaults(func=cmd_gui)
+
+
+def _add_render(sub) -> None:
+    p = sub.add_parser(
+        "render", help="render a face to a PNG/JPG without a display",
+        description="Render FACE (or the default face) off screen to an image. Needs no display.",
+    )
+    p.add_argument("face", nargs="?", metavar="FACE", help="mesh file (default: the built-in default face)")
+    p.add_argument("--out", "-o", required=True, metavar="PNG", help="output image (.png or .jpg)")
+    p.add_argument("--view", choices=VIEWS, default="front", help="camera preset (default: front)")
+    p.add_argument("--size", type=_parse_size, default=(1200, 900), metavar="WxH",
+                   help="image size in pixels (default: 1200x900)")
+    p.add_argument("--mode", choices=MODES, default="textured", help="display mode (default: textured)")
+    p.add_argument("--landmarks", action="store_true", help="draw landmarks with their labels")
+    p.set_defaults(func=cmd_render)
+
+
+#: Subcommand builders, in help order. Later: evaluate-landmarks, export, lipsync, demo.
+SUBCOMMANDS: list[Callable] = [_add_gui, _add_render]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from app import __version__
+
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Mimica: a desktop workbench for 3-D facial animation. "
+                    "Without a command, opens the window on the default face.",
+        epilog="examples:\n"
+               "  mimica                                   open the window on the default face\n"
+               "  mimica gui head.obj                      open the window on head.obj\n"
+               "  mimica render --out face.png             render the default face (no display needed)\n"
+               "  mimica render head.ply -o side.png --view side --mode shaded --landmarks\n\n"
+               "Run 'mimica COMMAND --help' for a command's options.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
+    for add in SUBCOMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``mimica`` console script; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)  # argparse prints usage + one error line, exits 2
+    func = getattr(args, "func", cmd_gui)
+    try:
+        return int(func(args) or 0)
+    except CliError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return exc.status
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - last resort: one line, no traceback
+        print(f"{PROG}: error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

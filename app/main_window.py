@@ -1,0 +1,756 @@
+"""main_window.py
+----
+The Mimica main window: a pyvistaqt viewport showing one :class:`core.face.Face`
+with File / View / Help menus, drag-and-drop loading, a status bar and
+persisted settings.
+
+Mesh loading runs on a worker thread (``QThreadPool``) so the window stays
+responsive; results come back through queued Qt signals. Anything the user
+can trigger that fails shows a message box with a one-line explanation, never
+a traceback (tracebacks go to stderr via :func:`install_excepthook`).
+
+The dock areas are left free (nesting enabled, corners assigned) for the
+FAP, muscle, landmark and timeline docks that come later.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import traceback
+from pathlib import Path
+from typing import Callable
+
+from PySide6.QtCore import QObject, QRunnable, QSettings, Qt, QThreadPool, QTimer, Signal, Slot
+from PySide6.QtGui import QAction, QActionGroup, QKeySequence
+from PySide6.QtWidgets import (
+    QApplication,
+    QFileDialog,
+    QLabel,
+    QMainWindow,
+    QMessageBox,
+    QProgressBar,
+    QWidget,
+)
+
+from app import __version__
+
+APP_NAME = "Mimica"
+MAX_RECENT = 8
+#: Suffixes accepted by Open / drag-and-drop, and by Save as.
+OPEN_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
+SAVE_FILTERS = {
+    "Wavefront OBJ (*.obj)": ".obj",
+    "Stanford PLY (*.ply)": ".ply",
+    "glTF binary (*.glb)": ".glb",
+}
+OPEN_FILTER = (
+    "Face meshes (*.obj *.ply *.stl *.glb *.gltf);;Wavefront OBJ (*.obj);;Stanford PLY (*.ply);;"
+    "STL (*.stl);;glTF (*.glb *.gltf);;All files (*)"
+)
+SCREENSHOT_FILTER = "PNG image (*.png);;JPEG image (*.jpg *.jpeg)"
+MODE_LABELS = {"textured": "&Textured", "shaded": "&Shaded", "wireframe": "&Wireframe", "points": "&Points"}
+VIEW_LABELS = {"front": ("&Front view", "1"), "side": ("&Side view", "2"),
+               "three-quarter": ("T&hree-quarter view", "3")}
+
+
+def _is_mesh_load_error(exc: BaseException) -> bool:
+    try:
+        from core.mesh_io import MeshLoadError
+    except ImportError:
+        return False
+    return isinstance(exc, MeshLoadError)
+
+
+def _is_mesh_save_error(exc: BaseException) -> bool:
+    try:
+        from core.mesh_io import MeshSaveError
+    except ImportError:
+        return False
+    return isinstance(exc, MeshSaveError)
+
+
+# ------------------------------------------------------------------ worker
+class _LoadSignals(QObject):
+    progress = Signal(int, float, str)  # generation, fraction, message
+    loaded = Signal(int, object, str)  # generation, Face, path ("" for the default face)
+    failed = Signal(int, str, str)  # generation, message, path
+
+
+class _LoadTask(QRunnable):
+    """Runs ``loader(progress)`` off the GUI thread and reports through signals."""
+
+    def __init__(self, generation: int, path: str, loader: Callable, signals: _LoadSignals):
+        super().__init__()
+        self.generation, self.path, self.loader, self.signals = generation, path, loader, signals
+        self.setAutoDelete(True)
+
+    def run(self) -> None:  # worker thread
+        gen = self.generation
+
+        def progress(fraction, message=""):
+            self.signals.progress.emit(gen, float(fraction), str(message))
+
+        try:
+            face = self.loader(progress)
+        except Exception as exc:  # noqa: BLE001 - every failure becomes a message box
+            if _is_mesh_load_error(exc):
+                message = str(exc)
+            else:
+                traceback.print_exc()
+                message = f"Unexpected error while loading: {type(exc).__name__}: {exc}"
+            self.signals.failed.emit(gen, message, self.path)
+        else:
+            self.signals.loaded.emit(gen, face, self.path)
+
+
+# ------------------------------------------------------------ excepthook
+class _ExceptionRelay(QObject):
+    """Carries exception reports to the GUI thread (excepthook may run on any thread)."""
+
+    report = Signal(str, str)  # short message, traceback text
+
+
+class ExceptionDialogHook:
+    """``sys.excepthook`` replacement: traceback to stderr, short message in a dialog."""
+
+    def __init__(self, parent: QWidget | None = None):
+        self.parent = parent
+        self.previous = sys.excepthook
+        self.previous_thread_hook = threading.excepthook
+        self.last_dialog: QMessageBox | None = None
+        self.reports: list[str] = []
+        self._relay = _ExceptionRelay()
+        self._relay.report.connect(self._show, Qt.ConnectionType.QueuedConnection)
+
+    def __call__(self, etype, value, tb) -> None:
+        text = "".join(traceback.format_exception(etype, value, tb))
+        sys.stderr.write(text)
+        if issubclass(etype, KeyboardInterrupt):
+            app = QApplication.instance()
+            if app is not None:
+                app.quit()
+            return
+        message = f"{etype.__name__}: {value}" if str(value) else etype.__name__
+        if threading.current_thread() is threading.main_thread():
+            self._show(message, text)
+        else:
+            self._relay.report.emit(message, text)
+
+    @Slot(str, str)
+    def _show(self, message: str, details: str) -> None:
+        self.reports.append(message)
+        if QApplication.instance() is None:
+            return
+        if self.last_dialog is not None and self.last_dialog.isVisible():
+            return  # one dialog at a time: an error in a paint loop must not spawn hundreds
+        box = QMessageBox(QMessageBox.Icon.Critical, f"{APP_NAME} — unexpected error",
+                          f"Something went wrong:\n\n{message}", QMessageBox.StandardButton.Ok,
+                          self.parent)
+        box.setInformativeText("The details were written to the terminal. "
+                               "Mimica keeps running; saving your work is a good idea.")
+        box.setDetailedText(details)
+        box.open()  # window-modal but non-blocking: no nested event loop inside the hook
+        self.last_dialog = box
+
+    def thread_hook(self, args) -> None:
+        """``threading.excepthook`` adapter (Python threads report here, not to sys.excepthook)."""
+        if args.exc_type is SystemExit:
+            return
+        self(args.exc_type, args.exc_value if args.exc_value is not None else args.exc_type(),
+             args.exc_traceback)
+
+    def uninstall(self) -> None:
+        if sys.excepthook is self:
+            sys.excepthook = self.previous
+        if threading.excepthook == self.thread_hook:
+            threading.excepthook = self.previous_thread_hook
+
+
+def install_excepthook(parent: QWidget | None = None) -> ExceptionDialogHook:
+    """Install (and return) an :class:`ExceptionDialogHook` as ``sys.excepthook``
+    (and ``threading.excepthook``)."""
+    hook = ExceptionDialogHook(parent)
+    hook.previous_thread_hook = threading.excepthook
+    sys.excepthook = hook
+    threading.excepthook = hook.thread_hook
+    return hook
+
+
+# ------------------------------------------------------------------ window
+class MainWindow(QMainWindow):
+    """The Mimica window.
+
+    Parameters
+    ----------
+    face : Face, optional
+        Shown immediately. Otherwise ``path`` is loaded, or the default face
+        when ``load_default`` is true.
+    path : str or Path, optional
+        A face file to load (in the background) at start.
+    settings : QSettings, optional
+        Where geometry and recent files live; defaults to ``QSettings("Mimica", "Mimica")``.
+    """
+
+    face_changed = Signal(object)  # the new Face
+    load_failed = Signal(str)  # user-facing message
+    load_finished = Signal(bool)  # True on success
+
+    def __init__(self, face=None, *, path=None, settings: QSettings | None = None,
+                 load_default: bool = True, parent: QWidget | None = None):
+        super().__init__(parent)
+        import pyvista as pv
+        from pyvistaqt import QtInteractor
+
+        from app import scene
+
+        self._scene = scene
+        self.settings = settings if settings is not None else QSettings(APP_NAME, APP_NAME)
+        self.face = None
+        self.face_path: str | None = None
+        self.face_actor = None
+        self._mode = "textured"
+        self._view = "front"
+        self._generation = 0
+        self._loading = False
+        self._pool = QThreadPool(self)
+        self._pool.setMaxThreadCount(1)
+        self._signals = _LoadSignals(self)
+        self._signals.progress.connect(self._on_load_progress)
+        self._signals.loaded.connect(self._on_loaded)
+        self._signals.failed.connect(self._on_load_failed)
+        self._notes_box: QMessageBox | None = None
+
+        self.setWindowTitle(APP_NAME)
+        self.resize(1400, 900)
+        self.setAcceptDrops(True)
+        self._setup_dock_areas()
+
+        # auto_update=False: we render when something changes; the default
+        # 5 Hz timer would re-render a 50k-triangle face forever for nothing.
+        self.plotter = QtInteractor(self, off_screen=False, auto_update=False)
+        self.plotter.setAcceptDrops(False)  # drops go to the window (our loader), not pv.read
+        self._disable_vtk_keys()
+        scene.setup_stage(self.plotter)
+        self.setCentralWidget(self.plotter)
+        pv.global_theme.allow_empty_mesh = True
+
+        self._create_actions()
+        self._create_menus()
+        self._create_status_bar()
+        self._restore_window_state()
+
+        if face is not None:
+            self.set_face(face)
+        elif path is not None:
+            self.load_face_file(path, fallback_to_default=load_default)
+        elif load_default:
+            self.load_default_face()
+
+    # ------------------------------------------------------------ setup
+    def _setup_dock_areas(self) -> None:
+        # Left/right docks run full height; a bottom timeline sits between them.
+        self.setDockNestingEnabled(True)
+        self.setDockOptions(QMainWindow.DockOption.AnimatedDocks | QMainWindow.DockOption.AllowNestedDocks
+                            | QMainWindow.DockOption.AllowTabbedDocks)
+        self.setCorner(Qt.Corner.TopLeftCorner, Qt.DockWidgetArea.LeftDockWidgetArea)
+        self.setCorner(Qt.Corner.BottomLeftCorner, Qt.DockWidgetArea.LeftDockWidgetArea)
+        self.setCorner(Qt.Corner.TopRightCorner, Qt.DockWidgetArea.RightDockWidgetArea)
+        self.setCorner(Qt.Corner.BottomRightCorner, Qt.DockWidgetArea.RightDockWidgetArea)
+
+    def _disable_vtk_keys(self) -> None:
+        """Drop VTK/pyvista single-key bindings ('q' closes the render window,
+        'w'/'s' restyle every actor, '3' toggles stereo...): the menus own the keyboard."""
+        iren = getattr(self.plotter, "iren", None)
+        if iren is None:
+            return
+        iren.clear_key_event_callbacks()
+        iren.interactor.RemoveObservers("CharEvent")
+
+    def _action(self, text: str, slot=None, shortcut=None, *, checkable=False, tip: str = "") -> QAction:
+        action = QAction(text, self)
+        if shortcut:
+            action.setShortcut(QKeySequence(shortcut))
+            # Window-wide, so the keys work while the viewport has focus.
+            action.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
+        action.setCheckable(checkable)
+        if tip:
+            action.setStatusTip(tip)
+        if slot is not None:
+            action.triggered.connect(slot)
+        self.addAction(action)
+        return action
+
+    def _create_actions(self) -> None:
+        self.open_action = self._action("&Open face…", self.open_face_dialog, QKeySequence.StandardKey.Open,
+                                        tip="Open a face mesh (OBJ, PLY, STL, glTF)")
+        self.save_action = self._action("&Save face as…", self.save_face_dialog, QKeySequence.StandardKey.Save,
+                                        tip="Save the current face as OBJ, PLY or GLB")
+        self.screenshot_action = self._action("&Export screenshot…", self.export_screenshot_dialog,
+                                              tip="Save an image of the 3-D view")
+        self.quit_action = self._action("&Quit", self.close, "Ctrl+Q")
+        self.quit_action.setMenuRole(QAction.MenuRole.QuitRole)
+
+        self.mode_group = QActionGroup(self)
+        self.mode_group.setExclusive(True)
+        self.mode_actions: dict[str, QAction] = {}
+        for mode, label in MODE_LABELS.items():
+            act = self._action(label, checkable=True, tip=f"Display the face {mode}")
+            act.setData(mode)
+            act.triggered.connect(lambda _checked=False, m=mode: self.set_view_mode(m))
+            self.mode_group.addAction(act)
+            self.mode_actions[mode] = act
+        self.mode_actions[self._mode].setChecked(True)
+
+        self.landmarks_action = self._action("Show &landmarks", self.set_landmarks_visible, "L",
+                                             checkable=True, tip="Show landmark points with their names")
+        self.view_actions: dict[str, QAction] = {}
+        for view, (label, key) in VIEW_LABELS.items():
+            self.view_actions[view] = self._action(label, lambda _c=False, v=view: self.set_camera_view(v), key)
+        self.reset_camera_action = self._action("&Reset camera", self.reset_camera, "R",
+                                                tip="Frame the whole face")
+        self.about_action = self._action("&About Mimica", self.show_about)
+        self.about_action.setMenuRole(QAction.MenuRole.AboutRole)
+
+    def _create_menus(self) -> None:
+        bar = self.menuBar()
+        file_menu = bar.addMenu("&File")
+        file_menu.addAction(self.open_action)
+        self.recent_menu = file_menu.addMenu("Open &recent")
+        self.recent_menu.aboutToShow.connect(self._rebuild_recent_menu)
+        file_menu.addAction(self.save_action)
+        file_menu.addSeparator()
+        file_menu.addAction(self.screenshot_action)
+        file_menu.addSeparator()
+        file_menu.addAction(self.quit_action)
+        self._rebuild_recent_menu()
+
+        view_menu = bar.addMenu("&View")
+        for act in self.mode_actions.values():
+            view_menu.addAction(act)
+        view_menu.addSeparator()
+        view_menu.addAction(self.landmarks_action)
+        view_menu.addSeparator()
+        for act in self.view_actions.values():
+            view_menu.addAction(act)
+        view_menu.addAction(self.reset_camera_action)
+        self.view_menu = view_menu
+
+        help_menu = bar.addMenu("&Help")
+        help_menu.addAction(self.about_action)
+
+    def _create_status_bar(self) -> None:
+        status = self.statusBar()
+        self.progress_bar = QProgressBar(self)
+        self.progress_bar.setRange(0, 1000)
+        self.progress_bar.setMaximumWidth(220)
+        self.progress_bar.setTextVisible(False)
+        self.progress_bar.hide()
+        self.file_label = QLabel(self)
+        self.counts_label = QLabel(self)
+        self.units_label = QLabel(self)
+        self.texture_label = QLabel(self)
+        status.addPermanentWidget(self.progress_bar)
+        for label in (self.file_label, self.counts_label, self.units_label, self.texture_label):
+            label.setContentsMargins(6, 0, 6, 0)
+            status.addPermanentWidget(label)
+        self._update_status_labels()
+
+    # ------------------------------------------------------------ state
+    def _restore_window_state(self) -> None:
+        geometry = self.settings.value("window/geometry")
+        if geometry is not None:
+            self.restoreGeometry(geometry)
+        state = self.settings.value("window/state")
+        if state is not None:
+            self.restoreState(state)
+        mode = self.settings.value("view/mode", "textured")
+        if mode in MODE_LABELS:
+            self._mode = str(mode)
+            self.mode_actions[self._mode].setChecked(True)
+
+    def closeEvent(self, event) -> None:  # noqa: N802 - Qt override
+        self.settings.setValue("window/geometry", self.saveGeometry())
+        self.settings.setValue("window/state", self.saveState())
+        self.settings.setValue("view/mode", self._mode)
+        self.settings.sync()
+        self._generation += 1  # ignore loads still running
+        self._pool.clear()
+        self._pool.waitForDone(5000)  # a worker must not outlive the window it reports to
+        if self._notes_box is not None:
+            self._notes_box.close()
+        self.plotter.close()
+        super().closeEvent(event)
+
+    # ------------------------------------------------------------ recent files
+    def recent_files(self) -> list[str]:
+        value = self.settings.value("recentFiles", [])
+        if value is None:
+            return []
+        if isinstance(value, str):  # QSettings flattens one-element lists on some backends
+            value = [value]
+        return [str(v) for v in value if v][:MAX_RECENT]
+
+    def _set_recent_files(self, files: list[str]) -> None:
+        self.settings.setValue("recentFiles", list(files)[:MAX_RECENT])
+        self._rebuild_recent_menu()
+
+    def add_recent_file(self, path) -> None:
+        path = str(Path(path).resolve())
+        files = [f for f in self.recent_files() if f != path]
+        self._set_recent_files([path, *files])
+
+    def _rebuild_recent_menu(self) -> None:
+        menu = self.recent_menu
+        menu.clear()
+        files = self.recent_files()
+        for i, path in enumerate(files):
+            act = menu.addAction(f"&{i + 1}  {Path(path).name}")
+            act.setToolTip(path)
+            act.setStatusTip(path)
+            act.triggered.connect(lambda _c=False, p=path: self.open_recent(p))
+        if not files:
+            empty = menu.addAction("(no recent files)")
+            empty.setEnabled(False)
+        else:
+            menu.addSeparator()
+            menu.addAction("Clear list", lambda: self._set_recent_files([]))
+
+    def open_recent(self, path: str) -> None:
+        """Open a recent file; a missing one is dropped from the list with a message."""
+        if not Path(path).is_file():
+            self._set_recent_files([f for f in self.recent_files() if f != path])
+            self.show_error("File not found", f"{path}\n\nno longer exists and was removed from the recent files.")
+            return
+        self.load_face_file(path)
+
+    # ------------------------------------------------------------ messages
+    def show_error(self, title: str, message: str) -> None:
+        """A modal warning; the single place errors reach the user (tests patch it)."""
+        first = message.splitlines()[0] if message else title
+        self.statusBar().showMessage(first if len(first) <= 140 else first[:139] + "…", 8000)
+        QMessageBox.warning(self, title, message)
+
+    def _show_notes(self, notes: list[str], name: str) -> None:
+        """Non-modal list of what the loader did (repairs, unit conversion)."""
+        if self._notes_box is not None:
+            self._notes_box.close()
+            self._notes_box.deleteLater()
+        box = QMessageBox(QMessageBox.Icon.Information, "Notes on loading",
+                          f"While loading {name}:", QMessageBox.StandardButton.Ok, self)
+        box.setInformativeText("\n".join(f"• {n}" for n in notes))
+        box.setModal(False)
+        box.setWindowModality(Qt.WindowModality.NonModal)
+        box.show()
+        self._notes_box = box
+
+    # ------------------------------------------------------------ loading
+    @property
+    def is_loading(self) -> bool:
+        return self._loading
+
+    def load_face_file(self, path, *, fallback_to_default: bool = False) -> None:
+        """Load ``path`` in the background; the path used by File ▸ Open, recent files and drops.
+
+        On success the face is shown (:meth:`set_face`), added to recent files
+        and its load notes are shown; on failure a message box explains why
+        and the current face stays.
+        """
+        path = str(path)
+
+        def loader(progress):
+            from core.mesh_io import load_face
+
+            return load_face(path, progress=progress)
+
+        self._fallback_to_default = fallback_to_default
+        self._start_load(path, loader, f"Loading {Path(path).name}…")
+
+    def load_default_face(self) -> None:
+        """Load the built-in default face in the background."""
+
+        def loader(progress):
+            from core.default_face import load_default_face
+
+            progress(0.0, "Building the default face…")
+            return load_default_face()
+
+        self._fallback_to_default = False
+        self._start_load("", loader, "Loading the default face…")
+
+    def _start_load(self, path: str, loader: Callable, message: str) -> None:
+        self._generation += 1
+        self._loading = True
+        self.progress_bar.setValue(0)
+        self.progress_bar.show()
+        self.statusBar().showMessage(message)
+        self._pool.start(_LoadTask(self._generation, path, loader, self._signals))
+
+    @Slot(int, float, str)
+    def _on_load_progress(self, generation: int, fraction: float, message: str) -> None:
+        if generation != self._generation:
+            return
+        self.progress_bar.setValue(int(max(0.0, min(1.0, fraction)) * 1000))
+        if message:
+            self.statusBar().showMessage(message)
+
+    def _finish_load(self) -> None:
+        self._loading = False
+        self.progress_bar.hide()
+
+    @Slot(int, object, str)
+    def _on_loaded(self, generation: int, face, path: str) -> None:
+        if generation != self._generation:
+            return  # superseded by a newer request
+        self._finish_load()
+        self.set_face(face, path=path or None)
+        if path:
+            self.add_recent_file(path)
+        notes = list(getattr(face.metadata, "notes", []) or [])
+        shown = Path(path).name if path else face.metadata.name
+        if notes:
+            self.statusBar().showMessage(f"Loaded {shown} — " + "; ".join(notes), 15000)
+            if path:  # the built-in face's notes are not news: status bar only
+                self._show_notes(notes, shown)
+        else:
+            self.statusBar().showMessage(f"Loaded {shown}", 5000)
+        self.load_finished.emit(True)
+
+    @Slot(int, str, str)
+    def _on_load_failed(self, generation: int, message: str, path: str) -> None:
+        if generation != self._generation:
+            return
+        self._finish_load()
+        title = f"Could not open {Path(path).name}" if path else "Could not load the default face"
+        if self.face is None and getattr(self, "_fallback_to_default", False):
+            # Start the fallback before the (blocking) message box, so the
+            # default face is already on screen while the user reads it.
+            self.load_default_face()
+        self.load_failed.emit(message)
+        self.load_finished.emit(False)
+        self.show_error(title, message)
+
+    # ------------------------------------------------------------ face
+    def set_face(self, face, *, path: str | None = None) -> None:
+        """Display ``face`` (replacing the current one), framed from the front."""
+        if self.face_actor is not None:
+            self.face_actor.remove()
+        self.face = face
+        self.face_path = path if path is not None else getattr(face.metadata, "source", None)
+        self.face_actor = self._scene.add_face_actor(
+            self.plotter, face, self._mode, show_landmarks=self.landmarks_action.isChecked())
+        self.landmarks_action.setEnabled(bool(face.landmark_names))
+        self.setWindowTitle(f"{APP_NAME} — {face.metadata.name}")
+        self._update_status_labels()
+        self.set_camera_view("front")
+        self.face_changed.emit(face)
+
+    def _render(self) -> None:
+        # Rendering a never-shown VTK widget has no GL context to draw into;
+        # the first paint event renders it anyway.
+        if self.plotter.isVisible():
+            self.plotter.render()
+
+    def update_vertices(self, vertices) -> None:
+        """Move the displayed face to new vertex positions in place (for animation)."""
+        if self.face_actor is None:
+            return
+        self.face_actor.update_vertices(vertices)
+        self._render()
+
+    def _update_status_labels(self) -> None:
+        face = self.face
+        if face is None:
+            for label in (self.file_label, self.counts_label, self.units_label, self.texture_label):
+                label.setText("")
+            self.file_label.setText("no face")
+            return
+        # A "source" like "built-in" is not a file: show the face's name then.
+        is_file = bool(self.face_path) and Path(self.face_path).suffix.lower() in OPEN_SUFFIXES
+        name = Path(self.face_path).name if is_file else face.metadata.name
+        self.file_label.setText(name)
+        self.file_label.setToolTip(self.face_path or "")
+        self.counts_label.setText(f"{face.n_vertices:,} vertices · {face.n_triangles:,} triangles")
+        self.units_label.setText(f"units: {face.metadata.units}")
+        has_tex = face.texture is not None and face.uv is not None
+        self.texture_label.setText("texture: yes" if has_tex else "texture: no")
+
+    # ------------------------------------------------------------ view
+    @property
+    def view_mode(self) -> str:
+        return self._mode
+
+    def set_view_mode(self, mode: str) -> None:
+        """textured, shaded, wireframe or points."""
+        mode = mode.lower()
+        if mode not in MODE_LABELS:
+            raise ValueError(f"unknown display mode {mode!r}")
+        self._mode = mode
+        self.mode_actions[mode].setChecked(True)
+        if self.face_actor is not None:
+            self.face_actor.set_mode(mode)
+            if mode == "textured" and not self.face_actor.has_texture:
+                fallback = "vertex colours" if self.face_actor.has_vertex_colors else "skin shading"
+                self.statusBar().showMessage(f"This face has no texture; showing {fallback}.", 5000)
+            self._render()
+
+    def set_landmarks_visible(self, visible: bool) -> None:
+        self.landmarks_action.setChecked(bool(visible))
+        if self.face_actor is not None:
+            self.face_actor.set_landmarks_visible(visible)
+            self._render()
+
+    def set_camera_view(self, view: str) -> None:
+        """front, side or three-quarter, framed on the face."""
+        self._view = view
+        if self.face_actor is None:
+            return
+        self._scene.set_camera_view(self.plotter, view, self.face_actor.mesh.points)
+        self._render()
+
+    def reset_camera(self) -> None:
+        """Frame the whole face, keeping the viewing direction."""
+        if self.face_actor is None:
+            return
+        self._scene.frame_points(self.plotter, self.face_actor.mesh.points)
+        self._render()
+
+    # ------------------------------------------------------------ file dialogs
+    def _last_dir(self) -> str:
+        return str(self.settings.value("lastDirectory", str(Path.home())))
+
+    def open_face_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Open face", self._last_dir(), OPEN_FILTER)
+        if path:
+            self.settings.setValue("lastDirectory", str(Path(path).parent))
+            self.load_face_file(path)
+
+    def save_face_dialog(self) -> None:
+        if self.face is None:
+            return
+        default = str(Path(self._last_dir()) / f"{self.face.metadata.name}.obj")
+        path, chosen = QFileDialog.getSaveFileName(self, "Save face as", default, ";;".join(SAVE_FILTERS))
+        if path:
+            if Path(path).suffix.lower() not in SAVE_FILTERS.values():
+                path += SAVE_FILTERS.get(chosen, ".obj")
+            self.settings.setValue("lastDirectory", str(Path(path).parent))
+            self.save_face_file(path)
+
+    def save_face_file(self, path) -> bool:
+        """Save the displayed face; errors become a message box. Returns success."""
+        if self.face is None:
+            return False
+        try:
+            from core.mesh_io import save_face
+
+            QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
+            try:
+                save_face(self.face, path)
+            finally:
+                QApplication.restoreOverrideCursor()
+        except Exception as exc:  # noqa: BLE001
+            if _is_mesh_save_error(exc):
+                message = str(exc)
+            else:
+                traceback.print_exc()
+                message = f"{type(exc).__name__}: {exc}"
+            self.show_error(f"Could not save {Path(path).name}", message)
+            return False
+        self.statusBar().showMessage(f"Saved {path}", 5000)
+        return True
+
+    def export_screenshot_dialog(self) -> None:
+        default = str(Path(self._last_dir()) / "mimica.png")
+        path, chosen = QFileDialog.getSaveFileName(self, "Export screenshot", default, SCREENSHOT_FILTER)
+        if path:
+            if Path(path).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+                path += ".jpg" if chosen.startswith("JPEG") else ".png"
+            try:
+                self.screenshot(path)
+            except (OSError, ValueError) as exc:
+                self.show_error("Could not export screenshot", str(exc))
+                return
+            self.statusBar().showMessage(f"Saved screenshot {path}", 5000)
+
+    def screenshot(self, path=None):
+        """Render the viewport; write it to ``path`` (png/jpg) if given. Returns the RGB image."""
+        from app.render import save_image
+
+        self.plotter.render()
+        image = self.plotter.screenshot(None, return_img=True)[..., :3]
+        if path is not None:
+            save_image(image, path)
+        return image
+
+    # ------------------------------------------------------------ drag & drop
+    @staticmethod
+    def _dropped_face_files(mime) -> list[str]:
+        if not mime.hasUrls():
+            return []
+        paths = [u.toLocalFile() for u in mime.urls() if u.isLocalFile()]
+        return [p for p in paths if Path(p).suffix.lower() in OPEN_SUFFIXES and Path(p).is_file()]
+
+    def dragEnterEvent(self, event) -> None:  # noqa: N802 - Qt override
+        if self._dropped_face_files(event.mimeData()):
+            event.acceptProposedAction()
+        else:
+            event.ignore()
+
+    def dragMoveEvent(self, event) -> None:  # noqa: N802 - Qt override
+        self.dragEnterEvent(event)
+
+    def dropEvent(self, event) -> None:  # noqa: N802 - Qt override
+        files = self._dropped_face_files(event.mimeData())
+        if not files:
+            event.ignore()
+            return
+        event.acceptProposedAction()
+        if len(files) > 1:
+            self.statusBar().showMessage(f"Opening the first of {len(files)} dropped files", 5000)
+        self.load_face_file(files[0])
+
+    # ------------------------------------------------------------ help
+    def about_text(self) -> str:
+        import PySide6
+        import pyvista as pv
+        import vtk
+        from PySide6.QtCore import qVersion
+
+        return (
+            f"<h3>Mimica {__version__}</h3>"
+            "<p>A desktop workbench for 3-D facial animation.</p>"
+            "<p>"
+            f"Python {sys.version.split()[0]}<br>"
+            f"Qt {qVersion()} / PySide6 {PySide6.__version__}<br>"
+            f"VTK {vtk.vtkVersion.GetVTKVersion()}<br>"
+            f"PyVista {pv.__version__}"
+            "</p>"
+            "<p><b>Data credits</b><br>"
+            "Default face: generated procedurally by Mimica.<br>"
+            "MPEG-4 feature point and FAP tables after ISO/IEC 14496-2.</p>"
+        )
+
+    def show_about(self) -> None:
+        QMessageBox.about(self, "About Mimica", self.about_text())
+
+
+# ------------------------------------------------------------------ entry
+def run_gui(face_path: str | None = None, argv: list[str] | None = None) -> int:
+    """Create the application and window, run the event loop; returns the exit status."""
+    app = QApplication.instance() or QApplication(argv if argv is not None else sys.argv[:1])
+    app.setOrganizationName(APP_NAME)
+    app.setApplicationName(APP_NAME)
+    app.setApplicationVersion(__version__)
+    hook = install_excepthook()
+    window = MainWindow(path=face_path) if face_path else MainWindow()
+    hook.parent = window
+    window.show()
+    # Ctrl+C in the terminal: the Python handler only runs when the
+    # interpreter gets control, so wake it periodically.
+    timer = QTimer(window)
+    timer.timeout.connect(lambda: None)
+    timer.start(250)
+    return int(app.exec())
+
+
+__all__ = ["MainWindow", "ExceptionDialogHook", "install_excepthook", "run_gui"]

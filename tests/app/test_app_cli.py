@@ -1,0 +1,121 @@
+"""The ``mimica`` command line: help, render without a display, clean errors."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from app_helpers import image_variance, write_obj
+from PIL import Image
+
+from app import cli
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _mimica_cmd() -> list[str]:
+    """The installed console script if present, else ``python -m app.cli``."""
+    script = Path(sys.executable).parent / "mimica"
+    return [str(script)] if script.exists() else [sys.executable, "-m", "app.cli"]
+
+
+def run_mimica(*args: str, headless: bool = False, timeout: float = 300) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    if headless:
+        # Prove no display is needed: no X, no Wayland, Qt told to stay off screen.
+        for var in ("DISPLAY", "WAYLAND_DISPLAY", "XAUTHORITY"):
+            env.pop(var, None)
+        env["QT_QPA_PLATFORM"] = "offscreen"
+    return subprocess.run([*_mimica_cmd(), *args], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def _assert_clean_error(proc: subprocess.CompletedProcess, fragment: str) -> None:
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert any(fragment in ln for ln in lines), proc.stderr
+    assert lines[-1].startswith("mimica: error:") or "error:" in lines[-1], proc.stderr
+
+
+def test_help_lists_subcommands():
+    proc = run_mimica("--help")
+    assert proc.returncode == 0, proc.stderr
+    assert "render" in proc.stdout and "gui" in proc.stdout
+    proc = run_mimica("render", "--help")
+    assert proc.returncode == 0
+    for option in ("--out", "--view", "--size", "--mode", "--landmarks", "three-quarter", "wireframe"):
+        assert option in proc.stdout
+
+
+def test_render_default_face_without_display(tmp_path):
+    out = tmp_path / "default.png"
+    proc = run_mimica("render", "--out", str(out), "--size", "400x300", "--view", "three-quarter",
+                      "--landmarks", headless=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    img = np.asarray(Image.open(out))
+    assert img.shape[:2] == (300, 400)
+    assert image_variance(img) > 100
+
+
+def test_render_obj_file_without_display(tmp_path, synthetic_face):
+    obj = write_obj(synthetic_face, tmp_path / "synthetic.obj")
+    out = tmp_path / "wire.jpg"
+    proc = run_mimica("render", str(obj), "-o", str(out), "--size", "320x240", "--mode", "wireframe",
+                      "--view", "side", headless=True)
+    assert proc.returncode == 0, proc.stderr
+    assert image_variance(np.asarray(Image.open(out))) > 50
+
+
+def test_render_bad_arguments_fail_cleanly(tmp_path):
+    out = str(tmp_path / "x.png")
+    _assert_clean_error(run_mimica("render", "--out", out, "--size", "big"), "size")
+    _assert_clean_error(run_mimica("render", "--out", out, "--view", "top"), "invalid choice")
+    _assert_clean_error(run_mimica("render", str(tmp_path / "missing.obj"), "--out", out), "no such file")
+    _assert_clean_error(run_mimica("render", "--out", str(tmp_path / "x.gif")), ".png or .jpg")
+    _assert_clean_error(run_mimica("render", "--out", str(tmp_path / "nodir" / "x.png")), "does not exist")
+    _assert_clean_error(run_mimica("render"), "--out")
+    _assert_clean_error(run_mimica("frobnicate"), "invalid choice")
+
+
+def test_render_unreadable_face_fails_cleanly(tmp_path):
+    bad = tmp_path / "broken.obj"
+    bad.write_text("this is not an obj file\nf 1 2 99\n")
+    proc = run_mimica("render", str(bad), "--out", str(tmp_path / "x.png"), headless=True)
+    _assert_clean_error(proc, "broken.obj")
+
+
+def test_no_subcommand_starts_gui_on_default_face(monkeypatch):
+    import app.main_window as mw
+
+    calls = []
+    monkeypatch.setattr(mw, "run_gui", lambda face=None: calls.append(face) or 0)
+    assert cli.main([]) == 0
+    assert calls == [None]
+
+
+def test_gui_subcommand_opens_given_file(monkeypatch, tmp_path):
+    import app.main_window as mw
+
+    face_file = tmp_path / "f.obj"
+    face_file.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    calls = []
+    monkeypatch.setattr(mw, "run_gui", lambda face=None: calls.append(face) or 0)
+    assert cli.main(["gui", str(face_file)]) == 0
+    assert calls == [str(face_file)]
+
+
+def test_gui_subcommand_missing_file(capsys):
+    assert cli.main(["gui", "/nonexistent/face.obj"]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().splitlines() == ["mimica: error: no such file: /nonexistent/face.obj"]
+
+
+@pytest.mark.parametrize("text,expected", [("1200x900", (1200, 900)), ("64X48", (64, 48))])
+def test_parse_size(text, expected):
+    assert cli._parse_size(text) == expected

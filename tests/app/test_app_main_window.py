@@ -1,0 +1,365 @@
+"""MainWindow: opening, loading through the menu path, errors, screenshots, views, settings, excepthook."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from app_helpers import image_difference, image_variance, make_synthetic_face, write_obj
+from PySide6.QtCore import QMimeData, QPointF, QSettings, Qt, QTimer, QUrl
+from PySide6.QtGui import QDropEvent
+from PySide6.QtWidgets import QMessageBox
+
+from app.main_window import MAX_RECENT, MainWindow, install_excepthook
+from core.face import FaceMetadata
+
+LOAD_TIMEOUT_MS = 60_000
+
+
+def _load(qtbot, window, path):
+    """Run window.load_face_file(path) and wait for the outcome; returns success."""
+    with qtbot.waitSignal(window.load_finished, timeout=LOAD_TIMEOUT_MS) as blocker:
+        window.load_face_file(path)
+    return blocker.args[0]
+
+
+# ------------------------------------------------------------------ opening
+def test_window_opens_on_given_face(window, synthetic_face):
+    assert window.windowTitle() == "Mimica — synthetic"
+    assert window.face is synthetic_face
+    assert window.view_mode == "textured" and window.mode_actions["textured"].isChecked()
+    assert window.face_actor.actor.texture is not None
+    assert "3,072 vertices" in window.counts_label.text()
+    assert window.texture_label.text() == "texture: yes"
+    assert window.units_label.text() == "units: mm"
+    assert window.width() >= 800 and window.height() >= 600
+    menus = [a.text().replace("&", "") for a in window.menuBar().actions()]
+    assert menus == ["File", "View", "Help"]
+    shortcuts = {a.text().replace("&", ""): a.shortcut().toString() for a in window.actions()}
+    assert shortcuts["Open face…"] == "Ctrl+O" and shortcuts["Save face as…"] == "Ctrl+S"
+    assert shortcuts["Quit"] == "Ctrl+Q" and shortcuts["Reset camera"] == "R"
+    assert [window.view_actions[v].shortcut().toString() for v in ("front", "side", "three-quarter")] == [
+        "1", "2", "3"]
+    assert window.isDockNestingEnabled()
+    assert window.mode_group.isExclusive() and len(window.mode_group.actions()) == 4
+
+
+def test_window_opens_on_default_face(qtbot, settings, error_boxes):
+    from core.default_face import load_default_face  # noqa: F401 - must be importable
+
+    win = MainWindow(settings=settings)
+    qtbot.addWidget(win)
+    win.show()
+    qtbot.waitUntil(lambda: win.face is not None, timeout=LOAD_TIMEOUT_MS)
+    assert not error_boxes
+    assert win.face.n_vertices > 10_000 and win.face.texture is not None
+    assert win.windowTitle() == f"Mimica — {win.face.metadata.name}"
+    assert win._notes_box is None, "the built-in face should not pop up a notes dialog"
+    assert image_variance(win.screenshot()) > 100
+    win.close()
+
+
+def test_bad_start_file_falls_back_to_default_face(qtbot, settings, error_boxes, tmp_path):
+    bad = tmp_path / "bad.obj"
+    bad.write_text("nothing here\n")
+    win = MainWindow(path=bad, settings=settings)
+    qtbot.addWidget(win)
+    win.show()
+    qtbot.waitUntil(lambda: win.face is not None, timeout=LOAD_TIMEOUT_MS)
+    assert len(error_boxes) == 1 and "bad.obj" in error_boxes[0][0]
+    assert win.face.n_vertices > 10_000
+    win.close()
+
+
+def test_window_size_default(qtbot, synthetic_face, settings):
+    win = MainWindow(synthetic_face, settings=settings, load_default=False)
+    qtbot.addWidget(win)
+    assert (win.width(), win.height()) == (1400, 900)
+    win.close()
+
+
+# ------------------------------------------------------------------ loading
+def test_load_face_file_from_obj(qtbot, window, tmp_path, error_boxes):
+    other = make_synthetic_face(n_u=30, n_v=40, texture=False, vertex_colors=False)
+    path = write_obj(other, tmp_path / "other head.obj")
+    assert _load(qtbot, window, path) is True
+    assert not error_boxes
+    assert window.face.n_vertices == other.n_vertices
+    np.testing.assert_allclose(window.face.vertices, other.vertices, atol=1e-4)
+    assert window.windowTitle() == f"Mimica — {window.face.metadata.name}"
+    assert window.file_label.text() == "other head.obj"
+    assert window.texture_label.text() == "texture: no"
+    assert window.recent_files()[0] == str(path.resolve())
+    assert not window.is_loading and not window.progress_bar.isVisible()
+
+
+def test_bad_file_keeps_previous_face_and_shows_error(qtbot, window, tmp_path, error_boxes):
+    before = window.face
+    bad = tmp_path / "broken.obj"
+    bad.write_text("garbage\nf 1 2 3\n")
+    with qtbot.waitSignal(window.load_failed, timeout=LOAD_TIMEOUT_MS) as failed:
+        assert _load(qtbot, window, bad) is False
+    assert window.face is before and window.face_actor is not None
+    assert window.windowTitle() == "Mimica — synthetic"
+    assert len(error_boxes) == 1
+    title, text = error_boxes[0]
+    assert "broken.obj" in title
+    assert text == failed.args[0] and text.strip()
+    assert "Traceback" not in text
+    assert window.recent_files() == []
+
+
+def test_unsupported_and_missing_files_show_errors(qtbot, window, tmp_path, error_boxes):
+    (tmp_path / "notes.txt").write_text("hello")
+    assert _load(qtbot, window, tmp_path / "notes.txt") is False
+    assert _load(qtbot, window, tmp_path / "missing.obj") is False
+    assert len(error_boxes) == 2 and window.face.metadata.name == "synthetic"
+
+
+def test_load_notes_are_shown(qtbot, window, tmp_path, monkeypatch):
+    import core.mesh_io
+
+    noted = make_synthetic_face(n_u=20, n_v=20)
+    noted.metadata = FaceMetadata(source="x.obj", units="mm", name="noted",
+                                  notes=["Converted metres to millimetres.", "Removed 3 duplicate vertices."])
+    monkeypatch.setattr(core.mesh_io, "load_face", lambda path, progress=None: noted)
+    path = tmp_path / "x.obj"
+    path.write_text("v 0 0 0\n")
+    assert _load(qtbot, window, path) is True
+    box = window._notes_box
+    assert box is not None and box.isVisible() and not box.isModal()
+    assert "Converted metres" in box.informativeText() and "duplicate" in box.informativeText()
+    assert "Converted metres" in window.statusBar().currentMessage()
+
+
+def test_progress_is_reported(qtbot, window, tmp_path, monkeypatch):
+    import core.mesh_io
+
+    seen = []
+    window._signals.progress.connect(lambda gen, frac, msg: seen.append((frac, msg)))
+
+    def slow_load(path, progress=None):
+        for i in range(5):
+            progress(i / 4, f"step {i}")
+        return make_synthetic_face(n_u=12, n_v=12)
+
+    monkeypatch.setattr(core.mesh_io, "load_face", slow_load)
+    (tmp_path / "p.obj").write_text("v 0 0 0\n")
+    assert _load(qtbot, window, tmp_path / "p.obj") is True
+    assert [f for f, _ in seen] == [0.0, 0.25, 0.5, 0.75, 1.0]
+
+
+def test_drop_file_loads_it(qtbot, window, tmp_path):
+    path = write_obj(make_synthetic_face(n_u=16, n_v=16, texture=False), tmp_path / "dropped.obj")
+    mime = QMimeData()
+    mime.setUrls([QUrl.fromLocalFile(str(path))])
+    event = QDropEvent(QPointF(50, 50), Qt.DropAction.CopyAction, mime, Qt.MouseButton.LeftButton,
+                       Qt.KeyboardModifier.NoModifier)
+    with qtbot.waitSignal(window.load_finished, timeout=LOAD_TIMEOUT_MS):
+        window.dropEvent(event)
+    assert window.file_label.text() == "dropped.obj"
+    assert not window.plotter.acceptDrops(), "pyvistaqt's own drop handler must be off"
+
+    ignored = QMimeData()
+    ignored.setUrls([QUrl.fromLocalFile(str(tmp_path))])
+    assert window._dropped_face_files(ignored) == []
+
+
+# ------------------------------------------------------------------ recent files & settings
+def test_recent_files_capped_persisted_and_missing_removed(qtbot, window, tmp_path, settings, error_boxes):
+    files = []
+    for i in range(MAX_RECENT + 2):
+        p = tmp_path / f"f{i}.obj"
+        p.write_text("v 0 0 0\n")
+        files.append(p)
+        window.add_recent_file(p)
+    recent = window.recent_files()
+    assert len(recent) == MAX_RECENT and recent[0] == str(files[-1].resolve())
+    window._rebuild_recent_menu()
+    assert len([a for a in window.recent_menu.actions() if a.text().startswith("&")]) == MAX_RECENT
+    assert QSettings(settings.fileName(), QSettings.Format.IniFormat).value("recentFiles")[0] == recent[0]
+
+    files[-1].unlink()
+    window.open_recent(recent[0])
+    assert recent[0] not in window.recent_files()
+    assert len(error_boxes) == 1 and "no longer exists" in error_boxes[0][1]
+
+
+def test_geometry_persisted(qtbot, synthetic_face, settings):
+    win = MainWindow(synthetic_face, settings=settings, load_default=False)
+    qtbot.addWidget(win)
+    win.show()
+    qtbot.waitExposed(win)
+    win.resize(1000, 700)
+    qtbot.wait(50)
+    win.set_view_mode("shaded")
+    win.close()
+    assert settings.value("window/geometry") is not None
+
+    again = MainWindow(synthetic_face, settings=settings, load_default=False)
+    qtbot.addWidget(again)
+    assert (again.width(), again.height()) == (1000, 700)
+    assert again.view_mode == "shaded"
+    again.close()
+
+
+def test_user_settings_are_never_touched(tmp_path_factory):
+    default = QSettings("Mimica", "Mimica").fileName()
+    home = str(Path.home())
+    assert not default.startswith(str(Path(home) / ".config")), default
+
+
+# ------------------------------------------------------------------ viewport
+def test_screenshot_not_blank_and_modes_differ(window, tmp_path):
+    textured = window.screenshot(tmp_path / "textured.png")
+    assert (tmp_path / "textured.png").stat().st_size > 1000
+    assert image_variance(textured) > 100
+    window.set_view_mode("wireframe")
+    assert window.face_actor.actor.prop.style == "Wireframe"
+    wire = window.screenshot()
+    assert image_difference(textured, wire) > 3
+    window.set_view_mode("points")
+    window.set_view_mode("shaded")
+    assert window.mode_actions["shaded"].isChecked() and not window.mode_actions["textured"].isChecked()
+    window.screenshot(tmp_path / "shot.jpg")
+    assert (tmp_path / "shot.jpg").read_bytes()[:2] == b"\xff\xd8"
+
+
+def test_mode_actions_switch_modes(window):
+    window.mode_actions["points"].trigger()
+    assert window.view_mode == "points" and window.face_actor.actor.prop.style == "Points"
+
+
+def _activate(qtbot, window):
+    """Window shortcuts only fire in the active window."""
+    window.activateWindow()
+    window.plotter.setFocus()
+    qtbot.waitUntil(window.isActiveWindow, timeout=5000)
+
+
+def test_camera_presets_change_image(qtbot, window):
+    _activate(qtbot, window)
+    front = window.screenshot()
+    qtbot.keyClick(window.plotter, "2")  # side view via its shortcut
+    side = window.screenshot()
+    window.view_actions["three-quarter"].trigger()
+    three_q = window.screenshot()
+    assert image_difference(front, side) > 3
+    assert image_difference(front, three_q) > 3
+    assert image_difference(side, three_q) > 3
+    window.plotter.camera.zoom(3.0)
+    window.plotter.render()
+    zoomed = window.screenshot()
+    qtbot.keyClick(window.plotter, "r")
+    reset = window.screenshot()
+    assert image_difference(zoomed, reset) > 3
+    assert image_difference(three_q, reset) < 1.5
+
+
+def test_vtk_single_key_bindings_disabled(qtbot, window):
+    _activate(qtbot, window)
+    for key in "qewsf3":
+        qtbot.keyClick(window.plotter, key)
+    assert window.isVisible()
+    assert not getattr(window.plotter, "_closed", False)
+    assert window.face_actor.actor.prop.style == "Surface"
+    assert image_variance(window.screenshot()) > 100
+
+
+def test_landmarks_toggle_changes_image(window):
+    plain = window.screenshot()
+    window.landmarks_action.trigger()
+    assert window.face_actor.landmarks_visible
+    marked = window.screenshot()
+    changed = (np.abs(plain.astype(int) - marked.astype(int)).sum(axis=2) > 40).sum()
+    assert changed > 6 * 60, f"6 markers + labels should change more than {changed} pixels"
+    window.set_landmarks_visible(False)
+    assert not window.face_actor.landmarks_visible
+
+
+def test_update_vertices_in_place(window, synthetic_face):
+    mesh = window.face_actor.mesh
+    n_actors = len(window.plotter.renderer.actors)
+    before = window.screenshot()
+    window.update_vertices(synthetic_face.vertices * np.array([1.0, 0.85, 1.2]))
+    assert window.face_actor.mesh is mesh and len(window.plotter.renderer.actors) == n_actors
+    assert image_difference(before, window.screenshot()) > 1
+
+
+def test_save_face_as(window, tmp_path, error_boxes):
+    from core.mesh_io import load_face
+
+    out = tmp_path / "saved.ply"
+    assert window.save_face_file(out) is True
+    assert load_face(out).n_vertices == window.face.n_vertices
+    assert window.save_face_file(tmp_path / "no" / "such" / "dir" / "x.obj") is False
+    assert len(error_boxes) == 1 and "Traceback" not in error_boxes[0][1]
+
+
+def test_about_lists_versions_and_credits(window, monkeypatch):
+    import PySide6
+    import pyvista
+    import vtk
+
+    shown = []
+    monkeypatch.setattr(QMessageBox, "about", lambda parent, title, text: shown.append(text))
+    window.about_action.trigger()
+    text = shown[0]
+    for needle in (PySide6.__version__, pyvista.__version__, vtk.vtkVersion.GetVTKVersion(),
+                   sys.version.split()[0], "Default face: generated procedurally by Mimica", "ISO/IEC 14496-2"):
+        assert needle in text
+
+
+# ------------------------------------------------------------------ excepthook
+def test_excepthook_shows_dialog(qtbot, window, capsys):
+    hook = install_excepthook(window)
+    try:
+        try:
+            raise ValueError("boom in a slot")
+        except ValueError:
+            sys.excepthook(*sys.exc_info())
+        box = hook.last_dialog
+        assert box is not None and box.isVisible()
+        assert "ValueError: boom in a slot" in box.text()
+        assert "Traceback" not in box.text() and "Traceback" in box.detailedText()
+        assert "Traceback" in capsys.readouterr().err
+        box.close()
+    finally:
+        hook.uninstall()
+
+
+@pytest.mark.qt_no_exception_capture
+def test_uncaught_exception_in_qt_callback_shows_dialog(qtbot, window):
+    hook = install_excepthook(window)
+    try:
+        def explode():
+            raise RuntimeError("kaboom from the event loop")
+
+        QTimer.singleShot(0, explode)
+        qtbot.waitUntil(lambda: hook.last_dialog is not None, timeout=5000)
+        assert "kaboom" in hook.last_dialog.text()
+        assert window.isVisible()
+        hook.last_dialog.close()
+    finally:
+        hook.uninstall()
+
+
+def test_exception_in_worker_thread_shows_dialog(qtbot, window):
+    import threading
+
+    hook = install_excepthook(window)
+    try:
+        def explode():
+            raise KeyError("lost in a thread")
+
+        t = threading.Thread(target=explode)
+        t.start()
+        t.join()
+        qtbot.waitUntil(lambda: hook.last_dialog is not None, timeout=5000)
+        assert "lost in a thread" in hook.last_dialog.text()
+        hook.last_dialog.close()
+    finally:
+        hook.uninstall()
+    assert sys.excepthook is not hook and threading.excepthook != hook.thread_hook
