@@ -213,13 +213,14 @@ class FaceShape:
         s = np.clip((L.nasion_y - y) / (L.nasion_y - L.nose_tip_y), 0, 1)
         half = 6.5 + 5.0 * s**1.5
         body = ridge - 9.0 * (ax / half) ** 2
-        body = np.where(y > L.nose_tip_y - 3.0, body, -np.inf)
+        # Below the tip the body curls under smoothly (no cut edge).
+        body -= 2.5 * np.clip((L.nose_tip_y - 1.0 - y) / 2.0, 0, None) ** 2
         # Tip lobule: a rounded cap at the tip.
         tip = tip_z - 9.0 * ((ax / 8.0) ** 2 + ((y - (L.nose_tip_y + 0.5)) / 7.0) ** 2)
         # Columella: narrow bridge from the tip down to the subnasale.
         t = np.clip((L.nose_tip_y - y) / (L.nose_tip_y - L.subnasale_y), 0, 1)
         col_z = tip_z - 2.0 - (p.nose_projection - 2.0) * t**1.3
-        columella = np.where((y < L.nose_tip_y) & (y > L.subnasale_y - 1), col_z - 8.0 * (ax / 3.5) ** 2, -np.inf)
+        columella = np.where((y < L.nose_tip_y) & (y > L.subnasale_y - 1), col_z - 6.0 * (ax / 4.5) ** 2, -np.inf)
         # Alae: rounded wings either side, their base on the cheek.
         ala_x, ala_y = L.alar_half_width - 5.0, L.subnasale_y + 6.0
         ala = sub_z + 0.5 - 6.0 * (((ax - ala_x) / 6.0) ** 2 + ((y - ala_y) / 6.5) ** 2)
