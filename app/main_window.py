@@ -171,7 +171,6 @@ def install_excepthook(parent: QWidget | None = None) -> ExceptionDialogHook:
     """Install (and return) an :class:`ExceptionDialogHook` as ``sys.excepthook``
     (and ``threading.excepthook``)."""
     hook = ExceptionDialogHook(parent)
-    hook.previous_thread_hook = threading.excepthook
     sys.excepthook = hook
     threading.excepthook = hook.thread_hook
     return hook
@@ -199,7 +198,6 @@ class MainWindow(QMainWindow):
     def __init__(self, face=None, *, path=None, settings: QSettings | None = None,
                  load_default: bool = True, parent: QWidget | None = None):
         super().__init__(parent)
-        import pyvista as pv
         from pyvistaqt import QtInteractor
 
         from app import scene
@@ -220,6 +218,7 @@ class MainWindow(QMainWindow):
         self._signals.loaded.connect(self._on_loaded)
         self._signals.failed.connect(self._on_load_failed)
         self._notes_box: QMessageBox | None = None
+        self._framed_when_shown = False
 
         self.setWindowTitle(APP_NAME)
         self.resize(1400, 900)
@@ -233,7 +232,6 @@ class MainWindow(QMainWindow):
         self._disable_vtk_keys()
         scene.setup_stage(self.plotter)
         self.setCentralWidget(self.plotter)
-        pv.global_theme.allow_empty_mesh = True
 
         self._create_actions()
         self._create_menus()
@@ -317,7 +315,7 @@ class MainWindow(QMainWindow):
         file_menu = bar.addMenu("&File")
         file_menu.addAction(self.open_action)
         self.recent_menu = file_menu.addMenu("Open &recent")
-        self.recent_menu.aboutToShow.connect(self._rebuild_recent_menu)
+        self._create_recent_actions()
         file_menu.addAction(self.save_action)
         file_menu.addSeparator()
         file_menu.addAction(self.screenshot_action)
@@ -369,6 +367,18 @@ class MainWindow(QMainWindow):
             self._mode = str(mode)
             self.mode_actions[self._mode].setChecked(True)
 
+    def showEvent(self, event) -> None:  # noqa: N802 - Qt override
+        super().showEvent(event)
+        if not self._framed_when_shown and self.face_actor is not None:
+            # Framing before the first show used a guessed viewport aspect;
+            # redo it once the real size is known.
+            self._framed_when_shown = True
+            QTimer.singleShot(0, self, self._frame_after_show)
+
+    def _frame_after_show(self) -> None:
+        if self.isVisible() and not getattr(self.plotter, "_closed", False):
+            self.set_camera_view(self._view)
+
     def closeEvent(self, event) -> None:  # noqa: N802 - Qt override
         self.settings.setValue("window/geometry", self.saveGeometry())
         self.settings.setValue("window/state", self.saveState())
@@ -400,21 +410,37 @@ class MainWindow(QMainWindow):
         files = [f for f in self.recent_files() if f != path]
         self._set_recent_files([path, *files])
 
-    def _rebuild_recent_menu(self) -> None:
+    def _create_recent_actions(self) -> None:
+        # A fixed set of actions, updated in place: QMenu.clear() deletes
+        # actions behind Shiboken's back and crashes when an address is reused.
         menu = self.recent_menu
-        menu.clear()
+        self.recent_actions: list[QAction] = []
+        for _ in range(MAX_RECENT):
+            act = QAction(self)
+            act.setVisible(False)
+            act.triggered.connect(lambda _c=False, a=act: self.open_recent(str(a.data())))
+            menu.addAction(act)
+            self.recent_actions.append(act)
+        self._recent_empty_action = QAction("(no recent files)", self)
+        self._recent_empty_action.setEnabled(False)
+        menu.addAction(self._recent_empty_action)
+        self._recent_separator = menu.addSeparator()
+        self._recent_clear_action = QAction("Clear list", self)
+        self._recent_clear_action.triggered.connect(lambda: self._set_recent_files([]))
+        menu.addAction(self._recent_clear_action)
+
+    def _rebuild_recent_menu(self) -> None:
         files = self.recent_files()
-        for i, path in enumerate(files):
-            act = menu.addAction(f"&{i + 1}  {Path(path).name}")
-            act.setToolTip(path)
-            act.setStatusTip(path)
-            act.triggered.connect(lambda _c=False, p=path: self.open_recent(p))
-        if not files:
-            empty = menu.addAction("(no recent files)")
-            empty.setEnabled(False)
-        else:
-            menu.addSeparator()
-            menu.addAction("Clear list", lambda: self._set_recent_files([]))
+        for i, act in enumerate(self.recent_actions):
+            if i < len(files):
+                act.setText(f"&{i + 1}  {Path(files[i]).name}")
+                act.setData(files[i])
+                act.setToolTip(files[i])
+                act.setStatusTip(files[i])
+            act.setVisible(i < len(files))
+        self._recent_empty_action.setVisible(not files)
+        self._recent_separator.setVisible(bool(files))
+        self._recent_clear_action.setVisible(bool(files))
 
     def open_recent(self, path: str) -> None:
         """Open a recent file; a missing one is dropped from the list with a message."""
@@ -548,7 +574,7 @@ class MainWindow(QMainWindow):
     def _render(self) -> None:
         # Rendering a never-shown VTK widget has no GL context to draw into;
         # the first paint event renders it anyway.
-        if self.plotter.isVisible():
+        if self.plotter.isVisible() and not getattr(self.plotter, "_closed", False):
             self.plotter.render()
 
     def update_vertices(self, vertices) -> None:

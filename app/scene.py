@@ -291,9 +291,13 @@ class FaceActor:
 
 
 def add_face_actor(plotter: "BasePlotter", face: Face, mode: str = "textured",
-                   *, show_landmarks: bool = False) -> FaceActor:
-    """Add ``face`` to ``plotter`` in display ``mode`` and return its :class:`FaceActor`."""
-    return FaceActor(plotter, face, mode, show_landmarks=show_landmarks)
+                   *, show_landmarks: bool = False, name: str = "face") -> FaceActor:
+    """Add ``face`` to ``plotter`` in display ``mode`` and return its :class:`FaceActor`.
+
+    ``name`` keys the actors on the plotter: adding another face under the
+    same name replaces the first one's actor.
+    """
+    return FaceActor(plotter, face, mode, show_landmarks=show_landmarks, name=name)
 
 
 # ------------------------------------------------------------------ camera

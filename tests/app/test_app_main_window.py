@@ -177,14 +177,19 @@ def test_recent_files_capped_persisted_and_missing_removed(qtbot, window, tmp_pa
         window.add_recent_file(p)
     recent = window.recent_files()
     assert len(recent) == MAX_RECENT and recent[0] == str(files[-1].resolve())
-    window._rebuild_recent_menu()
-    assert len([a for a in window.recent_menu.actions() if a.text().startswith("&")]) == MAX_RECENT
+    visible = [a for a in window.recent_menu.actions() if a.isVisible() and a.text().startswith("&")]
+    assert len(visible) == MAX_RECENT and visible[0].data() == recent[0]
     assert QSettings(settings.fileName(), QSettings.Format.IniFormat).value("recentFiles")[0] == recent[0]
 
     files[-1].unlink()
-    window.open_recent(recent[0])
+    visible[0].trigger()  # File ▸ Open recent ▸ 1
     assert recent[0] not in window.recent_files()
     assert len(error_boxes) == 1 and "no longer exists" in error_boxes[0][1]
+    assert len([a for a in window.recent_menu.actions() if a.isVisible() and a.text().startswith("&")]) == 7
+
+    with qtbot.waitSignal(window.load_finished, timeout=LOAD_TIMEOUT_MS) as done:
+        [a for a in window.recent_menu.actions() if a.isVisible()][0].trigger()
+    assert done.args == [False]  # "v 0 0 0" is no face: an error, but the recent path was taken
 
 
 def test_geometry_persisted(qtbot, synthetic_face, settings):
