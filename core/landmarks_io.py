@@ -127,7 +127,7 @@ def load_landmarks(path, face: Face, *, notes: list[str] | None = None) -> dict[
                 "has no triangle" if triangle is None
                 else f"refers to triangle {triangle}, which this face does not have ({face.n_triangles} triangles)"
             )
-            result[name] = None  # placeholder keeps file order
+            result[name] = None  # reserve the slot so the file order is kept; filled below
         else:
             raise LandmarkFileError(
                 f"'{path.name}': landmark '{name}' refers to triangle {triangle}, but the face has only "
