@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from core.face import Face, SurfacePoint
-from core.mesh_io import write_atomic
+from core.mesh_io import write_atomic, write_reporting_errors
 
 __all__ = ["LandmarkFileError", "save_landmarks", "load_landmarks", "FORMAT_NAME", "FORMAT_VERSION"]
 
@@ -66,16 +66,8 @@ def save_landmarks(face: Face, path) -> None:
             for name, xyz in zip(names, positions)
         ],
     }
-    if not path.parent.is_dir():
-        raise LandmarkFileError(f"Cannot save '{path.name}': the folder '{path.parent}' does not exist.")
-    try:
-        write_atomic(path, (json.dumps(document, indent=2) + "\n").encode("utf-8"))
-    except PermissionError:
-        raise LandmarkFileError(
-            f"Mimica is not allowed to write in '{path.parent}'. Choose another folder or check its permissions."
-        ) from None
-    except OSError as exc:
-        raise LandmarkFileError(f"Could not save '{path}': {exc.strerror or exc}.") from None
+    text = (json.dumps(document, indent=2) + "\n").encode("utf-8")
+    write_reporting_errors(path, lambda: write_atomic(path, text), LandmarkFileError)
 
 
 def load_landmarks(path, face: Face, *, notes: list[str] | None = None) -> dict[str, SurfacePoint]:

@@ -307,16 +307,21 @@ def save_face(face: Face, path) -> None:
             f"Cannot save as '{path.suffix or path.name}': Mimica saves faces as {', '.join(SAVE_FORMATS)}. "
             "Choose one of these extensions."
         )
+    write_reporting_errors(path, lambda: _WRITERS[fmt](face, path), MeshSaveError)
+
+
+def write_reporting_errors(path: Path, write, error_type: type[Exception]) -> None:
+    """Run ``write()`` for ``path``, turning file-system failures into ``error_type`` with a user-facing message."""
     if not path.parent.is_dir():
-        raise MeshSaveError(f"Cannot save '{path.name}': the folder '{path.parent}' does not exist.")
+        raise error_type(f"Cannot save '{path.name}': the folder '{path.parent}' does not exist.")
     try:
-        _WRITERS[fmt](face, path)
+        write()
     except PermissionError:
-        raise MeshSaveError(
+        raise error_type(
             f"Mimica is not allowed to write in '{path.parent}'. Choose another folder or check its permissions."
         ) from None
     except OSError as exc:
-        raise MeshSaveError(f"Could not save '{path}': {exc.strerror or exc}.") from None
+        raise error_type(f"Could not save '{path}': {exc.strerror or exc}.") from None
 
 
 def write_atomic(path: Path, data: bytes) -> None:
