@@ -135,6 +135,10 @@ class Face:
         RGB per vertex.
     landmarks : mapping of name -> SurfacePoint, optional
     metadata : FaceMetadata, optional
+    parts : mapping of name -> (k,) int vertex indices, optional
+        Named vertex sets that animation treats specially, e.g. ``eyeball_l``,
+        ``eyeball_r`` (rotate with gaze), ``teeth_upper``, ``teeth_lower``
+        (rigid with skull / jaw), ``mouth_cavity``. Vertices in no part are skin.
     """
 
     def __init__(
@@ -147,6 +151,7 @@ class Face:
         vertex_colors=None,
         landmarks: Mapping[str, SurfacePoint] | None = None,
         metadata: FaceMetadata | None = None,
+        parts: Mapping[str, np.ndarray] | None = None,
         _topology: _TopologyCache | None = None,
     ):
         self._vertices = _frozen(vertices, np.float64, (3,), "vertices")
@@ -175,6 +180,13 @@ class Face:
         if self._vertex_colors is not None and len(self._vertex_colors) != n:
             raise ValueError(f"vertex_colors has {len(self._vertex_colors)} rows for {n} vertices")
         self.metadata = metadata if metadata is not None else FaceMetadata()
+        self._parts: dict[str, np.ndarray] = {}
+        for name, idx in (parts or {}).items():
+            idx = np.unique(np.asarray(idx, dtype=np.int64).ravel())
+            if len(idx) and (idx[0] < 0 or idx[-1] >= n):
+                raise ValueError(f"part {name!r} references vertex {int(idx[-1])} but there are only {n} vertices")
+            idx.setflags(write=False)
+            self._parts[name] = idx
         self._landmarks: dict[str, SurfacePoint] = {}
         for name, point in (landmarks or {}).items():
             self.set_landmark(name, point)
@@ -208,6 +220,18 @@ class Face:
     @property
     def vertex_colors(self) -> np.ndarray | None:
         return self._vertex_colors
+
+    @property
+    def parts(self) -> dict[str, np.ndarray]:
+        """Named vertex index sets (read-only arrays); see the class docstring."""
+        return dict(self._parts)
+
+    def part_mask(self, name: str) -> np.ndarray:
+        """(n,) bool, True for the vertices of part ``name`` (all False if the face has no such part)."""
+        mask = np.zeros(self.n_vertices, bool)
+        if name in self._parts:
+            mask[self._parts[name]] = True
+        return mask
 
     @property
     def n_vertices(self) -> int:
@@ -374,13 +398,14 @@ class Face:
             vertex_colors=self._vertex_colors,
             landmarks=self._landmarks,
             metadata=dataclasses.replace(self.metadata, notes=list(self.metadata.notes)),
+            parts=self._parts,
             _topology=self._topology,
         )
 
     def without_texture(self) -> "Face":
         return Face(
             self._vertices, self._triangles, uv=self._uv, vertex_colors=self._vertex_colors,
-            landmarks=self._landmarks, metadata=self.metadata, _topology=self._topology,
+            landmarks=self._landmarks, metadata=self.metadata, parts=self._parts, _topology=self._topology,
         )
 
     def __repr__(self) -> str:

@@ -37,6 +37,7 @@ def save_default_face(face: Face, path: Path | None = None) -> Path:
         uv=face.uv.astype(np.float32),
         texture=face.texture,
         landmarks=np.array(json.dumps({"order": names, "points": landmarks})),
+        **{f"part_{name}": idx.astype(np.int32) for name, idx in face.parts.items()},
     )
     path.write_bytes(buf.getvalue())
     return path
@@ -56,5 +57,6 @@ def load_default_face() -> Face:
         return Face(
             data["vertices"].astype(np.float64), data["triangles"], uv=data["uv"].astype(np.float64),
             texture=data["texture"], landmarks=landmarks,
+            parts={key[len("part_"):]: data[key] for key in data.files if key.startswith("part_")},
             metadata=FaceMetadata(source="built-in", units="mm", name="Mimica default face"),
         )
