@@ -1,0 +1,296 @@
+"""The Facial Animation Table (FAT): every FAP's displacement field as one sparse matrix.
+
+Built once per face (about a second for the 50k-vertex default face):
+
+1. the 80-point template is placed on the face and densified to 4560 vertices (``template``);
+2. each FAP's influence region is the set of dense vertices inside its base triangles
+   (``resources/templates/mpeg4_80.json``); d[x] is the breadth-first hop distance from the FAP's
+   core inside the region graph, d_max the largest, and the weight is
+   ``exp(-d² / (2·d_max·w))`` with the FAP's w (thesis A §5). The core is the FAP's feature point
+   (thesis A), widened where a rigid part must follow in full (the jaw moves the lower lip and
+   chin together; the lip-corner FAPs move the inner and outer corner together). For the eyelids
+   the core is the whole lid margin, each margin vertex weighted by the local height of the eye
+   opening relative to the centre (``profile = opening``), so a fully closed lid meets the other
+   lid along the whole margin instead of bulging at the centre; lids also move slightly forward
+   (``forward_tilt``) so they slide over the eyeball rather than through it;
+3. the face's skin vertices are bound to the dense template (closest point, barycentric; lip
+   vertices only to their own lip so the jaw never drags the upper lip) and the lower teeth to the
+   jaw; eyeballs, upper teeth and the mouth cavity have no rows (rigid or fixed).
+
+Then ``x = rest + F · (fap_values ∘ fapu)`` with F of shape (3n, 68), mm per FAP unit.
+
+Several FAPs on one point add their displacements. The exception is lid contact: when an upper
+and a lower lid of one eye together close more than the opening (close_t + close_b > 1024 IRISD),
+both are scaled down so that they meet (``lid_contact``); the slider values are kept.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+import scipy.sparse
+from scipy.sparse.csgraph import dijkstra
+
+from ..face import Face
+from ..surface_query import TriangleSet
+from . import tables
+from .template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template
+
+N_FAPS = tables.N_FAPS
+LID_PAIRS = ((19, 21), (20, 22))  # (upper, lower) per eye
+OUTSIDE_FADE_MM = 6.0  # skin beyond the template's outline follows it, fading over this distance
+
+
+def lid_contact(values: np.ndarray) -> np.ndarray:
+    """(68,) FAP values with each eye's closing values scaled so the lids meet instead of crossing."""
+    out = np.array(values, dtype=float)
+    for upper, lower in LID_PAIRS:
+        t, b = max(out[upper - 1], 0.0), max(out[lower - 1], 0.0)
+        total = (t + b) / 1024.0
+        if total > 1.0:
+            if out[upper - 1] > 0:
+                out[upper - 1] /= total
+            if out[lower - 1] > 0:
+                out[lower - 1] /= total
+    return out
+
+
+class FapDeformer:
+    """FAP deformation of one face: the FAT matrix plus the rigid eyeball and head motions.
+
+    Raises TemplateError (a ValueError with a user message) if the face lacks feature points.
+    """
+
+    def __init__(self, face: Face, template: BaseTemplate | None = None):
+        self.face = face
+        self.template = template or load_template()
+        self.dense: DenseTemplate = densify(face, self.template)
+        positions = {n: face.landmark_position(n) for n in face.landmark_names}
+        self.fapu = tables.measure_fapu(positions)
+        self.specs = tables.fap_specs()
+        self.template_matrix, self.template_weights = self._template_fat()
+        self.binding = self._bind()
+        n = face.n_vertices
+        B3 = scipy.sparse.kron(self.binding, scipy.sparse.identity(3, format="csr"), format="csr")
+        F = (B3 @ self.template_matrix).tocsr()
+        F = F + self._lower_teeth_rows()
+        self.matrix = F.tocsr()
+        self.matrix.eliminate_zeros()
+        self.fapu_vector = np.array([self.fapu.get(s.unit, 0.0) for s in self.specs])
+        self._rest = face.vertices.ravel()
+        self._eyes = self._eyeball_pivots()
+        self._head_pivot = self._estimate_head_pivot()
+        animated = [s.number for s in self.specs if s.thesis]
+        if self._eyes:
+            animated += [23, 24, 25, 26]
+        animated += [48, 49, 50]
+        self.animated_faps = tuple(sorted(animated))
+        assert self.matrix.shape == (3 * n, N_FAPS)
+
+    # ------------------------------------------------------------ building
+    def _template_fat(self) -> tuple[scipy.sparse.csr_matrix, dict[int, np.ndarray]]:
+        d = self.dense
+        N = len(d.vertices)
+        edges = np.concatenate([d.triangles[:, [0, 1]], d.triangles[:, [1, 2]], d.triangles[:, [2, 0]]])
+        adj = scipy.sparse.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(N, N)).tocsr()
+        adj = ((adj + adj.T) > 0).astype(float)
+        rows, cols, vals = [], [], []
+        weights = {}
+        for entry in self.template.regions:
+            fap = entry["fap"]
+            spec = self.specs[fap - 1]
+            region = d.in_base_triangles(entry["triangles"])
+            if entry.get("core_is_chain"):
+                core = d.on_chain(entry["core"]) & region
+            else:
+                core = np.zeros(N, bool)
+                core[[self.template.index(c) for c in entry["core"]]] = True
+            ids = np.nonzero(region)[0]
+            sub = adj[ids][:, ids]
+            sources = np.nonzero(core[ids])[0]
+            dist, _pred, nearest = dijkstra(sub, indices=sources, unweighted=True, min_only=True,
+                                            return_predecessors=True)
+            reach = np.isfinite(dist)
+            dmax = max(float(dist[reach].max()), 1.0)
+            w = np.where(reach, np.exp(-np.where(reach, dist, 0) ** 2 / (2 * dmax * entry["w"])), 0.0)
+            if entry.get("profile") == "opening":
+                w *= self._opening_profile(ids, nearest, entry)
+            weight = np.zeros(N)
+            weight[ids] = w
+            weights[fap] = weight
+            direction = np.array(spec.axis, float)
+            direction[2] += entry.get("forward_tilt", 0.0)
+            nz = np.nonzero(weight)[0]
+            for k in range(3):
+                if direction[k]:
+                    rows.append(3 * nz + k)
+                    cols.append(np.full(len(nz), fap - 1))
+                    vals.append(weight[nz] * direction[k])
+        F = scipy.sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                    shape=(3 * N, N_FAPS)).tocsr()
+        return F, weights
+
+    def _opening_profile(self, ids, nearest, entry) -> np.ndarray:
+        """Per region vertex: the eye opening's height at its nearest margin vertex / the height at the FP."""
+        d = self.dense
+        chain = d.on_chain(entry["core"])
+        opposite = d.on_chain(entry["opposite"])
+        v = d.vertices
+        ox, oy = v[opposite, 0], v[opposite, 1]
+        order = np.argsort(ox)
+        height = np.abs(v[:, 1] - np.interp(v[:, 0], ox[order], oy[order]))
+        fp_height = height[self.template.index(self.specs[entry["fap"] - 1].fp)]
+        profile = np.clip(height / max(fp_height, 1e-6), 0.0, 1.0)
+        source = np.where(nearest >= 0, ids[np.maximum(nearest, 0)], ids)
+        return np.where(chain[source], profile[source], 0.0)
+
+    def _bind(self) -> scipy.sparse.csr_matrix:
+        """(n, N) barycentric weights of each face skin vertex on the dense template."""
+        face, d, t = self.face, self.dense, self.template
+        n, N = face.n_vertices, len(d.vertices)
+        in_part = np.zeros(n, bool)
+        for idx in face.parts.values():
+            in_part[idx] = True
+        skin = np.nonzero(~in_part)[0]
+        side = self._mouth_side(skin)
+        base_tri_of = self._dense_triangle_base_points()
+        upper_pts = {t.index(p) for p in t.upper_lip_points}
+        lower_pts = {t.index(p) for p in t.lower_lip_points}
+        tri_upper = np.array([bool(upper_pts & s) for s in base_tri_of])
+        tri_lower = np.array([bool(lower_pts & s) for s in base_tri_of])
+        rows, cols, vals = [], [], []
+        for label, allowed in ((0, np.ones(len(d.triangles), bool)), (1, ~tri_lower), (-1, ~tri_upper)):
+            sel = skin[side == label]
+            if not len(sel):
+                continue
+            tri_ids = np.nonzero(allowed)[0]
+            ts = TriangleSet(d.vertices, d.triangles[tri_ids])
+            pos, tri, bary = ts.closest(face.vertices[sel], k=24, widen=False)
+            dist = np.linalg.norm(pos - face.vertices[sel], axis=1)
+            fade = np.exp(-(np.maximum(dist - 1.0, 0.0) / OUTSIDE_FADE_MM) ** 2)
+            corners = d.triangles[tri_ids[tri]]
+            rows.append(np.repeat(sel, 3))
+            cols.append(corners.ravel())
+            vals.append((bary * fade[:, None]).ravel())
+        return scipy.sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                       shape=(n, N)).tocsr()
+
+    def _dense_triangle_base_points(self) -> list[set[int]]:
+        """For each dense triangle, the base points of the base triangle it lies in."""
+        support = self.dense.base_coords > 1e-12
+        tri_support = support[self.dense.triangles].any(axis=1)  # (M, 80)
+        return [set(np.nonzero(row)[0]) for row in tri_support]
+
+    def _mouth_side(self, skin: np.ndarray) -> np.ndarray:
+        """(len(skin),) +1 upper lip side, -1 lower lip side, 0 elsewhere (between the mouth corners)."""
+        face = self.face
+        up = [face.landmark_position(p) for p in ("2.5", "2.7", "2.2", "2.6", "2.4")]
+        lo = [face.landmark_position(p) for p in ("2.5", "2.9", "2.3", "2.8", "2.4")]
+        line = (np.array(up) + np.array(lo)) / 2
+        order = np.argsort(line[:, 0])
+        x, y = face.vertices[skin, 0], face.vertices[skin, 1]
+        corner_x = max(abs(face.landmark_position("8.3")[0]), abs(face.landmark_position("8.4")[0]))
+        y_line = np.interp(x, line[order, 0], line[order, 1])
+        near = (np.abs(x) < corner_x + 2.0) & (np.abs(y - y_line) < 30.0)
+        side = np.where(y > y_line, 1, -1)
+        # Vertices on the seam itself: the side their own triangles lie on.
+        on = near & (np.abs(y - y_line) < 0.05)
+        if on.any():
+            adj = face.adjacency[skin[on]]
+            mean_y = (adj @ face.vertices[:, 1]) / np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1)
+            side[on] = np.where(mean_y > y[on], 1, -1)
+        return np.where(near, side, 0)
+
+    def _lower_teeth_rows(self) -> scipy.sparse.csr_matrix:
+        """The lower teeth follow the jaw FAPs (3 open_jaw, 14 thrust_jaw, 15 shift_jaw) rigidly."""
+        n = self.face.n_vertices
+        idx = self.face.parts.get("teeth_lower", np.zeros(0, np.int64))
+        rows, cols, vals = [], [], []
+        for fap in (3, 14, 15):
+            axis = np.array(self.specs[fap - 1].axis)
+            for k in range(3):
+                if axis[k]:
+                    rows.append(3 * idx + k)
+                    cols.append(np.full(len(idx), fap - 1))
+                    vals.append(np.full(len(idx), axis[k]))
+        if not rows:
+            return scipy.sparse.csr_matrix((3 * n, N_FAPS))
+        return scipy.sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                       shape=(3 * n, N_FAPS)).tocsr()
+
+    def _eyeball_pivots(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """part name -> (vertex indices, centre (3,)) for eyeballs, centre by a least-squares sphere fit."""
+        out = {}
+        for name in ("eyeball_l", "eyeball_r"):
+            idx = self.face.parts.get(name)
+            if idx is None or len(idx) < 10:
+                continue
+            p = self.face.vertices[idx]
+            A = np.column_stack([2 * p, np.ones(len(p))])
+            sol, *_ = np.linalg.lstsq(A, (p ** 2).sum(axis=1), rcond=None)
+            out[name] = (idx, sol[:3])
+        return out if len(out) == 2 else {}
+
+    def _estimate_head_pivot(self) -> np.ndarray:
+        """Top of the spine (FP 7.1) if marked, else 45 mm behind the ear contacts, level with the lower ones."""
+        face = self.face
+        if "7.1" in face.landmark_names:
+            return face.landmark_position("7.1")
+        ears = [face.landmark_position(p) for p in ("10.7", "10.8", "10.9", "10.10") if p in face.landmark_names]
+        if ears:
+            e = np.mean(ears, axis=0)
+            return np.array([0.0, e[1] - 10.0, e[2] - 45.0])
+        lo, hi = face.bounds
+        return np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2 - 30.0, lo[2] - 40.0])
+
+    # ------------------------------------------------------------ queries
+    def why_not_animated(self, number: int) -> str:
+        if number in (23, 24, 25, 26):
+            return "the face has no separate eyeballs (parts eyeball_l / eyeball_r)"
+        return "Mimica animates the 46 low-level FAPs of thesis A, gaze (23-26) and head rotation (48-50)"
+
+    def influence(self, number: int) -> np.ndarray:
+        """(n,) in [0, 1]: the FAP's weight at each face vertex (1 for moved rigid parts)."""
+        if number in self.template_weights:
+            w = self.binding @ self.template_weights[number]
+        else:
+            w = np.zeros(self.face.n_vertices)
+        if number in (23, 25) and self._eyes:
+            w[self._eyes["eyeball_l"][0]] = 1.0
+        if number in (24, 26) and self._eyes:
+            w[self._eyes["eyeball_r"][0]] = 1.0
+        if number in (48, 49, 50):
+            w[:] = 1.0
+        if number in (3, 14, 15) and "teeth_lower" in self.face.parts:
+            w[self.face.parts["teeth_lower"]] = 1.0
+        return w
+
+    def deform(self, values: np.ndarray, layers: Sequence[Callable[[np.ndarray], np.ndarray]] = ()) -> np.ndarray:
+        """(n, 3) vertices for (68,) effective FAP values (FAP units), plus layer offsets, then rigid motions."""
+        values = lid_contact(np.asarray(values, dtype=float))
+        x = (self._rest + self.matrix @ (values * self.fapu_vector)).reshape(-1, 3)
+        for layer in layers:
+            x = x + layer(x)
+        if self._eyes:
+            for name, (yaw, pitch) in (("eyeball_l", (23, 25)), ("eyeball_r", (24, 26))):
+                a, b = values[yaw - 1] * tables.ANGLE_UNIT, values[pitch - 1] * tables.ANGLE_UNIT
+                if a or b:
+                    idx, centre = self._eyes[name]
+                    R = _rotation((0, 1, 0), a) @ _rotation((1, 0, 0), b)
+                    x[idx] = (x[idx] - centre) @ R.T + centre
+        head = values[47:50] * tables.ANGLE_UNIT
+        if head.any():
+            R = _rotation((0, 1, 0), head[1]) @ _rotation((1, 0, 0), head[0]) @ _rotation((0, 0, 1), head[2])
+            x = (x - self._head_pivot) @ R.T + self._head_pivot
+        return x
+
+
+def _rotation(axis, angle: float) -> np.ndarray:
+    """3x3 right-handed rotation by ``angle`` rad about unit ``axis`` (Rodrigues)."""
+    k = np.asarray(axis, float)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+__all__ = ["FapDeformer", "TemplateError", "lid_contact"]

@@ -1,0 +1,201 @@
+"""MPEG-4 FAP tables, FAP units measured on a face, expression and viseme presets.
+
+All tables are data in ``resources/mpeg4/`` (sources in their header comments); this module only
+parses them. FAP numbers are 1-based as in the standard; arrays indexed by FAP use ``n - 1``.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+import resources
+
+N_FAPS = 68
+ANGLE_UNIT = 1e-5  # rad per AU
+DOCK_GROUPS = ("jaw & chin", "inner lips", "lip corners", "outer lips", "eyelids", "eyebrows", "cheeks", "nose",
+               "gaze", "head")
+
+
+@dataclass(frozen=True)
+class FapSpec:
+    """One FAP of the standard table.
+
+    axis : (3,) unit vector of the positive direction (translations) or the rotation axis
+    (unit ``AU``), in face coordinates (+x the face's own left, +y up, +z forward).
+    minimum, maximum : Mimica's slider range in FAP units (NaN for FAPs Mimica does not animate).
+    """
+
+    number: int
+    name: str
+    fp: str
+    unit: str
+    direction: str
+    axis: tuple[float, float, float] | None
+    bidirectional: bool
+    group: int
+    dock: str
+    thesis: bool
+    animated: bool
+    pair: int | None
+    minimum: float
+    maximum: float
+
+    @property
+    def is_rotation(self) -> bool:
+        return self.unit == "AU"
+
+
+@functools.cache
+def fap_specs() -> tuple[FapSpec, ...]:
+    """All 68 FAPs, index ``n - 1`` is FAP n."""
+    specs = []
+    for row in resources.get_table("mpeg4/faps.csv"):
+        axis = tuple(float(a) for a in row["axis"].split()) if row["axis"] else None
+        specs.append(FapSpec(
+            number=int(row["fap"]), name=row["name"], fp=row["fp"], unit=row["unit"], direction=row["direction"],
+            axis=axis, bidirectional=row["bidirectional"] == "true", group=int(row["group"]), dock=row["dock"],
+            thesis=row["thesis"] == "1", animated=row["animated"] == "1",
+            pair=int(row["pair"]) if row["pair"] else None,
+            minimum=float(row["min"]) if row["min"] else float("nan"),
+            maximum=float(row["max"]) if row["max"] else float("nan"),
+        ))
+    assert [s.number for s in specs] == list(range(1, N_FAPS + 1)), "faps.csv must list FAPs 1..68 in order"
+    return tuple(specs)
+
+
+def fap_spec(number_or_name: int | str) -> FapSpec:
+    """The spec of a FAP by number (1..68) or name (``open_jaw``); ValueError names what is valid."""
+    specs = fap_specs()
+    if isinstance(number_or_name, str) and not number_or_name.isdigit():
+        for s in specs:
+            if s.name == number_or_name:
+                return s
+        raise ValueError(f"unknown FAP name {number_or_name!r}; names are like 'open_jaw' or 'close_t_l_eyelid'")
+    n = int(number_or_name)
+    if not 1 <= n <= N_FAPS:
+        raise ValueError(f"FAP numbers run from 1 to {N_FAPS}, got {n}")
+    return specs[n - 1]
+
+
+def thesis_faps() -> tuple[int, ...]:
+    """The 46 low-level FAPs of thesis A: 3-22, 31-42, 51-64."""
+    return tuple(s.number for s in fap_specs() if s.thesis)
+
+
+@functools.cache
+def expression_names() -> tuple[str, ...]:
+    """FAP 2 expression_select names by id (0 = neutral, 1 joy ... 6 surprise)."""
+    return tuple(r["name"] for r in resources.get_table("mpeg4/expressions.csv"))
+
+
+@functools.cache
+def viseme_names() -> tuple[str, ...]:
+    """FAP 1 viseme_select names by id (0 = none ... 14)."""
+    return tuple(r["name"] for r in resources.get_table("mpeg4/visemes.csv"))
+
+
+@functools.cache
+def viseme_phonemes() -> tuple[str, ...]:
+    return tuple(r["phonemes_sampa"] for r in resources.get_table("mpeg4/visemes.csv"))
+
+
+def _preset_table(name: str, key: str, n_presets: int) -> np.ndarray:
+    table = np.zeros((n_presets, N_FAPS))
+    for row in resources.get_table(name):
+        table[int(row[key]), int(row["fap"]) - 1] = float(row["value"])
+    table.setflags(write=False)
+    return table
+
+
+@functools.cache
+def expression_table() -> np.ndarray:
+    """(7, 68) FAP values of each expression at 100 % (row 0 neutral = zeros); thesis A Table B.1."""
+    ids = {n: i for i, n in enumerate(expression_names())}
+    table = np.zeros((len(ids), N_FAPS))
+    for row in resources.get_table("mpeg4/expression_presets.csv"):
+        table[ids[row["expression"]], int(row["fap"]) - 1] = float(row["value"])
+    table.setflags(write=False)
+    return table
+
+
+@functools.cache
+def viseme_table() -> np.ndarray:
+    """(15, 68) FAP values of each viseme at 100 % (row 0 = none = zeros)."""
+    return _preset_table("mpeg4/viseme_presets.csv", "viseme", len(viseme_names()))
+
+
+def expression_id(name_or_id: str | int) -> int:
+    names = expression_names()
+    if isinstance(name_or_id, str) and not name_or_id.isdigit():
+        key = name_or_id.strip().lower()
+        if key not in names:
+            raise ValueError(f"unknown expression {name_or_id!r}; choose one of {', '.join(names[1:])}")
+        return names.index(key)
+    i = int(name_or_id)
+    if not 0 <= i < len(names):
+        raise ValueError(f"expression ids run from 0 to {len(names) - 1}, got {i}")
+    return i
+
+
+def viseme_id(name_or_id: str | int) -> int:
+    names = viseme_names()
+    if isinstance(name_or_id, str) and not name_or_id.isdigit():
+        lowered = [n.lower() for n in names]
+        key = name_or_id.strip().lower()
+        if key not in lowered:
+            raise ValueError(f"unknown viseme {name_or_id!r}; use an id 0-14 or one of {', '.join(names)}")
+        return lowered.index(key)
+    i = int(name_or_id)
+    if not 0 <= i < len(names):
+        raise ValueError(f"viseme ids run from 0 to {len(names) - 1}, got {i}")
+    return i
+
+
+# ------------------------------------------------------------------ FAP units
+class FapuError(ValueError):
+    """The face lacks the feature points a FAP unit is measured on."""
+
+
+def measure_fapu(positions: dict[str, np.ndarray], frame: np.ndarray | None = None) -> dict[str, float]:
+    """FAP units (mm per unit; AU in rad) from neutral feature point positions.
+
+    positions : name -> (3,) mm. frame : (3, 3) rows = the face's x, y, z axes (identity if None).
+    IRISD is the mean of both eyes; without pupils (3.5/3.6), the eye centre is taken as the
+    midpoint of the eye corners (the notes of thesis A's 64 points drop the pupils).
+    """
+    frame = np.eye(3) if frame is None else np.asarray(frame, float)
+    p = {k: frame @ np.asarray(v, float) for k, v in positions.items()}
+
+    def need(*names):
+        missing = [n for n in names if n not in p]
+        if missing:
+            raise FapuError(f"cannot measure FAP units: feature point(s) {', '.join(missing)} are not marked")
+
+    def eye(side):
+        pupil, corners = ("3.5", ("3.7", "3.11")) if side == "l" else ("3.6", ("3.12", "3.8"))
+        if pupil in p:
+            return p[pupil]
+        need(*corners)
+        return (p[corners[0]] + p[corners[1]]) / 2
+
+    need("3.1", "3.3", "3.2", "3.4", "9.15", "2.2", "8.3", "8.4")
+    left, right = eye("l"), eye("r")
+    units = {
+        "IRISD": ((p["3.1"][1] - p["3.3"][1]) + (p["3.2"][1] - p["3.4"][1])) / 2,
+        "ES": left[0] - right[0],
+        "ENS": (left[1] + right[1]) / 2 - p["9.15"][1],
+        "MNS": p["9.15"][1] - p["2.2"][1],
+        "MW": p["8.3"][0] - p["8.4"][0],
+    }
+    for name, value in units.items():
+        if not value > 0:
+            raise FapuError(
+                f"cannot measure FAP units: {name}0 = {value:.2f} mm is not positive; check that the left/right "
+                "and upper/lower feature points are not swapped"
+            )
+    out = {k: v / 1024.0 for k, v in units.items()}
+    out["AU"] = ANGLE_UNIT
+    return out
