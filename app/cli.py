@@ -20,6 +20,8 @@ import sys
 from pathlib import Path
 from typing import Callable, Sequence
 
+import numpy as np
+
 PROG = "mimica"
 
 VIEWS = ("front", "side", "three-quarter")
@@ -93,6 +95,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     from app.render import render_face_png
 
+    if args.fap or args.expression or args.viseme:
+        face = face.with_vertices(_animated_vertices(face, args))
     try:
         render_face_png(face, out, view=args.view, size=args.size, mode=args.mode,
                         show_landmarks=args.landmarks)
@@ -100,6 +104,67 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
     print(f"wrote {out} ({args.size[0]}x{args.size[1]}, {args.view}, {args.mode})")
     return 0
+
+
+def _named_value(text: str, what: str) -> tuple[str, str | None]:
+    name, sep, value = text.partition("=" if what == "fap" else ":")
+    if not name.strip() or (sep and not value.strip()):
+        example = "open_jaw=400" if what == "fap" else f"{'joy:60' if what == 'expression' else '10:80'}"
+        raise CliError(f"--{what} {text!r}: expected e.g. --{what} {example}")
+    return name.strip(), value.strip() if sep else None
+
+
+def _number(text: str, what: str) -> float:
+    try:
+        value = float(text.rstrip("%"))
+    except ValueError:
+        raise CliError(f"{what}: {text!r} is not a number") from None
+    if not np.isfinite(value):
+        raise CliError(f"{what}: {text!r} is not a finite number")
+    return value
+
+
+def _intensity(text: str | None, what: str) -> float:
+    """Percent (0-100) -> fraction; absent means 100 %."""
+    if text is None:
+        return 1.0
+    value = _number(text, what)
+    if not 0 <= value <= 100:
+        raise CliError(f"{what}: intensity must be 0-100 (%), got {text}")
+    return value / 100.0
+
+
+def _animated_vertices(face, args) -> np.ndarray:
+    """The face deformed by --fap / --expression / --viseme (FAP units, percent intensities)."""
+    from core.fap import tables
+    from core.fap.template import TemplateError
+    from core.rig import FaceRig
+
+    try:
+        rig = FaceRig(face)
+    except (TemplateError, ValueError) as exc:
+        raise CliError(f"cannot animate this face: {exc}") from None
+    values = {}
+    for item in args.fap:
+        name, value = _named_value(item, "fap")
+        if value is None:
+            raise CliError(f"--fap {item!r}: give a value, e.g. --fap {name}=200")
+        try:
+            spec = tables.fap_spec(name)
+        except ValueError as exc:
+            raise CliError(f"--fap {item!r}: {exc}") from None
+        values[spec.number] = _number(value, f"--fap {spec.name}")
+    try:
+        rig.set_faps(values)
+        if args.expression:
+            name, value = _named_value(args.expression, "expression")
+            rig.set_expression(name, _intensity(value, f"--expression {name}"))
+        if args.viseme:
+            name, value = _named_value(args.viseme, "viseme")
+            rig.set_viseme(name, _intensity(value, f"--viseme {name}"))
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    return rig.vertices()
 
 
 # ------------------------------------------------------------------ parser
@@ -122,6 +187,15 @@ def _add_render(sub) -> None:
                    help="image size in pixels (default: 1200x900)")
     p.add_argument("--mode", choices=MODES, default="textured", help="display mode (default: textured)")
     p.add_argument("--landmarks", action="store_true", help="draw landmarks with their labels")
+    anim = p.add_argument_group("MPEG-4 animation (the face needs the 64 feature points of the template)")
+    anim.add_argument("--fap", action="append", default=[], metavar="NAME=VALUE",
+                      help="low-level FAP by name or number, in FAP units, e.g. open_jaw=400 or 19=1024 "
+                           "(repeatable)")
+    anim.add_argument("--expression", metavar="NAME[:PERCENT]",
+                      help="expression preset (joy, sadness, anger, fear, disgust, surprise), e.g. joy:60")
+    anim.add_argument("--viseme", metavar="ID[:PERCENT]",
+                      help="viseme preset by id 0-14 or name (PP, FF, TH, DD, kk, CH, SS, nn, RR, aa, E, ih, oh, "
+                           "ou), e.g. 10:80")
     p.set_defaults(func=cmd_render)
 
 

@@ -194,8 +194,13 @@ class FapDeformer:
         y_line = np.interp(x, line[order, 0], line[order, 1])
         near = (np.abs(x) < corner_x + 2.0) & (np.abs(y - y_line) < 30.0)
         side = np.where(y > y_line, 1, -1)
-        # Vertices on the seam itself: the side their own triangles lie on.
-        on = near & (np.abs(y - y_line) < 0.05)
+        # Vertices on the mouth opening's rim (a seam of duplicated vertices on a closed mouth):
+        # the side their own triangles lie on.
+        from ..subdivision import boundary_edges
+
+        rim = np.zeros(face.n_vertices, bool)
+        rim[boundary_edges(face.triangles).ravel()] = True
+        on = near & rim[skin] & (np.abs(y - y_line) < 3.0)
         if on.any():
             adj = face.adjacency[skin[on]]
             mean_y = (adj @ face.vertices[:, 1]) / np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1)
