@@ -9,9 +9,14 @@ Beyond a raw scan, the mesh is cut where a face opens:
 - the mouth line between the corners is a seam of duplicated vertices (upper
   lip above, lower lip below), so the lips can part;
 - each palpebral opening is a hole whose rim follows the lid margins exactly;
-  an eyeball (ellipsoidal cap, its front pole at the pupil) sits behind it.
-The MPEG-4 feature points on the front of the face are placed by construction
-as surface points of this mesh (ground truth for landmarking).
+  an eyeball (ellipsoidal cap, its front pole at the pupil) sits behind it;
+- behind the mouth seam sit the mouth cavity and the upper and lower teeth
+  (see mouth.py), so that parted lips show the inside of a mouth.
+Components, in vertex order: skin, left (+x) eyeball, right eyeball, mouth
+cavity, upper teeth, lower teeth; all but the skin are named ``Face.parts``.
+The MPEG-4 feature points on the front of the face (and the teeth points on
+the built-in teeth) are placed by construction as surface points of this mesh
+(ground truth for landmarking).
 """
 
 from __future__ import annotations
@@ -21,8 +26,9 @@ from scipy.spatial import cKDTree
 
 from ..face import Face, FaceMetadata, SurfacePoint
 from .params import FaceLayout, FaceParameters
-from .shape import FaceShape
-from .texture import eye_atlas_centre, paint_texture
+from .mouth import MouthInterior
+from .shape import OUTLINE_T, FaceShape
+from .texture import atlas_map, eye_atlas_centre, mouth_atlas, paint_texture
 
 GRID_SPACING = 0.645  # mm: gives ~50k vertices over the face, like the thesis's scans
 TEXTURE_SIZE = (640, 480)  # (width, height) pixels, the Vivid 910 colour image
@@ -46,25 +52,53 @@ def generate_face(params: FaceParameters | None = None, *, grid_spacing: float =
     n_skin_tris = len(tris)
 
     eye_verts, eye_tris, poles = _eyeballs(shape, offset=len(skin))
-    vertices = np.concatenate([skin, eye_verts])
-    triangles = np.concatenate([tris, eye_tris])
+    mouth = MouthInterior(layout, shape)
+    cavity_verts, cavity_tris, cavity_local = mouth.cavity()
+    upper, lower = mouth.teeth(upper=True), mouth.teeth(upper=False)
+    blocks = [("skin", skin, tris), ("eyes", eye_verts, eye_tris - len(skin)),
+              ("mouth_cavity", cavity_verts, cavity_tris), ("teeth_upper", upper.vertices, upper.triangles),
+              ("teeth_lower", lower.vertices, lower.triangles)]
+    starts = np.cumsum([0] + [len(v) for _, v, _ in blocks])
+    start = {name: int(st) for (name, _, _), st in zip(blocks, starts)}
+    vertices = np.concatenate([v for _, v, _ in blocks])
+    triangles = np.concatenate([t + st for (_, _, t), st in zip(blocks, starts)])
+    n_eye = len(eye_verts) // 2
+    parts = {
+        "eyeball_l": np.arange(start["eyes"], start["eyes"] + n_eye),
+        "eyeball_r": np.arange(start["eyes"] + n_eye, start["mouth_cavity"]),
+        "mouth_cavity": np.arange(start["mouth_cavity"], start["teeth_upper"]),
+        "teeth_upper": np.arange(start["teeth_upper"], start["teeth_lower"]),
+        "teeth_lower": np.arange(start["teeth_lower"], len(vertices)),
+    }
 
     frame = _texture_frame(layout)
     # Skin: orthographic projection. Eyeballs: their own square of the image
     # (the eye atlas), so lid skin and the eyeball behind it never share texels.
+    # Mouth interior: its own patches (the mouth atlas) in the left margin.
     projected = vertices[:, :2].copy()
     atlas = np.asarray(eye_atlas_centre(frame))
     for k, centre in enumerate(shape.eyeball_centres()):
-        part = slice(len(skin) + k * len(eye_verts) // 2, len(skin) + (k + 1) * len(eye_verts) // 2)
-        projected[part] = projected[part] - centre[:2] * [1, 1] + atlas
+        part = parts["eyeball_l" if k == 0 else "eyeball_r"]
+        projected[part] = projected[part] - centre[:2] + atlas
+    rects = mouth_atlas(frame, float(np.abs(skin[:, 0]).max()))
+    for name, local, local_rect in (("mouth_cavity", cavity_local, mouth.cavity_rect),
+                                    ("teeth_upper", upper.local, upper.local_rect),
+                                    ("teeth_lower", lower.local, lower.local_rect)):
+        projected[parts[name]] = atlas_map(local, local_rect, rects[name])
     uv = np.column_stack([(projected[:, 0] - frame[0]) / frame[2], (projected[:, 1] - frame[1]) / frame[3]])
-    texture = paint_texture(layout, shape, frame, TEXTURE_SIZE)
+    texture = paint_texture(layout, shape, frame, TEXTURE_SIZE, mouth=(mouth, upper, lower, rects))
 
     face = Face(
-        vertices, triangles, uv=uv, texture=texture,
+        vertices, triangles, uv=uv, texture=texture, parts=parts,
         metadata=FaceMetadata(source="built-in", units="mm", name="Mimica default face"),
     )
-    landmarks = _place_feature_points(layout, shape, face, n_skin_tris, poles)
+    teeth_vertices = {
+        "9.8": start["teeth_upper"] + upper.points["gum"],    # top of the upper teeth (midline, gum line)
+        "9.10": start["teeth_upper"] + upper.points["edge"],  # bottom of the upper teeth (incisal edge)
+        "9.11": start["teeth_lower"] + lower.points["edge"],  # top of the lower teeth (incisal edge)
+        "9.9": start["teeth_lower"] + lower.points["gum"],    # bottom of the lower teeth (gum line)
+    }
+    landmarks = _place_feature_points(layout, shape, face, n_skin_tris, poles, teeth_vertices)
     for name, point in landmarks.items():
         face.set_landmark(name, point)
     face.metadata.notes.append(
@@ -136,8 +170,6 @@ def _boundary_vertices(tris: np.ndarray) -> np.ndarray:
 
 def _smooth_outer_rim(shape: FaceShape, xy: np.ndarray, tris: np.ndarray, h: float) -> np.ndarray:
     """Move the side rim vertices horizontally onto the outline, removing the grid's staircase."""
-    from .shape import OUTLINE_T
-
     rim = _boundary_vertices(tris)
     x, y = xy[rim, 0], xy[rim, 1]
     target = np.sign(x) * OUTLINE_T * shape.half_width(y)
@@ -276,14 +308,27 @@ def feature_point_layout(layout: FaceLayout, shape: FaceShape) -> dict[str, tupl
     fp["9.12"] = (0.0, (L.nasion_y + L.nose_tip_y) / 2, "skin")
     pair("9.13", "9.14", 8.0, (L.nasion_y + L.nose_tip_y) / 2 - 4.0)
     fp["9.15"] = (0.0, L.subnasale_y, "skin")
+    # Group 10: where the ears meet the face, at the side edge of the scan (inside it):
+    # upper contact between the eye corners and the brow, lower at the nose base.
+    ear_t = OUTLINE_T - 0.05
+    for (left, right), ey in ((("10.9", "10.10"), L.eye_line_y + 5.0), (("10.7", "10.8"), L.subnasale_y)):
+        pair(left, right, ear_t * float(shape.half_width(ey)), ey)
     # Group 11: hairline.
     fp["11.1"] = (0.0, L.hairline_y, "skin")
     pair("11.3", "11.2", 38.0, L.hairline_y - 7.0)
     return fp
 
 
-def _place_feature_points(layout, shape, face: Face, n_skin_tris: int, poles) -> dict[str, SurfacePoint]:
-    """Surface points of the feature points: located in the flattened skin mesh (exact by construction)."""
+def _vertex_point(face: Face, vertex: int) -> SurfacePoint:
+    """The surface point exactly at ``vertex`` (on the first triangle that uses it)."""
+    tri = int(np.nonzero((face.triangles == vertex).any(axis=1))[0][0])
+    return SurfacePoint(tri, tuple((face.triangles[tri] == vertex).astype(float)))
+
+
+def _place_feature_points(layout, shape, face: Face, n_skin_tris: int, poles,
+                          teeth_vertices: dict[str, int]) -> dict[str, SurfacePoint]:
+    """Surface points of the feature points: located in the flattened skin mesh (exact by construction);
+    pupils and teeth points are vertices of their components."""
     import trimesh
 
     skin_tris = face.triangles[:n_skin_tris]
@@ -291,14 +336,11 @@ def _place_feature_points(layout, shape, face: Face, n_skin_tris: int, poles) ->
     flat[:, 2] = 0.0
     flat_mesh = trimesh.Trimesh(flat, skin_tris, process=False, validate=False)
     nudge = {"upper": 0.05, "lower": -0.05, "rim_up": 0.05, "rim_low": -0.05, "skin": 0.0}
-    out: dict[str, SurfacePoint] = {}
+    out: dict[str, SurfacePoint] = {name: _vertex_point(face, v) for name, v in teeth_vertices.items()}
     names, queries, exact = [], [], []
     for name, (x, y, part) in feature_point_layout(layout, shape).items():
         if part in ("eye_l", "eye_r"):
-            pole = poles[0 if part == "eye_l" else 1]
-            tri = int(np.nonzero((face.triangles == pole).any(axis=1))[0][0])
-            bary = (face.triangles[tri] == pole).astype(float)
-            out[name] = SurfacePoint(tri, tuple(bary))
+            out[name] = _vertex_point(face, poles[0 if part == "eye_l" else 1])
             continue
         names.append(name)
         queries.append((x, y + nudge[part], 0.0))

@@ -8,7 +8,9 @@ cheeks/nose/chin, darkening in creases from the surface's Laplacian), hair
 above the hairline, eyebrows (anisotropic strands), lips, lid lashes,
 nostrils. The eyeballs are painted in a separate square of the image (the
 "eye atlas", in the frame's unused right margin) so that lid skin and the
-eyeball behind it never share texels.
+eyeball behind it never share texels. The mouth interior (upper teeth, lower
+teeth, cavity) has its own patches stacked in the unused left margin (the
+"mouth atlas"), each a linear map of the component's local coordinates.
 """
 
 from __future__ import annotations
@@ -40,8 +42,40 @@ def eye_atlas_centre(frame) -> tuple[float, float]:
     return (x0 + w - 20.0, y0 + h / 2)
 
 
-def paint_texture(layout: FaceLayout, shape, frame, size) -> np.ndarray:
-    """(H, W, 3) uint8 image for the frame (x0, y0, width, height) in mm; size = (W, H) pixels."""
+ATLAS_GAP = 3.0  # mm between mouth-atlas patches and from the skin / frame edges
+
+
+def mouth_atlas(frame, skin_half_width: float) -> dict[str, tuple[float, float, float, float]]:
+    """Rectangles (x0, y0, width, height) in mm of the frame for the mouth patches.
+
+    They are stacked from the top of the frame's left margin, between the
+    frame's left edge and the skin (which spans |x| <= ``skin_half_width``).
+    """
+    x0, y0, w, h = frame
+    left, right = x0 + ATLAS_GAP, -skin_half_width - 2 * ATLAS_GAP
+    width = right - left
+    if width < 10.0:
+        raise ValueError("no room left of the skin for the mouth atlas")
+    rects, top = {}, y0 + h - ATLAS_GAP
+    for name, height in (("teeth_upper", 26.0), ("teeth_lower", 26.0), ("mouth_cavity", 50.0)):
+        rects[name] = (left, top - height, width, height)
+        top -= height + ATLAS_GAP
+    return rects
+
+
+def atlas_map(local, local_rect, atlas_rect) -> np.ndarray:
+    """(k, 2) local coordinates -> (k, 2) frame mm inside ``atlas_rect`` (linear, per axis)."""
+    local = np.asarray(local, float)
+    lx, ly, lw, lh = local_rect
+    ax, ay, aw, ah = atlas_rect
+    return np.column_stack([ax + (local[:, 0] - lx) / lw * aw, ay + (local[:, 1] - ly) / lh * ah])
+
+
+def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None) -> np.ndarray:
+    """(H, W, 3) uint8 image for the frame (x0, y0, width, height) in mm; size = (W, H) pixels.
+
+    ``mouth`` = (MouthInterior, upper TeethRow, lower TeethRow, atlas rects) paints the mouth atlas.
+    """
     p = layout.p
     W, H = size
     x0, y0, fw, fh = frame
@@ -112,7 +146,52 @@ def paint_texture(layout: FaceLayout, shape, frame, size) -> np.ndarray:
     # --- eye atlas
     cx, cy = eye_atlas_centre(frame)
     _paint_eye(img, X - cx, Y - cy, layout, rng)
+    if mouth is not None:
+        _paint_mouth(img, X, Y, px, layout, *mouth)
     return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def _patch_local(X, Y, px, local_rect, atlas_rect):
+    """Mask of the texels of a patch (with a 2-texel skirt for filtering) and their local coordinates."""
+    ax, ay, aw, ah = atlas_rect
+    lx, ly, lw, lh = local_rect
+    pad = 2.0 * px
+    mask = (X > ax - pad) & (X < ax + aw + pad) & (Y > ay - pad) & (Y < ay + ah + pad)
+    u = lx + np.clip((X[mask] - ax) / aw, 0, 1) * lw
+    v = ly + np.clip((Y[mask] - ay) / ah, 0, 1) * lh
+    return mask, u, v
+
+
+def _paint_mouth(img, X, Y, px, layout: FaceLayout, mouth, upper, lower, rects):
+    """Cavity (red-brown mucosa darkening to near black at the back, a hint of tongue) and teeth."""
+    p = layout.p
+    mask, x, y = _patch_local(X, Y, px, mouth.cavity_rect, rects["mouth_cavity"])
+    depth = np.clip(mouth.shape.skin_depth(x, y) - mouth.cavity_depth(x, y), 0, None)
+    dark = _smoothstep(3.0, 20.0, depth)[:, None]
+    mucosa = np.array([126.0, 54.0, 52.0]) * (1 - dark) + np.array([24.0, 10.0, 10.0]) * dark
+    tongue = 0.55 * _gauss(x, y, 0.0, layout.stomion_y - 17.0, 15.0, 8.0)[:, None]
+    mucosa = mucosa * (1 - tongue) + np.array([112.0, 46.0, 48.0]) * (1 - 0.5 * dark) * tongue
+    img[mask] = mucosa
+    gum = np.array([198.0, 100.0, 102.0]) * (1 - 0.35 * p.skin_tone)
+    for row, name in ((upper, "teeth_upper"), (lower, "teeth_lower")):
+        mask, s, v = _patch_local(X, Y, px, row.local_rect, rects[name])
+        d = np.min(np.abs(s[:, None] - row.tooth_boundaries[None, :]), axis=1)
+        papilla = 1.4 * np.exp(-((d / 1.1) ** 2))
+        lab, lin = row.gum_lines
+        to_gum = np.minimum(v - (lab + papilla), (lin - papilla) - v)     # < 0 on the gum
+        enamel = np.array([236.0, 230.0, 212.0])
+        cervical = np.exp(-np.clip(to_gum, 0, None) / 2.5)[:, None]
+        tooth = enamel * (1 - 0.6 * cervical) + np.array([220.0, 204.0, 168.0]) * 0.6 * cervical
+        edge = 0.35 * np.exp(-(((v - row.edge_loop) / 1.2) ** 2))[:, None]
+        tooth = tooth * (1 - edge) + np.array([200.0, 205.0, 212.0]) * edge
+        tooth *= (1.0 - 0.45 * np.exp(-((d / 0.4) ** 2)))[:, None]
+        on_gum = _smoothstep(0.25, -0.25, to_gum)[:, None]
+        img[mask] = tooth * (1 - on_gum) + gum * on_gum
+
+
+def _smoothstep(e0, e1, v):
+    t = np.clip((v - e0) / (e1 - e0), 0.0, 1.0)
+    return t * t * (3 - 2 * t)
 
 
 def _paint_eye(img, dx, dy, layout: FaceLayout, rng):

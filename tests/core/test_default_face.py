@@ -22,8 +22,8 @@ def test_scan_like_size_and_texture(face):
     assert face.uv.shape == (face.n_vertices, 2)
     assert face.uv.min() >= 0 and face.uv.max() <= 1
     assert np.isfinite(face.vertices).all()
-    # Skin + two eyeballs.
-    assert face.n_components == 3
+    # Skin, two eyeballs, mouth cavity, upper and lower teeth.
+    assert face.n_components == 6
 
 
 def test_deterministic():
@@ -44,7 +44,7 @@ def test_different_parameters_give_different_faces(face):
 
 def test_every_frontal_feature_point_is_a_landmark(face):
     expected = frontal_feature_points()
-    assert len(expected) == 62
+    assert len(expected) == 70  # 62 on the skin and eyes, 4 ear contacts, 4 teeth
     assert sorted(face.landmark_names) == sorted(expected)
 
 

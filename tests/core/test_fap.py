@@ -1,0 +1,288 @@
+"""MPEG-4 FAP engine: tables, FAPU, template counts (thesis A Table 5.1), the FAT and the rig."""
+
+import numpy as np
+import pytest
+
+import resources
+from core.fap import tables
+from core.fap.fat import lid_contact
+from core.fap.template import TemplateError, densify, load_template
+from core.rig import FaceRig
+from core.subdivision import boundary_edges, subdivide
+
+
+# ------------------------------------------------------------------ tables (no face needed)
+def test_fap_table_has_68_faps_and_the_46_of_the_thesis():
+    specs = tables.fap_specs()
+    assert len(specs) == 68
+    assert tables.thesis_faps() == tuple(range(3, 23)) + tuple(range(31, 43)) + tuple(range(51, 65))
+    assert len(tables.thesis_faps()) == 46
+    jaw = tables.fap_spec("open_jaw")
+    assert (jaw.number, jaw.fp, jaw.unit, jaw.axis, jaw.bidirectional) == (3, "2.1", "MNS", (0.0, -1.0, 0.0), False)
+    # Left is the face's own left (+x), right is -x; pairs point at each other.
+    assert tables.fap_spec(6).axis == (1.0, 0.0, 0.0) and tables.fap_spec(7).axis == (-1.0, 0.0, 0.0)
+    for s in specs:
+        if s.pair:
+            assert tables.fap_spec(s.pair).pair == s.number
+        if s.animated:
+            assert s.minimum < s.maximum and s.dock
+            assert s.minimum == 0 or s.bidirectional  # unidirectional FAPs start at 0
+
+
+def test_feature_point_table_counts():
+    groups = [r["group"] for r in resources.get_table("mpeg4/feature_points.csv")]
+    assert len(groups) == 84
+    assert [groups.count(str(g)) for g in range(2, 12)] == [14, 14, 6, 4, 4, 1, 10, 15, 10, 6]
+
+
+def test_expression_presets_reproduce_table_b1():
+    t = tables.expression_table()
+    joy, surprise, anger = (tables.expression_id(n) for n in ("joy", "surprise", "anger"))
+    assert t[joy, 2] == 430 and t[joy, 4] == -500 and t[joy, 58] == 230 and t[joy, 59] == 230
+    assert t[surprise, 5] == -280 and t[surprise, 6] == -280
+    assert t[anger, 17] == 250 and t[anger, 15] == 200
+    assert not t[0].any()
+    assert tables.expression_names()[1:] == ("joy", "sadness", "anger", "fear", "disgust", "surprise")
+    # Every preset value lies inside the slider range of its FAP.
+    for table in (t, tables.viseme_table()):
+        rows, cols = np.nonzero(table)
+        for r, c in zip(rows, cols):
+            s = tables.fap_specs()[c]
+            assert s.animated and s.minimum <= table[r, c] <= s.maximum, (r, s.name)
+
+
+def test_visemes_use_only_mouth_faps_and_are_distinct():
+    v = tables.viseme_table()
+    assert v.shape == (15, 68) and not v[0].any()
+    mouth = {s.number - 1 for s in tables.fap_specs() if s.dock in ("jaw & chin", "inner lips", "lip corners", "outer lips")}
+    assert set(np.nonzero(v)[1]) <= mouth
+    assert len({tuple(row) for row in v}) == 15
+    assert v[tables.viseme_id("aa"), 2] > v[tables.viseme_id("PP"), 2]  # 'a' opens the jaw more than p/b/m
+
+
+def test_fapu_from_known_points():
+    pts = {"3.1": [30, 40, 0], "3.3": [30, 29, 0], "3.2": [-30, 40, 0], "3.4": [-30, 29, 0],
+           "3.5": [31, 33, 0], "3.6": [-31, 33, 0], "9.15": [0, -15, 0], "2.2": [0, -35, 0],
+           "8.3": [24, -34, 0], "8.4": [-24, -34, 0]}
+    u = tables.measure_fapu({k: np.array(v, float) for k, v in pts.items()})
+    assert u["IRISD"] * 1024 == pytest.approx(11)
+    assert u["ES"] * 1024 == pytest.approx(62)
+    assert u["ENS"] * 1024 == pytest.approx(48)
+    assert u["MNS"] * 1024 == pytest.approx(20)
+    assert u["MW"] * 1024 == pytest.approx(48)
+    assert u["AU"] == 1e-5
+    swapped = dict(pts, **{"8.3": [-24, -34, 0], "8.4": [24, -34, 0]})
+    with pytest.raises(ValueError, match="MW0"):
+        tables.measure_fapu({k: np.array(v, float) for k, v in swapped.items()})
+
+
+# ------------------------------------------------------------------ template and subdivision
+def test_template_has_80_points_140_triangles_and_a_mouth_opening():
+    t = load_template()
+    assert len(t.points) == 80 and len(t.triangles) == 140
+    assert len(t.feature_points) == 64 and len(t.extras) == 16
+    assert "3.5" not in t.points and "3.6" not in t.points  # pupils dropped, as in thesis A
+    b = {tuple(e) for e in boundary_edges(t.triangles)}
+    mouth = [t.index(p) for p in t.mouth]
+    for a, c in zip(mouth, mouth[1:] + mouth[:1]):
+        assert tuple(sorted((a, c))) in b  # the inner lip contour is open
+    assert len(b) == len(t.outline) + len(t.mouth)
+    assert len(t.eye_opening_triangles) == 12
+    # Every FAP region refers to existing triangles, none of which covers an eye opening.
+    assert len(t.regions) == 46
+    for r in t.regions:
+        assert set(r["triangles"]) <= set(range(140)) and not set(r["triangles"]) & t.eye_opening_triangles
+
+
+def test_subdivision_counts_match_thesis_table_5_1():
+    t = load_template()
+    v, tri = np.random.default_rng(0).normal(size=(80, 3)), t.triangles
+    counts = []
+    for scheme in t.steps:
+        s = subdivide(v, tri, scheme=scheme, creases=t.crease_edges())
+        v, tri = s.vertices, s.triangles
+        counts.append((len(v), len(tri)))
+    assert t.steps == ("linear", "linear", "loop")
+    assert counts == [(300, 560), (1160, 2240), (4560, 8960)]
+
+
+def test_loop_subdivision_keeps_a_plane_flat_and_linear_is_exact_midpoints():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    tri = np.array([[0, 1, 2], [1, 3, 2]])
+    lin = subdivide(v, tri, scheme="linear")
+    assert np.allclose(lin.vertices[4:], (v[lin.edges[:, 0]] + v[lin.edges[:, 1]]) / 2)
+    loop = subdivide(v, tri, scheme="loop")
+    assert np.allclose(loop.vertices[:, 2], 0)
+
+
+# ------------------------------------------------------------------ on the default face
+@pytest.fixture(scope="module")
+def rig():
+    from core.default_face import load_default_face
+
+    return FaceRig(load_default_face())
+
+
+def test_dense_template_counts_on_the_default_face(rig):
+    d = rig.deformer.dense
+    assert d.counts == [(80, 140), (300, 560), (1160, 2240), (4560, 8960)]
+    # Every dense vertex lies on the face surface.
+    assert (d.face_triangle >= 0).all()
+    dist = rig.face.kdtree.query(d.vertices)[0]
+    assert np.percentile(dist, 99) < 1.0
+
+
+def test_fapu_of_the_default_face(rig):
+    assert rig.fapu["IRISD"] * 1024 == pytest.approx(11.2, abs=0.05)
+    assert rig.fapu["ES"] * 1024 == pytest.approx(63.0, abs=0.05)
+
+
+def test_zero_faps_leave_the_face_at_rest(rig):
+    rig.reset_faps(); rig.set_expression(None); rig.set_viseme(None)
+    assert np.array_equal(rig.vertices(), rig.face.vertices)
+
+
+def test_open_jaw_moves_chin_and_lower_lip_by_the_fapu_not_the_upper_lip(rig):
+    rig.reset_faps()
+    rig.set_fap(3, 512)
+    f, v = rig.face, rig.vertices()
+    expected = 512 * rig.fapu["MNS"]
+    move = lambda p: f.landmark_position(p, v) - f.landmark_position(p)  # noqa: E731
+    assert move("2.1") == pytest.approx([0, -expected, 0], abs=0.01 * expected)
+    assert move("2.3")[1] == pytest.approx(-expected, rel=0.02)      # lower lip follows the jaw
+    assert np.abs(move("2.2")).max() < 1e-6                          # upper lip stays
+    assert np.abs(move("11.1")).max() < 1e-6 and np.abs(move("9.3")).max() < 1e-6
+    # The mouth opens: the inner lips part by the jaw's travel.
+    gap = f.landmark_position("2.2", v)[1] - f.landmark_position("2.3", v)[1]
+    assert gap == pytest.approx(expected, rel=0.02)
+    if "teeth_lower" in f.parts:
+        assert np.allclose(v[f.parts["teeth_lower"]] - f.vertices[f.parts["teeth_lower"]], [0, -expected, 0])
+    rig.reset_faps()
+
+
+def test_a_fap_moves_only_its_region(rig):
+    rig.reset_faps()
+    rig.set_fap(33, 300)  # raise_l_m_eyebrow
+    moved = rig.displacement_magnitude() > 1e-9
+    x = rig.face.vertices[moved]
+    assert moved.any() and (x[:, 0] > 0).all() and (x[:, 1] > 20).all()  # left brow area only
+    assert np.allclose(rig.fap_influence(33)[moved] > 0, True)
+    rig.reset_faps()
+
+
+def test_lids_close_without_crossing(rig):
+    f = rig.face
+    rig.reset_faps()
+    rig.set_faps({19: 1024, 21: 1024})  # both left lids fully closed: they must meet, not cross
+    v = rig.vertices()
+    top, bottom = f.landmark_position("3.1", v), f.landmark_position("3.3", v)
+    assert top[1] == pytest.approx(bottom[1], abs=0.3)
+    # Across the whole eye, the upper lid ends at (not below) the lower lid: the face's rim vertices
+    # of the left eye opening close to a line.
+    rim = _eye_rim(f, "l")
+    upper, lower = rim[f.vertices[rim, 1] > f.landmark_position("3.5")[1]], rim[f.vertices[rim, 1] < f.landmark_position("3.5")[1]]
+    gap = np.interp(v[upper, 0], *_sorted_xy(v[lower])) - v[upper, 1]
+    assert gap.max() < 0.6  # no upper-rim point more than 0.6 mm below the lower rim
+    rig.set_faps({19: 1024, 21: 0})
+    v = rig.vertices()
+    assert f.landmark_position("3.1", v)[1] == pytest.approx(f.landmark_position("3.3")[1], abs=0.3)
+    rig.reset_faps()
+
+
+def _eye_rim(face, side):
+    """Boundary vertices of the skin around the eye opening of one side."""
+    b = np.unique(boundary_edges(face.triangles).ravel())
+    c = face.landmark_position("3.5" if side == "l" else "3.6")
+    p = face.vertices[b]
+    near = (np.abs(p[:, 0] - c[0]) < 16) & (np.abs(p[:, 1] - c[1]) < 9) & (p[:, 2] > c[2] - 10)
+    in_part = np.zeros(face.n_vertices, bool)
+    for idx in face.parts.values():
+        in_part[idx] = True
+    return b[near & ~in_part[b]]
+
+
+def _sorted_xy(points):
+    order = np.argsort(points[:, 0])
+    return points[order, 0], points[order, 1]
+
+
+def test_lid_contact_scales_only_when_lids_overlap():
+    v = np.zeros(68)
+    v[18], v[20] = 600, 300
+    assert np.array_equal(lid_contact(v), v)
+    v[18], v[20] = 1024, 1024
+    out = lid_contact(v)
+    assert out[18] + out[20] == pytest.approx(1024) and out[18] == out[20]
+
+
+def test_expression_intensity_scales_the_displacement(rig):
+    rig.reset_faps()
+    rig.set_expression("joy", 1.0)
+    full = rig.vertices() - rig.face.vertices
+    rig.set_expression("joy", 0.5)
+    half = rig.vertices() - rig.face.vertices
+    skin = np.ones(rig.face.n_vertices, bool)  # lids are linear below contact, so everything is
+    assert np.abs(full).max() > 5
+    assert np.allclose(half[skin], full[skin] / 2, atol=1e-9)
+    rig.set_fap2(1, 63, 6, 0)
+    assert rig.expression == (1, 1.0)
+    assert np.allclose(rig.vertices() - rig.face.vertices, full)
+    rig.set_expression(None)
+
+
+def test_fap1_blends_two_visemes(rig):
+    rig.reset_faps()
+    rig.set_fap1(10, 1, 63)
+    assert np.allclose(rig.preset_values(), tables.viseme_table()[10])
+    rig.set_fap1(10, 14, 0)
+    assert np.allclose(rig.preset_values(), tables.viseme_table()[14])
+    rig.set_viseme(None)
+
+
+def test_gaze_rotates_the_eyeball_about_its_centre(rig):
+    if 23 not in rig.animated_faps:
+        pytest.skip("default face without eyeball parts")
+    rig.reset_faps()
+    idx = rig.face.parts["eyeball_l"]
+    rig.set_fap(23, 20000)  # 0.2 rad to the left
+    v = rig.vertices()
+    pole = rig.face.landmark_position("3.5", v) - rig.face.landmark_position("3.5")
+    assert pole[0] > 1.0  # the pupil moved toward +x, the face's left
+    centre = rig.deformer._eyes["eyeball_l"][1]
+    r0 = np.linalg.norm(rig.face.vertices[idx] - centre, axis=1)
+    assert np.allclose(np.linalg.norm(v[idx] - centre, axis=1), r0)
+    rig.reset_faps()
+
+
+def test_rig_rejects_bad_values_and_keeps_state(rig):
+    rig.reset_faps()
+    rig.set_fap(3, 100)
+    with pytest.raises(ValueError, match="outside its range"):
+        rig.set_faps({4: 50, 3: 99999})
+    with pytest.raises(ValueError, match="cannot be animated"):
+        rig.set_fap(45, 10)
+    with pytest.raises(ValueError, match="finite"):
+        rig.set_fap(3, float("nan"))
+    with pytest.raises(ValueError, match="0 and 1"):
+        rig.set_expression("joy", 1.5)
+    with pytest.raises(ValueError, match="unknown expression"):
+        rig.set_expression("glee")
+    assert rig.fap_value(3) == 100 and rig.fap_value(4) == 0
+    rig.reset_faps()
+
+
+def test_rig_signals_once_per_change(rig):
+    calls = []
+    rig.changed.connect(lambda: calls.append(1))
+    rig.reset_faps()
+    calls.clear()
+    rig.set_faps({3: 100, 4: 50})
+    rig.set_faps({3: 100})  # unchanged: no signal
+    assert len(calls) == 1
+    rig.changed.disconnect()
+    rig.reset_faps()
+
+
+def test_face_without_feature_points_gets_a_clear_error(grid_face):
+    with pytest.raises(TemplateError, match="feature points"):
+        densify(grid_face)
