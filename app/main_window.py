@@ -9,14 +9,26 @@ responsive; results come back through queued Qt signals. Anything the user
 can trigger that fails shows a message box with a one-line explanation, never
 a traceback (tracebacks go to stderr via :func:`install_excepthook`).
 
+Animation: the window owns a :class:`core.rig.FaceRig` for the current face
+(``window.rig``; None, with a message in the FAP dock and the status bar, when
+the face cannot be animated yet) and the FAP dock (:mod:`app.fap_dock`) on
+the right. The viewport never redraws per parameter change: ``rig.changed``
+only marks the view dirty and starts one single-shot 0 ms timer, whose tick
+pulls ``rig.vertices()`` once, computes normals and writes both into the
+existing actor in place (:meth:`app.scene.FaceActor.update_vertices`), so a
+burst of slider events costs one redraw. The status bar shows the last
+tick's compute time (vertices + normals + overlay values) and draw time
+(upload + render) separately.
+
 The dock areas are left free (nesting enabled, corners assigned) for the
-FAP, muscle, landmark and timeline docks that come later.
+muscle, landmark and timeline docks that come later.
 """
 
 from __future__ import annotations
 
 import sys
 import threading
+import time
 import traceback
 from pathlib import Path
 from typing import Callable
@@ -54,6 +66,23 @@ VIEW_LABELS = {"front": ("&Front view", "1"), "side": ("&Side view", "2"),
                "three-quarter": ("T&hree-quarter view", "3")}
 
 
+#: set_face's default: build the rig for the face there.
+_BUILD_RIG = object()
+
+
+def _nice_ceiling(value: float, floor: float = 1.0) -> float:
+    """The next of 1, 1.5, 2, 3, 4, 5, 6, 8 x 10^k at or above ``value`` (at least ``floor``):
+    a heat map range that does not jump with every slider step."""
+    import math
+
+    value = max(float(value), floor)
+    exp = math.floor(math.log10(value))
+    for m in (1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0):
+        if m * 10 ** exp >= value * (1 - 1e-12):
+            return m * 10 ** exp
+    return 10.0 ** (exp + 1)
+
+
 def _is_mesh_load_error(exc: BaseException) -> bool:
     try:
         from core.mesh_io import MeshLoadError
@@ -73,16 +102,57 @@ def _is_mesh_save_error(exc: BaseException) -> bool:
 # ------------------------------------------------------------------ worker
 class _LoadSignals(QObject):
     progress = Signal(int, float, str)  # generation, fraction, message
-    loaded = Signal(int, object, str)  # generation, Face, path ("" for the default face)
+    status = Signal(int, str)  # generation, message (no progress fraction)
+    loaded = Signal(int, object, str)  # generation, (Face, (rig, rig message)), path ("" for the default face)
     failed = Signal(int, str, str)  # generation, message, path
 
 
-class _LoadTask(QRunnable):
-    """Runs ``loader(progress)`` off the GUI thread and reports through signals."""
+def _no_feature_points(exc: BaseException) -> bool:
+    try:
+        from core.fap.template import TemplateError
+    except ImportError:
+        return False
+    return isinstance(exc, TemplateError)
 
-    def __init__(self, generation: int, path: str, loader: Callable, signals: _LoadSignals):
+
+def build_rig(face) -> tuple[object | None, str]:
+    """(FaceRig for ``face``, "") or (None, a message for the user saying why not).
+
+    Never raises: a face without the MPEG-4 feature points is a normal state
+    (the user marks them later), and anything unexpected is reported on stderr.
+    """
+    from app.fap_dock import NO_RIG_MESSAGE
+
+    try:
+        from core.rig import FaceRig
+    except Exception as exc:  # noqa: BLE001 - animation is optional; the viewer must still work
+        traceback.print_exc()
+        return None, f"Animation is not available in this installation ({type(exc).__name__}: {exc})."
+    try:
+        return FaceRig(face), ""
+    except ValueError as exc:  # missing/misplaced feature points: a message, not a bug
+        first = NO_RIG_MESSAGE if _no_feature_points(exc) else "This face cannot be animated yet."
+        return None, f"{first}\n\nDetails: {exc}"
+    except Exception as exc:  # noqa: BLE001
+        traceback.print_exc()
+        return None, f"Could not prepare this face for animation: {type(exc).__name__}: {exc}"
+
+
+class _LoadTask(QRunnable):
+    """Runs ``loader(progress)`` off the GUI thread and reports through signals.
+
+    With ``prepare``, the loaded face's rig is built here too (about a second
+    for a 50k-vertex face), so the GUI thread never waits for it.
+    """
+
+    def __init__(self, generation: int, path: str, loader: Callable, signals: _LoadSignals,
+                 prepare: Callable | None = None, wanted: Callable[[int], bool] | None = None):
         super().__init__()
         self.generation, self.path, self.loader, self.signals = generation, path, loader, signals
+        self.prepare = prepare
+        # wanted(generation): False once the window moved on (newer load, or closing), so a
+        # superseded load skips the rig build and does not report to a closing window.
+        self.wanted = wanted or (lambda _generation: True)
         self.setAutoDelete(True)
 
     def run(self) -> None:  # worker thread
@@ -100,8 +170,15 @@ class _LoadTask(QRunnable):
                 traceback.print_exc()
                 message = f"Unexpected error while loading: {type(exc).__name__}: {exc}"
             self.signals.failed.emit(gen, message, self.path)
-        else:
-            self.signals.loaded.emit(gen, face, self.path)
+            return
+        if not self.wanted(gen):
+            return
+        rig = None
+        if self.prepare is not None:
+            self.signals.status.emit(gen, "Preparing the face for animation…")
+            rig = self.prepare(face)  # never raises
+        if self.wanted(gen):
+            self.signals.loaded.emit(gen, (face, rig), self.path)
 
 
 # ------------------------------------------------------------ excepthook
@@ -207,14 +284,29 @@ class MainWindow(QMainWindow):
         self.face = None
         self.face_path: str | None = None
         self.face_actor = None
+        self.rig = None
+        self.rig_message = ""
         self._mode = "textured"
+        self._geometry_dirty = False
+        self._overlay_dirty = False
+        self._closing = False
+        self._shown_overlay: tuple = (None, None)
+        #: (compute ms, draw ms) of the last viewport tick.
+        self.last_tick_ms: tuple[float, float] | None = None
+        self._tick_timer = QTimer(self)
+        self._tick_timer.setSingleShot(True)
+        self._tick_timer.setInterval(0)
+        self._tick_timer.timeout.connect(self._tick)
         self._view = "front"
-        self._generation = 0
+        # The latest load's number, in a plain list the worker threads may read (a closed
+        # window's wrapper is not safe to touch from another thread).
+        self._latest_load = [0]
         self._loading = False
         self._pool = QThreadPool(self)
         self._pool.setMaxThreadCount(1)
         self._signals = _LoadSignals(self)
         self._signals.progress.connect(self._on_load_progress)
+        self._signals.status.connect(self._on_load_status)
         self._signals.loaded.connect(self._on_loaded)
         self._signals.failed.connect(self._on_load_failed)
         self._notes_box: QMessageBox | None = None
@@ -232,8 +324,11 @@ class MainWindow(QMainWindow):
         self._disable_vtk_keys()
         scene.setup_stage(self.plotter)
         self.setCentralWidget(self.plotter)
+        # Camera zoom narrows the view angle; presets and Reset camera restore it.
+        self._default_view_angle = float(self.plotter.camera.view_angle)
 
         self._create_actions()
+        self._create_docks()
         self._create_menus()
         self._create_status_bar()
         self._restore_window_state()
@@ -244,6 +339,15 @@ class MainWindow(QMainWindow):
             self.load_face_file(path, fallback_to_default=load_default)
         elif load_default:
             self.load_default_face()
+
+    @property
+    def _generation(self) -> int:
+        """Number of the latest load request; results of older ones are ignored."""
+        return self._latest_load[0]
+
+    @_generation.setter
+    def _generation(self, value: int) -> None:
+        self._latest_load[0] = value
 
     # ------------------------------------------------------------ setup
     def _setup_dock_areas(self) -> None:
@@ -310,6 +414,22 @@ class MainWindow(QMainWindow):
         self.about_action = self._action("&About Mimica", self.show_about)
         self.about_action.setMenuRole(QAction.MenuRole.AboutRole)
 
+    def _create_docks(self) -> None:
+        from app.fap_dock import FapDock
+
+        self.fap_dock = FapDock(parent=self, message="No face loaded yet.")
+        self.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self.fap_dock)
+        self.resizeDocks([self.fap_dock], [520], Qt.Orientation.Horizontal)
+        self.fap_dock.feature_points_toggled.connect(self.set_landmarks_visible)
+        self.fap_dock.overlay_changed.connect(self._on_overlay_changed)
+        self.landmarks_action.toggled.connect(lambda on: self.fap_dock.set_feature_points_checked(on))
+        self.fap_dock_action = self.fap_dock.toggleViewAction()
+        self.fap_dock_action.setText("&FAP sliders")
+        self.fap_dock_action.setStatusTip("Show or hide the FAP dock (sliders, presets, overlays)")
+        self.fap_dock_action.setShortcut(QKeySequence("Ctrl+Shift+F"))
+        self.fap_dock_action.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
+        self.addAction(self.fap_dock_action)
+
     def _create_menus(self) -> None:
         bar = self.menuBar()
         file_menu = bar.addMenu("&File")
@@ -332,6 +452,8 @@ class MainWindow(QMainWindow):
         for act in self.view_actions.values():
             view_menu.addAction(act)
         view_menu.addAction(self.reset_camera_action)
+        view_menu.addSeparator()
+        view_menu.addAction(self.fap_dock_action)
         self.view_menu = view_menu
 
         help_menu = bar.addMenu("&Help")
@@ -348,7 +470,12 @@ class MainWindow(QMainWindow):
         self.counts_label = QLabel(self)
         self.units_label = QLabel(self)
         self.texture_label = QLabel(self)
+        self.tick_label = QLabel(self)
+        self.tick_label.setToolTip(
+            "Last viewport update: compute = rig vertices + normals + overlay values; "
+            "draw = upload to the GPU + render")
         status.addPermanentWidget(self.progress_bar)
+        status.addPermanentWidget(self.tick_label)
         for label in (self.file_label, self.counts_label, self.units_label, self.texture_label):
             label.setContentsMargins(6, 0, 6, 0)
             status.addPermanentWidget(label)
@@ -385,6 +512,10 @@ class MainWindow(QMainWindow):
         self.settings.setValue("view/mode", self._mode)
         self.settings.sync()
         self._generation += 1  # ignore loads still running
+        self._closing = True
+        self._tick_timer.stop()
+        self._disconnect_rig()
+        self.fap_dock.set_rig(None, "")
         self._pool.clear()
         self._pool.waitForDone(5000)  # a worker must not outlive the window it reports to
         if self._notes_box is not None:
@@ -510,7 +641,9 @@ class MainWindow(QMainWindow):
         self.progress_bar.setValue(0)
         self.progress_bar.show()
         self.statusBar().showMessage(message)
-        self._pool.start(_LoadTask(self._generation, path, loader, self._signals))
+        latest = self._latest_load
+        self._pool.start(_LoadTask(self._generation, path, loader, self._signals, prepare=build_rig,
+                                   wanted=lambda generation: generation == latest[0]))
 
     @Slot(int, float, str)
     def _on_load_progress(self, generation: int, fraction: float, message: str) -> None:
@@ -520,16 +653,25 @@ class MainWindow(QMainWindow):
         if message:
             self.statusBar().showMessage(message)
 
+    @Slot(int, str)
+    def _on_load_status(self, generation: int, message: str) -> None:
+        if generation == self._generation:
+            self.statusBar().showMessage(message)
+
     def _finish_load(self) -> None:
         self._loading = False
         self.progress_bar.hide()
 
     @Slot(int, object, str)
-    def _on_loaded(self, generation: int, face, path: str) -> None:
+    def _on_loaded(self, generation: int, result, path: str) -> None:
         if generation != self._generation:
             return  # superseded by a newer request
         self._finish_load()
-        self.set_face(face, path=path or None)
+        face, rig = result
+        if rig is None:
+            self.set_face(face, path=path or None)
+        else:
+            self.set_face(face, path=path or None, rig=rig[0], rig_message=rig[1])
         if path:
             self.add_recent_file(path)
         notes = list(getattr(face.metadata, "notes", []) or [])
@@ -538,6 +680,8 @@ class MainWindow(QMainWindow):
             self.statusBar().showMessage(f"Loaded {shown} — " + "; ".join(notes), 15000)
             if path:  # the built-in face's notes are not news: status bar only
                 self._show_notes(notes, shown)
+        elif self.rig is None and self.rig_message:
+            self.statusBar().showMessage(f"Loaded {shown} — {self.rig_message.splitlines()[0]}", 15000)
         else:
             self.statusBar().showMessage(f"Loaded {shown}", 5000)
         self.load_finished.emit(True)
@@ -557,8 +701,20 @@ class MainWindow(QMainWindow):
         self.show_error(title, message)
 
     # ------------------------------------------------------------ face
-    def set_face(self, face, *, path: str | None = None) -> None:
-        """Display ``face`` (replacing the current one), framed from the front."""
+    def set_face(self, face, *, path: str | None = None, rig=_BUILD_RIG, rig_message: str = "") -> None:
+        """Display ``face`` (replacing the current one), framed from the front.
+
+        ``rig`` is the face's :class:`core.rig.FaceRig` when already built (the
+        background loader builds it); by default it is built here. ``None``
+        means the face cannot be animated, ``rig_message`` says why.
+        """
+        if rig is _BUILD_RIG:
+            QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
+            try:
+                rig, rig_message = build_rig(face)
+            finally:
+                QApplication.restoreOverrideCursor()
+        self._tick_timer.stop()
         if self.face_actor is not None:
             self.face_actor.remove()
         self.face = face
@@ -566,10 +722,105 @@ class MainWindow(QMainWindow):
         self.face_actor = self._scene.add_face_actor(
             self.plotter, face, self._mode, show_landmarks=self.landmarks_action.isChecked())
         self.landmarks_action.setEnabled(bool(face.landmark_names))
+        self.fap_dock.set_feature_points_checked(self.face_actor.landmarks_visible, bool(face.landmark_names))
+        self._set_rig(rig, rig_message)
         self.setWindowTitle(f"{APP_NAME} — {face.metadata.name}")
         self._update_status_labels()
         self.set_camera_view("front")
         self.face_changed.emit(face)
+
+    # ------------------------------------------------------------ animation
+    def _disconnect_rig(self) -> None:
+        if self.rig is not None:
+            try:
+                self.rig.changed.disconnect(self._on_rig_changed)
+            except (ValueError, RuntimeError):
+                pass
+
+    def _set_rig(self, rig, message: str = "") -> None:
+        self._disconnect_rig()
+        self.rig = rig
+        self.rig_message = "" if rig is not None else message
+        self._shown_overlay = (None, None)
+        self._geometry_dirty = False
+        if rig is not None:
+            rig.changed.connect(self._on_rig_changed)
+            # The actor starts at the neutral face; show the rig's state if it is not neutral.
+            self._geometry_dirty = bool(rig.effective_fap_values().any())
+        self.fap_dock.set_rig(rig, self.rig_message)
+        if rig is None and message:
+            self.statusBar().showMessage(message.splitlines()[0], 15000)
+        elif rig is not None:
+            self.statusBar().clearMessage()
+        self._overlay_dirty = True
+        self._schedule_tick()
+
+    def _on_rig_changed(self) -> None:
+        self._geometry_dirty = True
+        self._schedule_tick()
+
+    def _on_overlay_changed(self) -> None:
+        self._overlay_dirty = True
+        self._schedule_tick()
+
+    def _viewport_alive(self) -> bool:
+        return not self._closing and not getattr(self.plotter, "_closed", False)
+
+    def _schedule_tick(self) -> None:
+        # One pending single-shot timer at most: a burst of changes costs one redraw.
+        if self._viewport_alive() and not self._tick_timer.isActive():
+            self._tick_timer.start()
+
+    def flush_updates(self) -> None:
+        """Run a pending viewport update now (tests and scripts; the timer does it otherwise)."""
+        if self._tick_timer.isActive():
+            self._tick_timer.stop()
+            self._tick()
+
+    @Slot()
+    def _tick(self) -> None:
+        """Pull the rig's state into the viewport once (see the module docstring)."""
+        actor, rig = self.face_actor, self.rig
+        geometry, overlay_dirty = self._geometry_dirty, self._overlay_dirty
+        self._geometry_dirty = self._overlay_dirty = False
+        if actor is None or not self._viewport_alive():
+            return
+        start = time.perf_counter()
+        vertices = normals = None
+        if geometry and rig is not None:
+            vertices = rig.vertices()
+            normals = actor.compute_normals(vertices)
+        kind, number = self.fap_dock.overlay() if rig is not None else (None, None)
+        scalars = None
+        if kind == "heat" and (vertices is not None or overlay_dirty or self._shown_overlay != (kind, number)):
+            scalars = rig.displacement_magnitude()
+        elif kind == "influence" and self._shown_overlay != (kind, number):
+            scalars = rig.fap_influence(number)
+        computed = time.perf_counter()
+        if vertices is None and scalars is None and (kind is not None or not actor.scalars_visible):
+            return  # nothing to draw
+        if vertices is not None:
+            actor.update_vertices(vertices, normals)
+        if kind is None:
+            actor.clear_scalars()
+        elif scalars is not None:
+            if kind == "heat":
+                actor.show_scalars(scalars, cmap="YlOrRd", clim=(0.0, _nice_ceiling(float(scalars.max()))),
+                                   title="Displacement (mm)", fmt="%.1f")
+            else:
+                from core.fap.tables import fap_spec
+
+                actor.show_scalars(scalars, cmap="PuBu", clim=(0.0, 1.0), title=f"FAP {number} influence",
+                                   fmt="%.1f")
+                self.statusBar().showMessage(
+                    f"Influence of FAP {number} {fap_spec(number).name}: 1 = moves fully, 0 = not at all", 4000)
+        self._shown_overlay = (kind, number)
+        self._render()
+        drawn = time.perf_counter()
+        if vertices is not None:
+            self.last_tick_ms = ((computed - start) * 1e3, (drawn - computed) * 1e3)
+            compute_ms, draw_ms = self.last_tick_ms
+            self.tick_label.setText(f"update: compute {compute_ms:.1f} ms · draw {draw_ms:.1f} ms")
 
     def _render(self) -> None:
         # Rendering a never-shown VTK widget has no GL context to draw into;
@@ -631,6 +882,7 @@ class MainWindow(QMainWindow):
         self._view = view
         if self.face_actor is None:
             return
+        self.plotter.camera.view_angle = self._default_view_angle
         self._scene.set_camera_view(self.plotter, view, self.face_actor.mesh.points)
         self._render()
 
@@ -638,6 +890,7 @@ class MainWindow(QMainWindow):
         """Frame the whole face, keeping the viewing direction."""
         if self.face_actor is None:
             return
+        self.plotter.camera.view_angle = self._default_view_angle
         self._scene.frame_points(self.plotter, self.face_actor.mesh.points)
         self._render()
 

@@ -168,3 +168,42 @@ def test_framing_fills_the_view(plotter, synthetic_face):
     assert cols.min() > 0 and cols.max() < w - 1, "face is clipped at the sides"
     assert (rows.max() - rows.min()) > 0.7 * h, "face should fill most of the height"
     assert corner.sum() < 3 * 120, "background should be dark grey"
+
+
+def test_vertex_normals_match_core(synthetic_face):
+    moved = synthetic_face.vertices * np.array([1.3, 0.8, 1.1]) + 5.0
+    fast = scene.VertexNormals(synthetic_face.triangles, synthetic_face.n_vertices)
+    np.testing.assert_allclose(fast(moved), vertex_normals(moved, synthetic_face.triangles), atol=1e-12)
+
+
+def test_scalar_overlay_in_place_and_back(plotter, synthetic_face):
+    actor = scene.add_face_actor(plotter, synthetic_face, "textured")
+    scene.set_camera_view(plotter, "front", actor.mesh.points)
+    plotter.render()
+    plain = plotter.screenshot(None, return_img=True)
+    n_actors = len(plotter.renderer.actors)
+    height = synthetic_face.vertices[:, 1]
+    actor.show_scalars(height, cmap="viridis", clim=(-100, 100), title="height (mm)")
+    assert actor.scalars_visible and actor.actor.texture is None and actor.scalar_range == (-100, 100)
+    assert "height (mm)" in plotter.scalar_bars._scalar_bar_actors
+    plotter.render()
+    coloured = plotter.screenshot(None, return_img=True)
+    assert image_difference(plain, coloured) > 5
+    array = actor.mesh.point_data["overlay"]
+    pointer = array.__array_interface__["data"][0]
+    actor.show_scalars(-height, cmap="viridis", clim=(-100, 100), title="height (mm)")
+    assert actor.mesh.point_data["overlay"].__array_interface__["data"][0] == pointer, "updated in place"
+    np.testing.assert_allclose(actor.scalars, -height, atol=1e-4)
+    plotter.render()
+    assert image_difference(coloured, plotter.screenshot(None, return_img=True)) > 2
+    actor.update_vertices(synthetic_face.vertices * 1.01)  # geometry updates keep the overlay
+    assert actor.scalars_visible
+    actor.set_mode("shaded")  # so do mode changes
+    assert actor.actor.mapper.scalar_visibility
+    actor.set_mode("textured")
+    actor.clear_scalars()
+    assert not actor.scalars_visible and actor.actor.texture is not None and actor.scalar_bar_title is None
+    assert len(plotter.renderer.actors) == n_actors
+    with pytest.raises(ValueError):
+        actor.show_scalars(height[:10])
+

@@ -1,0 +1,727 @@
+"""fap_dock.py
+----
+The FAP dock: sliders for the MPEG-4 facial animation parameters of a
+:class:`core.rig.FaceRig`, expression and viseme presets, and the overlay
+toggles of the viewport (feature points, influence of the hovered FAP,
+displacement heat map).
+
+House rules (see the brief of issue 3):
+
+* widgets write through the rig's setters (``set_fap``/``set_faps``,
+  ``set_expression``, ``set_viseme``, ``reset_faps``) and never keep their
+  own copy of the values;
+* every widget follows ``rig.changed``: when anything changes the rig (these
+  sliders, a preset, a reset, later a timeline or a .fap player) all widgets
+  are set to the rig's values with their signals blocked, so nothing is
+  written back;
+* the dock never redraws the viewport: the main window marks itself dirty on
+  ``rig.changed`` and redraws once per event-loop pass. The dock only tells
+  the window which overlay it wants (:meth:`FapDock.overlay`,
+  ``overlay_changed``).
+
+Units: translation FAPs are shown in their FAP units (MNS, MW, ENS, ES,
+IRISD; one unit is 1/1024 of a distance measured on the neutral face, the
+tooltip says how many mm that is on this face). Rotation FAPs (gaze, head;
+unit AU = 1e-5 rad) are shown in degrees in the spin box while the slider
+runs over AU.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from PySide6.QtCore import QEvent, QObject, QSignalBlocker, Qt, Signal
+from PySide6.QtGui import QFontMetrics
+from PySide6.QtWidgets import (
+    QAbstractSpinBox,
+    QCheckBox,
+    QComboBox,
+    QDockWidget,
+    QDoubleSpinBox,
+    QFrame,
+    QGridLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QScrollArea,
+    QSizePolicy,
+    QSlider,
+    QSpinBox,
+    QToolButton,
+    QVBoxLayout,
+    QWidget,
+)
+
+from core.fap import tables
+
+if TYPE_CHECKING:  # pragma: no cover
+    from core.fap.tables import FapSpec
+    from core.rig import FaceRig
+
+#: Degrees per AU (1 AU = 1e-5 rad).
+DEG_PER_AU = math.degrees(tables.ANGLE_UNIT)
+NO_RIG_MESSAGE = "This face has no MPEG-4 feature points yet: mark them (landmark picker) to animate it."
+_TOKEN_WORDS = {"t": "top", "b": "bottom", "i": "inner", "m": "middle", "o": "outer", "lm": "left-mid", "rm": "right-mid",
+                "l": "left", "r": "right", "cornerlip": "lip corner", "midlip": "mid-lip", "eyebrow": "brow"}
+_GROUP_TITLES = {"jaw & chin": "Jaw && chin"}  # QToolButton text: '&' marks a mnemonic
+
+
+# ------------------------------------------------------------------ naming
+def readable_name(spec: "FapSpec") -> str:
+    """A short readable name: ``open_jaw`` -> "open jaw", ``close_t_l_eyelid`` -> "close top left eyelid".
+
+    The trailing ``_o`` of the outer-lip FAPs is dropped (their group says "outer lips").
+    """
+    tokens = spec.name.split("_")
+    if len(tokens) > 1 and tokens[-1] == "o":
+        tokens = tokens[:-1]
+    return " ".join(_TOKEN_WORDS.get(t, t) for t in tokens)
+
+
+def row_label(spec: "FapSpec") -> str:
+    return f"{spec.number} {readable_name(spec)}"
+
+
+def _feature_point_descriptions() -> dict[str, str]:
+    try:
+        import resources
+
+        return {r["fp"]: r["description"] for r in resources.get_table("mpeg4/feature_points.csv")}
+    except Exception:  # noqa: BLE001 - descriptions only decorate a tooltip
+        return {}
+
+
+def _mm(value: float) -> str:
+    a = abs(value)
+    return f"{value:.3f}" if a < 0.1 else f"{value:.2f}" if a < 10 else f"{value:.1f}"
+
+
+def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = None) -> str:
+    """Rich-text tooltip: full MPEG-4 name, feature point, direction, range and unit size on this face."""
+    fp_names = fp_names if fp_names is not None else _feature_point_descriptions()
+    fps = [p for p in spec.fp.split(";") if p]
+    where = ", ".join(f"{p} ({fp_names[p].rstrip('.')})" if p in fp_names else p for p in fps)
+    lines = [f"<b>FAP {spec.number} {spec.name}</b>",
+             f"Moves feature point {where}" if not spec.is_rotation else f"Rotates about feature point {where}"]
+    sign = "−/+" if spec.bidirectional else "+"
+    lines.append(f"Positive direction: {spec.direction} ({'bidirectional' if spec.bidirectional else 'one-way'},"
+                 f" {sign})")
+    if spec.is_rotation:
+        lo, hi = spec.minimum * DEG_PER_AU, spec.maximum * DEG_PER_AU
+        lines.append(f"Range {spec.minimum:g} to {spec.maximum:g} AU = {lo:.1f}° to {hi:.1f}°")
+        lines.append(f"1 AU = 10⁻⁵ rad = {DEG_PER_AU:.5f}°; the box shows degrees, the slider AU")
+    else:
+        unit_mm = float(fapu.get(spec.unit, float("nan")))
+        lines.append(f"Range {spec.minimum:g} to {spec.maximum:g} {spec.unit}"
+                     f" = {_mm(spec.minimum * unit_mm)} to {_mm(spec.maximum * unit_mm)} mm")
+        lines.append(f"1 {spec.unit} unit = {_mm(unit_mm)} mm on this face")
+    if spec.pair is not None:
+        lines.append(f"Mirror: FAP {spec.pair} {tables.fap_spec(spec.pair).name} (moves too with Link left/right)")
+    lines.append("<i>Double-click the name or press ↺ to reset</i>")
+    return "<br>".join(lines)
+
+
+def _nice_step(span: float) -> float:
+    """A 1-2-5 step of about span / 100."""
+    raw = max(span / 100.0, 1e-12)
+    exp = math.floor(math.log10(raw))
+    for m in (1, 2, 5, 10):
+        if m * 10 ** exp >= raw:
+            return m * 10 ** exp
+    return 10 ** (exp + 1)
+
+
+# ------------------------------------------------------------------ one FAP
+class _ScrollFriendlySlider(QSlider):
+    """A slider that lets the mouse wheel scroll the dock unless it has keyboard focus."""
+
+    def wheelEvent(self, event) -> None:  # noqa: N802 - Qt override
+        if self.hasFocus():
+            super().wheelEvent(event)
+        else:
+            event.ignore()  # goes to the scroll area
+
+
+class _ScrollFriendlySpinBox(QDoubleSpinBox):
+    def wheelEvent(self, event) -> None:  # noqa: N802 - Qt override
+        if self.hasFocus():
+            super().wheelEvent(event)
+        else:
+            event.ignore()
+
+
+class FapRow(QWidget):
+    """Name, slider, spin box and reset button of one FAP (values are in the rig)."""
+
+    edited = Signal(int, float)  # FAP number, new value in FAP units (AU for rotations)
+    reset_requested = Signal(int)
+    hover_changed = Signal(int, bool)  # FAP number, mouse entered (True) / left (False)
+    focus_changed = Signal(int, bool)  # FAP number, slider or spin box got (True) / lost (False) focus
+
+    def __init__(self, spec: "FapSpec", fapu: dict, fp_names: dict[str, str], parent: QWidget | None = None):
+        super().__init__(parent)
+        self.spec = spec
+        self.number = spec.number
+        lo, hi = int(math.floor(spec.minimum)), int(math.ceil(spec.maximum))
+
+        self.label = QLabel(row_label(spec), self)
+        self.label.setObjectName(f"fapLabel{spec.number}")
+        self.slider = _ScrollFriendlySlider(Qt.Orientation.Horizontal, self)
+        self.slider.setObjectName(f"fapSlider{spec.number}")
+        self.slider.setFocusPolicy(Qt.FocusPolicy.StrongFocus)  # no focus (and no value change) by wheel
+        self.slider.setRange(lo, hi)
+        self.slider.setTracking(True)  # live: every move goes to the rig
+        step = max(1, int(_nice_step(hi - lo)))
+        self.slider.setSingleStep(step)
+        self.slider.setPageStep(step * 10)
+        self.slider.setMinimumWidth(110)
+        self.slider.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
+
+        self.spin = _ScrollFriendlySpinBox(self)
+        self.spin.setObjectName(f"fapSpin{spec.number}")
+        self.spin.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
+        self.spin.setKeyboardTracking(False)  # typed numbers go to the rig on Enter / focus out
+        self.spin.setAccelerated(True)
+        self.spin.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+        if spec.is_rotation:
+            self.spin.setDecimals(1)
+            self.spin.setRange(lo * DEG_PER_AU, hi * DEG_PER_AU)
+            self.spin.setSingleStep(0.5)
+            self.spin.setSuffix("°")
+        else:
+            self.spin.setDecimals(0)
+            self.spin.setRange(lo, hi)
+            self.spin.setSingleStep(step)
+            self.spin.setSuffix(f" {spec.unit}")
+        self.spin.setButtonSymbols(QAbstractSpinBox.ButtonSymbols.UpDownArrows)
+
+        self.reset_button = QToolButton(self)
+        self.reset_button.setObjectName(f"fapReset{spec.number}")
+        self.reset_button.setText("↺")
+        self.reset_button.setToolTip(f"Reset FAP {spec.number} to 0")
+        self.reset_button.setAutoRaise(True)
+        self.reset_button.setFocusPolicy(Qt.FocusPolicy.NoFocus)
+
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.setSpacing(6)
+        layout.addWidget(self.label)
+        layout.addWidget(self.slider, 1)
+        layout.addWidget(self.spin)
+        layout.addWidget(self.reset_button)
+
+        tip = fap_tooltip(spec, fapu, fp_names)
+        for w in (self, self.label, self.slider, self.spin):
+            w.setToolTip(tip)
+
+        self.slider.valueChanged.connect(self._slider_moved)
+        self.spin.valueChanged.connect(self._spin_changed)
+        self.reset_button.clicked.connect(lambda: self.reset_requested.emit(self.number))
+        for w in (self.slider, self.spin):
+            w.installEventFilter(self)
+        self._value = 0.0
+
+    # ----------------------------------------------------------- values
+    @property
+    def value(self) -> float:
+        """The value this row shows (FAP units; AU for rotations)."""
+        return self._value
+
+    def show_value(self, value: float) -> None:
+        """Show ``value`` (from the rig) without emitting anything."""
+        self._value = float(value)
+        shown = value * DEG_PER_AU if self.spec.is_rotation else value
+        with QSignalBlocker(self.slider), QSignalBlocker(self.spin):
+            if self.slider.value() != round(value):
+                self.slider.setValue(int(round(value)))
+            if abs(self.spin.value() - shown) > 1e-9:
+                self.spin.setValue(shown)
+
+    def _slider_moved(self, value: int) -> None:
+        self.edited.emit(self.number, float(value))
+
+    def _spin_changed(self, shown: float) -> None:
+        value = shown / DEG_PER_AU if self.spec.is_rotation else shown
+        # Clamp rounding noise of the degree conversion into the FAP's range.
+        value = min(max(value, self.spec.minimum), self.spec.maximum)
+        self.edited.emit(self.number, float(value))
+
+    # ----------------------------------------------------------- hover / focus
+    def enterEvent(self, event) -> None:  # noqa: N802 - Qt override
+        super().enterEvent(event)
+        self.hover_changed.emit(self.number, True)
+
+    def leaveEvent(self, event) -> None:  # noqa: N802 - Qt override
+        super().leaveEvent(event)
+        self.hover_changed.emit(self.number, False)
+
+    def mouseDoubleClickEvent(self, event) -> None:  # noqa: N802 - Qt override
+        if self.label.geometry().contains(event.position().toPoint()):
+            self.reset_requested.emit(self.number)
+            event.accept()
+            return
+        super().mouseDoubleClickEvent(event)
+
+    def eventFilter(self, watched: QObject, event: QEvent) -> bool:  # noqa: N802 - Qt override
+        if event.type() in (QEvent.Type.FocusIn, QEvent.Type.FocusOut):
+            self.focus_changed.emit(self.number, event.type() == QEvent.Type.FocusIn)
+        return False
+
+
+# ------------------------------------------------------------------ a group
+class FapGroup(QWidget):
+    """A collapsible group of FAP rows with a header (arrow + title) and a Reset button."""
+
+    reset_requested = Signal(str)
+
+    def __init__(self, name: str, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.name = name
+        self.rows: list[FapRow] = []
+        self.toggle = QToolButton(self)
+        self.toggle.setObjectName(f"group:{name}")
+        self.toggle.setText(_GROUP_TITLES.get(name, name.capitalize()))
+        self.toggle.setCheckable(True)
+        self.toggle.setChecked(True)
+        self.toggle.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
+        self.toggle.setArrowType(Qt.ArrowType.DownArrow)
+        self.toggle.setAutoRaise(True)
+        self.toggle.setStyleSheet("QToolButton { border: none; padding: 2px 0px; }")
+        self.toggle.setToolTip("Click to fold or unfold this group")
+        font = self.toggle.font()
+        font.setBold(True)
+        self.toggle.setFont(font)
+        self.toggle.toggled.connect(self.set_expanded)
+        self.reset_button = QToolButton(self)
+        self.reset_button.setText("Reset")
+        self.reset_button.setToolTip(f"Set the {name} FAPs to 0")
+        self.reset_button.setAutoRaise(True)
+        self.reset_button.clicked.connect(lambda: self.reset_requested.emit(self.name))
+
+        header = QHBoxLayout()
+        header.setContentsMargins(0, 0, 0, 0)
+        header.addWidget(self.toggle)
+        header.addStretch(1)
+        header.addWidget(self.reset_button)
+        line = QFrame(self)
+        line.setFrameShape(QFrame.Shape.HLine)
+        line.setFrameShadow(QFrame.Shadow.Sunken)
+
+        self.body = QWidget(self)
+        self.body_layout = QVBoxLayout(self.body)
+        self.body_layout.setContentsMargins(4, 0, 0, 4)
+        self.body_layout.setSpacing(2)
+
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.setSpacing(2)
+        layout.addLayout(header)
+        layout.addWidget(line)
+        layout.addWidget(self.body)
+
+    @property
+    def numbers(self) -> list[int]:
+        return [r.number for r in self.rows]
+
+    def add_row(self, row: FapRow) -> None:
+        self.rows.append(row)
+        self.body_layout.addWidget(row)
+        self.toggle.setText(f"{_GROUP_TITLES.get(self.name, self.name.capitalize())}  ({len(self.rows)})")
+
+    @property
+    def expanded(self) -> bool:
+        return self.toggle.isChecked()
+
+    def set_expanded(self, expanded: bool) -> None:
+        with QSignalBlocker(self.toggle):
+            self.toggle.setChecked(bool(expanded))
+        self.toggle.setArrowType(Qt.ArrowType.DownArrow if expanded else Qt.ArrowType.RightArrow)
+        self.body.setVisible(bool(expanded))
+
+
+# ------------------------------------------------------------------ the dock
+class FapDock(QDockWidget):
+    """The FAP dock for one :class:`~core.rig.FaceRig` (``set_rig`` when the face changes).
+
+    Signals
+    -------
+    feature_points_toggled(bool)
+        The "Feature points" box was clicked (the main window shows its landmarks).
+    overlay_changed()
+        What :meth:`overlay` returns changed (a toggle, or the hovered/focused FAP row).
+    """
+
+    feature_points_toggled = Signal(bool)
+    overlay_changed = Signal()
+
+    def __init__(self, rig: "FaceRig | None" = None, parent: QWidget | None = None, *, message: str = ""):
+        super().__init__("FAPs", parent)
+        self.setObjectName("fapDock")
+        self.setAllowedAreas(Qt.DockWidgetArea.LeftDockWidgetArea | Qt.DockWidgetArea.RightDockWidgetArea)
+        self.rig: "FaceRig | None" = None
+        self.rows: dict[int, FapRow] = {}
+        self.groups: dict[str, FapGroup] = {}
+        self._fp_names = _feature_point_descriptions()
+        self._hovered: int | None = None
+        self._focused: int | None = None
+        self._last_overlay: tuple = (None, None)
+        self._syncing = False
+
+        root = QWidget(self)
+        root.setObjectName("fapDockContents")
+        outer = QVBoxLayout(root)
+        outer.setContentsMargins(6, 6, 6, 6)
+        outer.setSpacing(6)
+
+        self.message_label = QLabel(root)
+        self.message_label.setObjectName("fapMessage")
+        self.message_label.setWordWrap(True)
+        self.message_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.message_label.setStyleSheet("QLabel { color: #e0a030; }")
+        self.message_label.hide()
+        outer.addWidget(self.message_label)
+
+        outer.addWidget(self._build_presets(root))
+        outer.addWidget(self._build_controls(root))
+
+        self.scroll = QScrollArea(root)
+        self.scroll.setObjectName("fapScroll")
+        self.scroll.setWidgetResizable(True)
+        self.scroll.setFrameShape(QFrame.Shape.NoFrame)
+        self.scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self._groups_widget = QWidget()
+        self._groups_layout = QVBoxLayout(self._groups_widget)
+        self._groups_layout.setContentsMargins(0, 0, 4, 0)
+        self._groups_layout.setSpacing(6)
+        self._groups_layout.addStretch(1)
+        self.scroll.setWidget(self._groups_widget)
+        outer.addWidget(self.scroll, 1)
+        # Takes the free space instead of the (hidden) scroll area when there is no rig,
+        # so the presets and toggles stay compact at the top.
+        outer.addStretch(0)
+        self._outer = outer
+
+        self.setWidget(root)
+        self.set_rig(rig, message)
+
+    # ----------------------------------------------------------- building
+    def _build_presets(self, parent: QWidget) -> QGroupBox:
+        box = QGroupBox("Presets", parent)
+        grid = QGridLayout(box)
+        grid.setContentsMargins(6, 4, 6, 4)
+        grid.setHorizontalSpacing(6)
+        grid.setVerticalSpacing(4)
+
+        self.expression_combo = QComboBox(box)
+        self.expression_combo.setObjectName("expressionCombo")
+        for i, name in enumerate(tables.expression_names()):
+            self.expression_combo.addItem(name.capitalize(), i)
+        self.expression_combo.setToolTip("MPEG-4 FAP 2 expression preset (thesis A Table B.1)")
+        self.expression_slider, self.expression_spin = self._intensity_widgets(box, "expression")
+
+        self.viseme_combo = QComboBox(box)
+        self.viseme_combo.setObjectName("visemeCombo")
+        for i, (name, phonemes) in enumerate(zip(tables.viseme_names(), tables.viseme_phonemes())):
+            text = f"{i} {name}" if i == 0 else f"{i} {name}  {phonemes.replace(',', '')}"
+            self.viseme_combo.addItem(text, i)
+        self.viseme_combo.setToolTip("MPEG-4 FAP 1 viseme preset: id, name and example phonemes (SAMPA)")
+        self.viseme_slider, self.viseme_spin = self._intensity_widgets(box, "viseme")
+
+        for row, (title, combo, slider, spin) in enumerate((
+                ("Expression", self.expression_combo, self.expression_slider, self.expression_spin),
+                ("Viseme", self.viseme_combo, self.viseme_slider, self.viseme_spin))):
+            grid.addWidget(QLabel(title, box), row, 0)
+            grid.addWidget(combo, row, 1)
+            grid.addWidget(slider, row, 2)
+            grid.addWidget(spin, row, 3)
+        grid.setColumnStretch(2, 1)
+
+        self.expression_combo.currentIndexChanged.connect(lambda _i: self._expression_edited())
+        self.expression_slider.valueChanged.connect(lambda _v: self._expression_edited("slider"))
+        self.expression_spin.valueChanged.connect(lambda _v: self._expression_edited("spin"))
+        self.viseme_combo.currentIndexChanged.connect(lambda _i: self._viseme_edited())
+        self.viseme_slider.valueChanged.connect(lambda _v: self._viseme_edited("slider"))
+        self.viseme_spin.valueChanged.connect(lambda _v: self._viseme_edited("spin"))
+        return box
+
+    def _intensity_widgets(self, parent: QWidget, what: str) -> tuple[QSlider, QSpinBox]:
+        slider = QSlider(Qt.Orientation.Horizontal, parent)
+        slider.setObjectName(f"{what}Intensity")
+        slider.setRange(0, 100)
+        slider.setValue(100)
+        slider.setTracking(True)
+        slider.setPageStep(10)
+        slider.setMinimumWidth(80)
+        slider.setToolTip(f"Intensity of the {what} preset")
+        spin = QSpinBox(parent)
+        spin.setObjectName(f"{what}IntensitySpin")
+        spin.setRange(0, 100)
+        spin.setValue(100)
+        spin.setSuffix(" %")
+        spin.setKeyboardTracking(False)
+        spin.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+        spin.setToolTip(f"Intensity of the {what} preset")
+        return slider, spin
+
+    def _build_controls(self, parent: QWidget) -> QWidget:
+        w = QWidget(parent)
+        grid = QGridLayout(w)
+        grid.setContentsMargins(0, 0, 0, 0)
+        grid.setHorizontalSpacing(10)
+        grid.setVerticalSpacing(2)
+
+        self.link_check = QCheckBox("Link left/right", w)
+        self.link_check.setObjectName("linkLeftRight")
+        self.link_check.setToolTip("Moving a left or right FAP moves its mirror FAP to the same value")
+        self.reset_all_button = QPushButton("Reset all", w)
+        self.reset_all_button.setObjectName("resetAll")
+        self.reset_all_button.setToolTip("Every FAP to 0, expression and viseme to neutral")
+        self.reset_all_button.clicked.connect(self.reset_all)
+
+        self.feature_points_check = QCheckBox("Feature points", w)
+        self.feature_points_check.setObjectName("showFeaturePoints")
+        self.feature_points_check.setToolTip("Show the face's MPEG-4 feature points (View ▸ Show landmarks)")
+        self.feature_points_check.toggled.connect(self.feature_points_toggled)
+        self.influence_check = QCheckBox("Influence of hovered FAP", w)
+        self.influence_check.setObjectName("showInfluence")
+        self.influence_check.setToolTip(
+            "Colour the face by how strongly the FAP under the mouse (or with a focused slider) moves each point")
+        self.influence_check.toggled.connect(lambda _c: self._overlay_maybe_changed())
+        self.heat_check = QCheckBox("Displacement heat map", w)
+        self.heat_check.setObjectName("showHeatMap")
+        self.heat_check.setToolTip("Colour the face by how far each point moved from the neutral face, in mm")
+        self.heat_check.toggled.connect(lambda _c: self._overlay_maybe_changed())
+
+        grid.addWidget(self.link_check, 0, 0)
+        grid.addWidget(self.feature_points_check, 0, 1)
+        grid.addWidget(self.reset_all_button, 0, 2, Qt.AlignmentFlag.AlignRight)
+        grid.addWidget(self.influence_check, 1, 0)
+        grid.addWidget(self.heat_check, 1, 1, 1, 2)
+        grid.setColumnStretch(2, 1)
+        return w
+
+    def _clear_groups(self) -> None:
+        for group in self.groups.values():
+            self._groups_layout.removeWidget(group)
+            group.setParent(None)
+            group.deleteLater()
+        self.groups.clear()
+        self.rows.clear()
+
+    def _build_groups(self, rig: "FaceRig") -> None:
+        animated = set(rig.animated_faps)
+        specs = [s for s in tables.fap_specs() if s.number in animated and s.dock]
+        fapu = dict(rig.fapu)
+        for name in tables.DOCK_GROUPS:
+            members = [s for s in specs if s.dock == name]
+            if not members:
+                continue
+            group = FapGroup(name, self._groups_widget)
+            group.reset_requested.connect(self.reset_group)
+            for spec in members:
+                row = FapRow(spec, fapu, self._fp_names, group.body)
+                row.edited.connect(self._row_edited)
+                row.reset_requested.connect(self.reset_fap)
+                row.hover_changed.connect(self._row_hover)
+                row.focus_changed.connect(self._row_focus)
+                group.add_row(row)
+                self.rows[spec.number] = row
+            self._groups_layout.insertWidget(self._groups_layout.count() - 1, group)
+            self.groups[name] = group
+        self._align_rows()
+
+    def _align_rows(self) -> None:
+        """One label width and one spin box width for every row, so sliders line up across groups."""
+        if not self.rows:
+            return
+        metrics = QFontMetrics(next(iter(self.rows.values())).label.font())
+        label_w = max(metrics.horizontalAdvance(r.label.text()) for r in self.rows.values()) + 8
+        spin_w = 0
+        for r in self.rows.values():
+            spin_w = max(spin_w, r.spin.sizeHint().width())
+        for r in self.rows.values():
+            r.label.setFixedWidth(label_w)
+            r.spin.setFixedWidth(spin_w)
+
+    # ----------------------------------------------------------- rig
+    def set_rig(self, rig: "FaceRig | None", message: str = "") -> None:
+        """Drive ``rig`` (None: no animation for this face; ``message`` says why)."""
+        if self.rig is not None:
+            try:
+                self.rig.changed.disconnect(self._on_rig_changed)
+            except (ValueError, RuntimeError):
+                pass
+        self.rig = rig
+        self._hovered = self._focused = None
+        self._clear_groups()
+        if rig is not None:
+            self._build_groups(rig)
+            rig.changed.connect(self._on_rig_changed)
+        enabled = rig is not None
+        for w in (self.expression_combo, self.expression_slider, self.expression_spin, self.viseme_combo,
+                  self.viseme_slider, self.viseme_spin, self.link_check, self.reset_all_button,
+                  self.influence_check, self.heat_check):
+            w.setEnabled(enabled)
+        self.scroll.setVisible(enabled)
+        self._outer.setStretch(self._outer.count() - 1, 0 if enabled else 1)
+        if not enabled and not message:
+            message = NO_RIG_MESSAGE
+        self.show_message(message)
+        if rig is not None:
+            self._on_rig_changed()
+        self._overlay_maybe_changed()
+
+    def show_message(self, message: str) -> None:
+        """Show ``message`` above the presets (empty hides it)."""
+        self.message_label.setText(message)
+        self.message_label.setVisible(bool(message))
+
+    def _on_rig_changed(self, force: bool = False) -> None:
+        """Every widget to the rig's values, emitting nothing (``force``: rows that think
+        they already show the value too, e.g. after the rig refused an edit)."""
+        rig = self.rig
+        if rig is None:
+            return
+        self._syncing = True
+        try:
+            values = rig.fap_values()
+            for n, row in self.rows.items():
+                if force or row.value != values[n - 1]:
+                    row.show_value(values[n - 1])
+            eid, eint = rig.expression
+            self._show_preset(self.expression_combo, self.expression_slider, self.expression_spin, eid, eint)
+            vid, vint = rig.viseme
+            self._show_preset(self.viseme_combo, self.viseme_slider, self.viseme_spin, vid, vint)
+        finally:
+            self._syncing = False
+
+    @staticmethod
+    def _show_preset(combo: QComboBox, slider: QSlider, spin: QSpinBox, pid: int, intensity: float) -> None:
+        with QSignalBlocker(combo), QSignalBlocker(slider), QSignalBlocker(spin):
+            if combo.currentIndex() != pid:
+                combo.setCurrentIndex(pid)
+            if pid != 0:  # neutral/none: keep the intensity ready for the next pick
+                percent = int(round(intensity * 100))
+                slider.setValue(percent)
+                spin.setValue(percent)
+        slider.setEnabled(combo.isEnabled() and pid != 0)
+        spin.setEnabled(combo.isEnabled() and pid != 0)
+
+    # ----------------------------------------------------------- edits -> rig
+    def _apply(self, call, *args) -> bool:
+        """Run a rig setter; a refused value becomes a message and the widgets go back to the rig."""
+        try:
+            call(*args)
+        except ValueError as exc:
+            self.show_message(str(exc))
+            self._on_rig_changed(force=True)
+            return False
+        if self.message_label.isVisible() and self.rig is not None:
+            self.show_message("")
+        return True
+
+    def _row_edited(self, number: int, value: float) -> None:
+        if self.rig is None or self._syncing:
+            return
+        values = {number: value}
+        pair = self.rows[number].spec.pair
+        if self.link_check.isChecked() and pair in self.rows:
+            spec = self.rows[pair].spec
+            values[pair] = min(max(value, spec.minimum), spec.maximum)
+        self._apply(self.rig.set_faps, values)  # one call: one rig.changed, one redraw
+
+    def _expression_edited(self, source: str = "combo") -> None:
+        if self.rig is None or self._syncing:
+            return
+        self._preset_edited(self.rig.set_expression, self.expression_combo, self.expression_slider,
+                            self.expression_spin, source)
+
+    def _viseme_edited(self, source: str = "combo") -> None:
+        if self.rig is None or self._syncing:
+            return
+        self._preset_edited(self.rig.set_viseme, self.viseme_combo, self.viseme_slider, self.viseme_spin, source)
+
+    def _preset_edited(self, setter, combo: QComboBox, slider: QSlider, spin: QSpinBox, source: str) -> None:
+        pid = int(combo.currentData())
+        percent = spin.value() if source == "spin" else slider.value()
+        if source == "combo" and pid != 0 and percent == 0:
+            percent = 100  # picking an expression at 0 % would show nothing
+        self._apply(setter, pid, percent / 100.0)
+        if pid == 0:  # the rig ignores neutral's intensity, so _on_rig_changed leaves these alone
+            self._show_preset(combo, slider, spin, 0, 0.0)
+
+    def reset_fap(self, number: int) -> None:
+        if self.rig is not None:
+            self._apply(self.rig.reset_faps, [number])
+
+    def reset_group(self, name: str) -> None:
+        group = self.groups.get(name)
+        if self.rig is not None and group is not None:
+            self._apply(self.rig.reset_faps, group.numbers)
+
+    def reset_all(self) -> None:
+        """Every FAP to 0 and the presets to neutral."""
+        rig = self.rig
+        if rig is None:
+            return
+        self._apply(rig.reset_faps)
+        self._apply(rig.set_expression, None)
+        self._apply(rig.set_viseme, None)
+
+    # ----------------------------------------------------------- overlays
+    def set_feature_points_checked(self, checked: bool, enabled: bool | None = None) -> None:
+        """Mirror the window's landmark display without emitting ``feature_points_toggled``."""
+        with QSignalBlocker(self.feature_points_check):
+            self.feature_points_check.setChecked(bool(checked))
+        if enabled is not None:
+            self.feature_points_check.setEnabled(bool(enabled))
+
+    @property
+    def influence_fap(self) -> int | None:
+        """The FAP whose influence is wanted: the row under the mouse, else the row with focus."""
+        return self._hovered if self._hovered is not None else self._focused
+
+    def overlay(self) -> tuple[str | None, int | None]:
+        """("influence", n) while the influence toggle is on and a FAP row is hovered/focused,
+        else ("heat", None) when the heat map is on, else (None, None)."""
+        if self.rig is None:
+            return None, None
+        n = self.influence_fap
+        if self.influence_check.isChecked() and n is not None:
+            return "influence", n
+        if self.heat_check.isChecked():
+            return "heat", None
+        return None, None
+
+    def _row_hover(self, number: int, inside: bool) -> None:
+        if inside:
+            self._hovered = number
+        elif self._hovered == number:
+            self._hovered = None
+        self._overlay_maybe_changed()
+
+    def _row_focus(self, number: int, focused: bool) -> None:
+        if focused:
+            self._focused = number
+        elif self._focused == number:
+            self._focused = None
+        self._overlay_maybe_changed()
+
+    def _overlay_maybe_changed(self) -> None:
+        current = self.overlay()
+        if current != self._last_overlay:
+            self._last_overlay = current
+            self.overlay_changed.emit()
+
+    # ----------------------------------------------------------- helpers for callers/tests
+    def row(self, fap: int | str) -> FapRow:
+        """The row of a FAP by number or name (KeyError if this face does not animate it)."""
+        return self.rows[tables.fap_spec(fap).number]
+
+    def group_of(self, fap: int | str) -> FapGroup:
+        return self.groups[tables.fap_spec(fap).dock]
+
+
+__all__ = ["FapDock", "FapGroup", "FapRow", "NO_RIG_MESSAGE", "fap_tooltip", "readable_name", "row_label"]

@@ -1,0 +1,383 @@
+"""The FAP dock driving a real FaceRig on the default face, and the viewport following it.
+
+The FAP deformer of the default face is built once per module (a second or two); every test gets
+a fresh FaceRig on it, shown in a MainWindow through ``set_face(face, rig=...)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PySide6.QtCore import QEvent, QPoint, QPointF, Qt
+from PySide6.QtGui import QEnterEvent, QWheelEvent
+from PySide6.QtWidgets import QApplication
+
+from app.fap_dock import NO_RIG_MESSAGE, FapDock, readable_name
+from core.fap import tables
+
+TICK_TIMEOUT_MS = 5000
+
+
+# ------------------------------------------------------------------ fixtures
+@pytest.fixture(scope="module")
+def default_face():
+    from core.default_face import load_default_face
+
+    return load_default_face()
+
+
+@pytest.fixture(scope="module")
+def deformer(default_face):
+    from core.fap.fat import FapDeformer
+
+    return FapDeformer(default_face)
+
+
+@pytest.fixture
+def rig(default_face, deformer):
+    from core.rig import FaceRig
+
+    return FaceRig(default_face, deformer=deformer)
+
+
+@pytest.fixture
+def win(qtbot, settings, error_boxes, default_face, rig):
+    from app.main_window import MainWindow
+
+    w = MainWindow(settings=settings, load_default=False)
+    qtbot.addWidget(w)
+    w.set_face(default_face, rig=rig)
+    w.show()
+    qtbot.waitExposed(w)
+    qtbot.wait(30)
+    yield w
+    w.close()
+
+
+@pytest.fixture
+def dock(win) -> FapDock:
+    return win.fap_dock
+
+
+def _near(face, landmark: str, radius_mm: float) -> np.ndarray:
+    """Indices of the face's vertices within ``radius_mm`` of a landmark."""
+    p = face.landmark_position(landmark)
+    idx = np.nonzero(np.linalg.norm(face.vertices - p, axis=1) < radius_mm)[0]
+    assert len(idx) > 5, f"no vertices near {landmark}"
+    return idx
+
+
+def _wait_tick(qtbot, win):
+    qtbot.waitUntil(lambda: not win._tick_timer.isActive(), timeout=TICK_TIMEOUT_MS)
+
+
+# ------------------------------------------------------------------ layout
+def test_rows_groups_labels_units_and_tooltips(dock, rig):
+    animated = set(rig.animated_faps)
+    assert set(dock.rows) == {s.number for s in tables.fap_specs() if s.number in animated and s.dock}
+    expected_groups = [g for g in tables.DOCK_GROUPS
+                       if any(tables.fap_spec(n).dock == g for n in animated)]
+    assert list(dock.groups) == expected_groups
+    assert ("gaze" in dock.groups) == (23 in animated) and ("head" in dock.groups) == (48 in animated)
+    for name, group in dock.groups.items():  # rows sit in their own group, in FAP order
+        assert group.numbers == sorted(n for n in dock.rows if tables.fap_spec(n).dock == name)
+
+    jaw = dock.row(3)
+    assert jaw.label.text() == "3 open jaw"
+    assert readable_name(tables.fap_spec(19)) == "close top left eyelid"
+    assert readable_name(tables.fap_spec(35)) == "raise left outer brow"
+    assert readable_name(tables.fap_spec(57)) == "raise bottom lip left-mid"  # outer lips: group says "outer"
+    assert (jaw.slider.minimum(), jaw.slider.maximum()) == (0, 1400)  # unidirectional: starts at 0
+    assert (jaw.spin.minimum(), jaw.spin.maximum()) == (0, 1400) and jaw.spin.suffix() == " MNS"
+    lips = dock.row(4)  # bidirectional: centred at 0
+    assert lips.slider.minimum() == -lips.slider.maximum() < 0 and lips.slider.value() == 0
+    assert dock.row(6).spin.suffix() == " MW" and dock.row(19).spin.suffix() == " IRISD"
+    tip = jaw.slider.toolTip()
+    mm = rig.fapu["MNS"]
+    for needle in ("open_jaw", "2.1", "Bottom of the chin", "down", f"1 MNS unit = {mm:.3f} mm on this face"):
+        assert needle in tip, needle
+    assert "FAP 7" in dock.row(6).toolTip()  # the mirror FAP is named
+    # Labels are never cut: every label is as wide as its text needs.
+    for row in dock.rows.values():
+        assert row.label.width() >= row.label.fontMetrics().horizontalAdvance(row.label.text())
+
+
+def test_rotation_faps_show_degrees(dock, rig):
+    rotations = [n for n in dock.rows if tables.fap_spec(n).is_rotation]
+    if not rotations:
+        pytest.skip("this face animates no gaze/head rotation")
+    row = dock.row(rotations[0])
+    assert row.spin.suffix() == "°"
+    assert row.spin.maximum() == pytest.approx(np.degrees(tables.fap_spec(rotations[0]).maximum * 1e-5), abs=0.1)
+    row.spin.setValue(10.0)
+    assert rig.fap_value(rotations[0]) == pytest.approx(np.radians(10.0) / 1e-5, rel=1e-6)
+
+
+# ------------------------------------------------------------------ sliders -> rig -> face
+def test_open_jaw_slider_moves_chin_not_forehead(qtbot, dock, rig, default_face):
+    slider = dock.row("open_jaw").slider
+    qtbot.keyClick(slider, Qt.Key.Key_PageUp)  # a real key press on the slider
+    qtbot.keyClick(slider, Qt.Key.Key_PageUp)
+    assert slider.value() > 0
+    assert rig.fap_value(3) == slider.value() == dock.row(3).spin.value()
+    slider.setValue(600)  # what a drag does: valueChanged with tracking on
+    assert rig.fap_value(3) == 600
+    moved = rig.vertices() - default_face.vertices
+    chin = _near(default_face, "2.1", 6.0)
+    forehead = _near(default_face, "11.1", 12.0)
+    assert moved[chin, 1].mean() < -3.0, "the chin should move down by several mm"
+    assert np.abs(moved[forehead]).max() < 0.05, "the forehead must not move"
+
+
+def test_rig_change_from_code_updates_widgets_without_echo(qtbot, dock, rig):
+    row = dock.row(3)
+    changes = []
+    rig.changed.connect(lambda: changes.append(rig.fap_value(3)))
+    with qtbot.assertNotEmitted(row.edited), qtbot.assertNotEmitted(dock.expression_combo.currentIndexChanged):
+        rig.set_fap(3, 700)
+        rig.set_expression("surprise", 0.5)
+    assert changes == [700, 700], "one change each, and nothing written back"
+    assert row.slider.value() == 700 and row.spin.value() == 700
+    assert dock.expression_combo.currentIndex() == tables.expression_id("surprise")
+    assert dock.expression_slider.value() == 50 and dock.expression_spin.value() == 50
+    rig.reset_faps()
+    assert row.slider.value() == 0 and row.spin.value() == 0
+
+
+def test_link_left_right_moves_the_pair_in_one_call(qtbot, dock, rig):
+    left, right = dock.row("stretch_l_cornerlip"), dock.row("stretch_r_cornerlip")
+    assert left.spec.pair == right.number
+    changes = []
+    rig.changed.connect(lambda: changes.append(1))
+    qtbot.mouseClick(dock.link_check, Qt.MouseButton.LeftButton)
+    assert dock.link_check.isChecked()
+    left.slider.setValue(200)
+    assert rig.fap_value(left.number) == rig.fap_value(right.number) == 200
+    assert right.slider.value() == 200 and len(changes) == 1, "the pair moves with one rig change"
+    qtbot.mouseClick(dock.link_check, Qt.MouseButton.LeftButton)
+    assert not dock.link_check.isChecked()
+    left.slider.setValue(-100)
+    assert rig.fap_value(left.number) == -100 and rig.fap_value(right.number) == 200
+
+
+def test_reset_row_group_and_all(qtbot, dock, rig):
+    rig.set_faps({3: 500, 14: 300, 4: 200, 31: 100})
+    rig.set_expression("joy", 0.8)
+    rig.set_viseme(1, 0.5)
+    qtbot.mouseClick(dock.row(3).reset_button, Qt.MouseButton.LeftButton)
+    assert rig.fap_value(3) == 0 and rig.fap_value(14) == 300 and dock.row(3).slider.value() == 0
+    qtbot.mouseClick(dock.groups["jaw & chin"].reset_button, Qt.MouseButton.LeftButton)
+    assert rig.fap_value(14) == 0 and rig.fap_value(4) == 200
+    label = dock.row(4).label
+    qtbot.mouseDClick(dock.row(4), Qt.MouseButton.LeftButton, pos=label.geometry().center())
+    assert rig.fap_value(4) == 0 and rig.fap_value(31) == 100
+    qtbot.mouseClick(dock.reset_all_button, Qt.MouseButton.LeftButton)
+    assert not rig.fap_values().any() and rig.expression[0] == 0 and rig.viseme[0] == 0
+    assert not rig.effective_fap_values().any()
+    assert dock.row(31).slider.value() == 0 and dock.expression_combo.currentIndex() == 0
+
+
+def test_group_collapses(qtbot, dock):
+    group = dock.groups["inner lips"]
+    assert group.body.isVisible()
+    qtbot.mouseClick(group.toggle, Qt.MouseButton.LeftButton)
+    assert not group.expanded and not group.body.isVisible()
+    qtbot.mouseClick(group.toggle, Qt.MouseButton.LeftButton)
+    assert group.body.isVisible()
+
+
+def test_expression_and_viseme_presets(qtbot, dock, rig):
+    combo = dock.expression_combo
+    assert [combo.itemText(i).lower() for i in range(combo.count())] == list(tables.expression_names())
+    combo.setCurrentIndex(tables.expression_id("joy"))
+    assert rig.expression == (1, 1.0)
+    assert np.any(rig.preset_values() != 0)
+    dock.expression_spin.setValue(40)
+    assert rig.expression == (1, pytest.approx(0.4))
+    dock.expression_slider.setValue(75)
+    assert rig.expression == (1, pytest.approx(0.75)) and dock.expression_spin.value() == 75
+    np.testing.assert_allclose(rig.preset_values(), tables.expression_table()[1] * 0.75)
+
+    vcombo = dock.viseme_combo
+    assert vcombo.count() == len(tables.viseme_names())
+    assert vcombo.itemText(1).split() == ["1", "PP", "p", "b", "m"]
+    vcombo.setCurrentIndex(1)
+    assert rig.viseme == (1, 1.0)
+    dock.viseme_slider.setValue(30)
+    assert rig.viseme == (1, pytest.approx(0.3))
+    combo.setCurrentIndex(0)
+    assert rig.expression[0] == 0 and not dock.expression_slider.isEnabled()
+
+
+def test_out_of_range_entry_cannot_reach_the_rig(qtbot, dock, rig):
+    row = dock.row(3)
+    spin = row.spin
+    spin.setFocus()
+    spin.selectAll()
+    qtbot.keyClicks(spin, "5000")
+    assert spin.valueFromText(spin.lineEdit().text()) <= 1400, "the box must refuse the keystroke"
+    qtbot.keyClick(spin, Qt.Key.Key_Return)
+    assert 0 <= rig.fap_value(3) <= 1400
+    assert rig.fap_value(3) == spin.value() == row.slider.value()
+    assert not dock.message_label.isVisible(), "the box itself must stop it, before the rig has to refuse"
+    spin.selectAll()
+    qtbot.keyClicks(spin, "-300")
+    qtbot.keyClick(spin, Qt.Key.Key_Return)
+    assert rig.fap_value(3) >= 0, "open_jaw is one-way: the box must not accept negatives"
+    row.slider.setValue(99_999)
+    assert rig.fap_value(3) == 1400
+    with pytest.raises(ValueError):  # the rig itself refuses it too
+        rig.check_fap(3, 5000)
+
+
+def test_refused_edit_shows_a_message_and_snaps_back(qtbot, dock, rig, monkeypatch):
+    def refuse(values):
+        raise ValueError("open_jaw refused for this test")
+
+    monkeypatch.setattr(rig, "set_faps", refuse)
+    dock.row(3).slider.setValue(800)
+    assert rig.fap_value(3) == 0
+    assert dock.row(3).slider.value() == 0 and dock.row(3).spin.value() == 0
+    assert dock.message_label.isVisible() and "refused for this test" in dock.message_label.text()
+    monkeypatch.undo()
+    dock.row(3).slider.setValue(100)
+    assert rig.fap_value(3) == 100 and not dock.message_label.isVisible()
+
+
+def test_wheel_scrolls_the_dock_not_an_unfocused_slider(qtbot, dock, rig):
+    slider = dock.row(4).slider
+    assert not slider.hasFocus()
+    pos = QPointF(slider.rect().center())
+    wheel = QWheelEvent(pos, QPointF(slider.mapToGlobal(pos.toPoint())), QPoint(0, 0), QPoint(0, -120),
+                        Qt.MouseButton.NoButton, Qt.KeyboardModifier.NoModifier, Qt.ScrollPhase.NoScrollPhase, False)
+    QApplication.sendEvent(slider, wheel)
+    assert slider.value() == 0 and rig.fap_value(4) == 0
+
+
+# ------------------------------------------------------------------ viewport
+def test_viewport_follows_the_rig_once_per_burst(qtbot, win, dock, rig, monkeypatch):
+    actor = win.face_actor
+    mesh = actor.mesh
+    before = np.array(mesh.points)
+    calls = []
+    original = actor.update_vertices
+    monkeypatch.setattr(actor, "update_vertices", lambda v, n=None: (calls.append(1), original(v, n)))
+    for value in range(100, 1100, 100):  # ten slider events before the event loop runs
+        dock.row(3).slider.setValue(value)
+    assert not calls, "the viewport must not redraw per slider event"
+    _wait_tick(qtbot, win)
+    assert len(calls) == 1
+    assert win.face_actor.mesh is mesh
+    np.testing.assert_allclose(mesh.points, rig.vertices(), atol=1e-4)
+    assert np.abs(np.asarray(mesh.points) - before).max() > 3.0
+    compute_ms, draw_ms = win.last_tick_ms
+    assert compute_ms > 0 and draw_ms > 0
+    assert "compute" in win.tick_label.text() and "draw" in win.tick_label.text()
+
+
+def test_heat_map_toggle_puts_scalars_on_the_mesh(qtbot, win, dock, rig):
+    actor = win.face_actor
+    dock.row(3).slider.setValue(600)
+    qtbot.mouseClick(dock.heat_check, Qt.MouseButton.LeftButton)
+    _wait_tick(qtbot, win)
+    assert actor.scalars_visible and actor.actor.texture is None
+    np.testing.assert_allclose(actor.scalars, rig.displacement_magnitude(), atol=1e-3)
+    assert actor.scalar_bar_title == "Displacement (mm)"
+    assert actor.scalar_range[1] >= float(rig.displacement_magnitude().max())
+    first_max = float(actor.scalars.max())
+    dock.row(3).slider.setValue(1200)  # live while sliders move
+    _wait_tick(qtbot, win)
+    assert float(actor.scalars.max()) > first_max + 1.0
+    np.testing.assert_allclose(actor.scalars, rig.displacement_magnitude(), atol=1e-3)
+    qtbot.mouseClick(dock.heat_check, Qt.MouseButton.LeftButton)
+    _wait_tick(qtbot, win)
+    assert not actor.scalars_visible and actor.actor.texture is not None
+    assert actor.scalar_bar_title is None
+
+
+def _enter(widget):
+    pos = QPointF(5, 5)
+    QApplication.sendEvent(widget, QEnterEvent(pos, pos, QPointF(widget.mapToGlobal(QPoint(5, 5)))))
+
+
+def _leave(widget):
+    QApplication.sendEvent(widget, QEvent(QEvent.Type.Leave))
+
+
+def test_influence_of_hovered_fap(qtbot, win, dock, rig):
+    actor = win.face_actor
+    dock.influence_check.setChecked(True)
+    _wait_tick(qtbot, win)
+    assert not actor.scalars_visible, "nothing hovered yet"
+    _enter(dock.row(31))
+    _wait_tick(qtbot, win)
+    assert dock.overlay() == ("influence", 31)
+    assert actor.scalars_visible
+    np.testing.assert_allclose(actor.scalars, rig.fap_influence(31), atol=1e-5)
+    _leave(dock.row(31))
+    _enter(dock.row(3))
+    _wait_tick(qtbot, win)
+    np.testing.assert_allclose(actor.scalars, rig.fap_influence(3), atol=1e-5)
+    _leave(dock.row(3))
+    _wait_tick(qtbot, win)
+    assert not actor.scalars_visible and actor.actor.texture is not None
+
+
+def test_feature_points_toggle_uses_the_window_landmarks(qtbot, win, dock):
+    assert not win.face_actor.landmarks_visible
+    qtbot.mouseClick(dock.feature_points_check, Qt.MouseButton.LeftButton)
+    assert win.face_actor.landmarks_visible and win.landmarks_action.isChecked()
+    win.landmarks_action.trigger()  # View menu / L key
+    assert not win.face_actor.landmarks_visible and not dock.feature_points_check.isChecked()
+
+
+def test_view_menu_toggles_the_dock(win, dock):
+    assert dock.isVisible() and win.fap_dock_action in win.view_menu.actions()
+    assert win.dockWidgetArea(dock) == Qt.DockWidgetArea.RightDockWidgetArea
+    assert dock.width() < win.width() / 2, "the dock must leave most of the window to the viewport"
+    win.fap_dock_action.trigger()
+    assert not dock.isVisible()
+    win.fap_dock_action.trigger()
+    assert dock.isVisible()
+
+
+# ------------------------------------------------------------------ faces without a rig
+def test_face_without_feature_points_keeps_the_window_usable(window):
+    """The conftest window shows a synthetic face with 6 landmarks: no rig, a clear message."""
+    dock = window.fap_dock
+    assert window.rig is None
+    assert NO_RIG_MESSAGE in dock.message_label.text() and dock.message_label.isVisible()
+    assert not dock.rows and not dock.reset_all_button.isEnabled() and not dock.heat_check.isEnabled()
+    assert "Traceback" not in dock.message_label.text()
+    window.set_view_mode("shaded")
+    window.set_landmarks_visible(True)
+    assert window.face_actor.landmarks_visible and dock.feature_points_check.isChecked()
+
+
+def test_new_face_replaces_the_rig(qtbot, win, dock, rig, synthetic_face, default_face, deformer):
+    from core.rig import FaceRig
+
+    win.set_face(synthetic_face)
+    assert win.rig is None and not dock.rows
+    _wait_tick(qtbot, win)
+    rig.set_fap(3, 500)  # the old rig no longer drives anything
+    assert not win._tick_timer.isActive() and dock.rig is None
+    fresh = FaceRig(default_face, deformer=deformer)
+    win.set_face(default_face, rig=fresh)
+    assert win.rig is fresh and dock.rig is fresh and dock.row(3).slider.value() == 0
+    assert not dock.message_label.isVisible()
+    dock.row(3).slider.setValue(300)
+    assert fresh.fap_value(3) == 300 and rig.fap_value(3) == 500
+
+
+def test_background_load_builds_the_rig(qtbot, settings, error_boxes):
+    """The default face comes through the loader thread with its rig already built."""
+    from app.main_window import MainWindow
+
+    w = MainWindow(settings=settings)
+    qtbot.addWidget(w)
+    with qtbot.waitSignal(w.load_finished, timeout=120_000):
+        pass
+    assert not error_boxes and w.rig is not None, w.rig_message
+    assert w.fap_dock.rows and w.fap_dock.rig is w.rig
+    w.close()
