@@ -25,8 +25,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..face import Face, FaceMetadata, SurfacePoint
-from .params import FaceLayout, FaceParameters
 from .mouth import MouthInterior
+from .params import FaceLayout, FaceParameters
 from .shape import OUTLINE_T, FaceShape
 from .texture import atlas_map, eye_atlas_centre, mouth_atlas, paint_texture
 
@@ -243,7 +243,9 @@ def _texture_frame(layout: FaceLayout) -> tuple[float, float, float, float]:
 
 # ---------------------------------------------------------------- landmarks
 def feature_point_layout(layout: FaceLayout, shape: FaceShape) -> dict[str, tuple[float, float, str]]:
-    """(x, y, part) of every frontal MPEG-4 feature point of the generated face.
+    """(x, y, part) of every frontal MPEG-4 feature point of the generated face's skin and eyes.
+
+    (The teeth points 9.8-9.11 are vertices of the teeth, placed in ``generate_face``.)
 
     part is "skin", "upper" / "lower" (the two sides of the mouth seam),
     "rim_up" / "rim_low" (just outside the lid margins) or "eye_l" / "eye_r" (pupil).

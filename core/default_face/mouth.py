@@ -4,12 +4,15 @@ The inside of the mouth behind the lip seam, so that parted lips and an open
 jaw show a mouth rather than the background. Three separate components:
 
 - the mouth cavity: a dark bowl facing the opening (+z), a height field over
-  a footprint wider than the mouth and reaching from the nose base to below
-  the chin boss. Its depth is the smooth minimum of a gently concave floor
-  and the skin pushed back by a clearance; the skin used is the lowest of the
-  rest skin and the lower face dropped by up to ``JAW_DROP`` (the jaw moves the
-  lower face down, the cavity stays with the skull), so the cavity stays
-  behind the face however far the jaw opens;
+  a footprint wider than the mouth (out to near the scan's side edge) and
+  reaching from the nose base to below the chin boss. A gently concave floor
+  whose walls rise near the footprint's edge until they meet the skin
+  envelope less ``CAVITY_CLEARANCE``. The envelope is the lowest of the rest
+  skin and the lower face (below the mouth line) dropped by up to
+  ``JAW_DROP`` and moved back ``JAW_BACK`` per mm (the jaw moves the lower
+  face, the cavity stays with the skull), so the cavity stays behind the face
+  however far the jaw opens, and lines of sight through the opening end on
+  it rather than passing beside it;
 - the upper and lower teeth: closed tubes swept along a parabolic dental arch
   (a rounded incisal edge, labial and lingual faces, the gum along the top),
   the incisors' labial face ``INCISOR_SETBACK`` behind the skin of the mouth
@@ -32,13 +35,14 @@ JAW_DROP = 25.0            # mm, how far the lower face may move down with the j
 JAW_BACK = 0.3             # mm the lower face may move back per mm down (the jaw rotates)
 CAVITY_SPACING = 2.0       # mm, grid spacing of the cavity
 CAVITY_CLEARANCE = 2.5     # mm, cavity behind the (rest or dropped) skin at least this much
-CAVITY_MARGIN_X = 16.0     # mm, cavity beyond each mouth corner
+CAVITY_MARGIN_X = 24.0     # mm, cavity beyond each mouth corner
 CAVITY_FLOOR_DEPTH = 36.0  # mm, deepest part of the cavity behind the incisors' front
-CAVITY_WALL = 9.0          # mm, width of the cavity's rising walls at the sides and bottom
+CAVITY_WALL = 9.0          # mm, width of the cavity's rising walls at the sides
 CAVITY_WALL_TOP = 6.0      # mm, at the top (under the nose, above the upper teeth)
+CAVITY_WALL_BOTTOM = 7.0   # mm, at the bottom (below the chin boss)
 INCISOR_SETBACK = 3.5      # mm, upper incisor front behind the inner lip contour (mouth line) at the midline
 OVERJET = 1.5              # mm, lower incisors behind the upper ones
-ARCH_CURVATURE = 0.022     # 1/mm, z = z0 - k x^2
+ARCH_DEPTH = 12.7          # mm, the arch (z = z0 - k x^2) is this much further back at the mouth corners
 ARCH_END_BEYOND_CORNER = 2.0  # mm, the arch ends this far laterally of the mouth corners
 ARCH_STEP = 0.8            # mm, ring spacing along the arch
 TEETH_CLEARANCE = 2.0      # mm, teeth behind the skin at least this much
@@ -83,9 +87,10 @@ class MouthInterior:
         L = layout
         self.incisor_z = float(shape.skin_depth(0.0, L.mouth_line(0.0))) - INCISOR_SETBACK
         self.cavity_top = L.subnasale_y + 1.0
-        self.cavity_bottom = L.chin_y - 5.0
+        self.cavity_bottom = L.chin_y - 7.0
         self.cavity_half_width = L.mouth_half_width + CAVITY_MARGIN_X
         self.cavity_floor = self.incisor_z - CAVITY_FLOOR_DEPTH
+        self.arch_curvature = ARCH_DEPTH / L.mouth_half_width**2   # 1/mm
 
     # ------------------------------------------------------------ cavity
     def skin_envelope(self, x, y):
@@ -93,7 +98,13 @@ class MouthInterior:
         line) moved down by up to JAW_DROP and back by JAW_BACK per mm down."""
         x = np.asarray(x, float)
         y = np.asarray(y, float)
+        # The rest skin's minimum over a grid cell around (x, y) (at most 1.5 mm
+        # deeper: the sides fall away fast), so that the cavity's flat triangles
+        # stay behind narrow features (nostrils, lip crease).
+        r = CAVITY_SPACING / 2
         env = self.shape.skin_depth(x, y)
+        around = np.min([self.shape.skin_depth(x + dx, y + dy) for dx in (-r, 0, r) for dy in (-r, 0, r)], axis=0)
+        env = np.maximum(around, env - 1.5)
         line = self.L.mouth_line(x)
         for s in np.linspace(0.0, JAW_DROP, 26)[1:]:
             moved = self.shape.skin_depth(x, y + s) - JAW_BACK * s
@@ -102,7 +113,7 @@ class MouthInterior:
 
     def cavity_half_width_at(self, y):
         """Half-width of the cavity footprint at height y: beyond the mouth corners, inside the jaw."""
-        return np.minimum(self.cavity_half_width, (OUTLINE_T - 0.1) * self.shape.half_width(y))
+        return np.minimum(self.cavity_half_width, (OUTLINE_T - 0.04) * self.shape.half_width(y))
 
     def cavity_inside(self, x, y):
         """Mask of the cavity footprint."""
@@ -127,7 +138,7 @@ class MouthInterior:
         floor = _smooth_max(floor, edge_z + 6.0, 1.0)
         wall = (_smoothstep(CAVITY_WALL, 0.0, self.cavity_half_width_at(y) - np.abs(x))
                 + _smoothstep(CAVITY_WALL_TOP, 0.0, self.cavity_top - y)
-                + _smoothstep(CAVITY_WALL, 0.0, y - self.cavity_bottom))
+                + _smoothstep(CAVITY_WALL_BOTTOM, 0.0, y - self.cavity_bottom))
         return _softmin(floor + 80.0 * wall, self.skin_envelope(x, y) - CAVITY_CLEARANCE, 1.0)
 
     def cavity(self):
@@ -163,7 +174,7 @@ class MouthInterior:
     def arch_z(self, x, upper: bool = True):
         """z of the labial face of the incisal edge along the arch."""
         x = np.asarray(x, float)
-        return self.incisor_z - (0.0 if upper else OVERJET) - ARCH_CURVATURE * x**2
+        return self.incisor_z - (0.0 if upper else OVERJET) - self.arch_curvature * x**2
 
     def edge_y(self, x, upper: bool = True):
         """y of the incisal edge: upper just below the mouth line, lower just below that."""
@@ -172,9 +183,11 @@ class MouthInterior:
 
     def teeth(self, upper: bool) -> TeethRow:
         L = self.L
-        k = ARCH_CURVATURE
+        k = self.arch_curvature
         # Arc length of the parabola x -> (x, -k x^2), inverted by a dense table.
-        x_end = L.mouth_half_width + ARCH_END_BEYOND_CORNER
+        # The arch ends beyond the mouth corners, but before the cavity's side walls rise.
+        x_end = min(L.mouth_half_width + ARCH_END_BEYOND_CORNER,
+                    float(self.cavity_half_width_at(L.stomion_y)) - CAVITY_WALL - 1.0)
         xt = np.linspace(0.0, x_end, 2001)
         st = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(xt), np.diff(k * xt**2)))])
         m = int(np.ceil(st[-1] / ARCH_STEP))
@@ -185,7 +198,9 @@ class MouthInterior:
         up = np.array([0.0, 1.0 if upper else -1.0, 0.0])
 
         # Cross-section (n along the outward normal, h from the edge toward the gum).
-        H, G = (10.0, 2.2) if upper else (9.0, 2.0)      # strip height, gum band
+        # Strip height (crown + gum band): the upper teeth end below the cavity's top wall.
+        room = self.cavity_top - CAVITY_WALL_TOP - 1.0 - float(self.edge_y(x_end, True)) - 0.8
+        H, G = (min(10.0, room), 2.2) if upper else (9.0, 2.0)
         r, tilt, T = 0.8, (0.18 if upper else 0.25), 6.0
         arc = np.linspace(0.0, np.pi, 7)
         n_c = -tilt * r - r

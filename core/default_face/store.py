@@ -1,7 +1,8 @@
 """store.py
 ----
 The committed copy of the default face: one compressed NPZ (vertices,
-triangles, uv, texture, landmarks) under ``resources/default_face/``.
+triangles, uv, texture, landmarks, and each named part as ``part_<name>``)
+under ``resources/default_face/``.
 """
 
 from __future__ import annotations

@@ -19,6 +19,7 @@ import numpy as np
 from scipy import ndimage
 
 from .params import FaceLayout
+from .shape import _smoothstep
 
 # Skin colours (sRGB) from very light to very dark, interpolated by skin_tone.
 _SKIN_TONES = np.array([[240, 205, 185], [224, 178, 148], [190, 138, 102], [140, 94, 64], [92, 60, 42]], float)
@@ -187,11 +188,6 @@ def _paint_mouth(img, X, Y, px, layout: FaceLayout, mouth, upper, lower, rects):
         tooth *= (1.0 - 0.45 * np.exp(-((d / 0.4) ** 2)))[:, None]
         on_gum = _smoothstep(0.25, -0.25, to_gum)[:, None]
         img[mask] = tooth * (1 - on_gum) + gum * on_gum
-
-
-def _smoothstep(e0, e1, v):
-    t = np.clip((v - e0) / (e1 - e0), 0.0, 1.0)
-    return t * t * (3 - 2 * t)
 
 
 def _paint_eye(img, dx, dy, layout: FaceLayout, rng):
