@@ -102,10 +102,11 @@ def viseme_phonemes() -> tuple[str, ...]:
     return tuple(r["phonemes_sampa"] for r in resources.get_table("mpeg4/visemes.csv"))
 
 
-def _preset_table(name: str, key: str, n_presets: int) -> np.ndarray:
-    table = np.zeros((n_presets, N_FAPS))
+def _preset_table(name: str, key: str, ids: dict[str, int]) -> np.ndarray:
+    """(len(ids), 68) FAP values of each preset at 100 %, rows by preset id."""
+    table = np.zeros((len(ids), N_FAPS))
     for row in resources.get_table(name):
-        table[int(row[key]), int(row["fap"]) - 1] = float(row["value"])
+        table[ids[row[key]], int(row["fap"]) - 1] = float(row["value"])
     table.setflags(write=False)
     return table
 
@@ -113,18 +114,14 @@ def _preset_table(name: str, key: str, n_presets: int) -> np.ndarray:
 @functools.cache
 def expression_table() -> np.ndarray:
     """(7, 68) FAP values of each expression at 100 % (row 0 neutral = zeros); thesis A Table B.1."""
-    ids = {n: i for i, n in enumerate(expression_names())}
-    table = np.zeros((len(ids), N_FAPS))
-    for row in resources.get_table("mpeg4/expression_presets.csv"):
-        table[ids[row["expression"]], int(row["fap"]) - 1] = float(row["value"])
-    table.setflags(write=False)
-    return table
+    return _preset_table("mpeg4/expression_presets.csv", "expression",
+                         {n: i for i, n in enumerate(expression_names())})
 
 
 @functools.cache
 def viseme_table() -> np.ndarray:
     """(15, 68) FAP values of each viseme at 100 % (row 0 = none = zeros)."""
-    return _preset_table("mpeg4/viseme_presets.csv", "viseme", len(viseme_names()))
+    return _preset_table("mpeg4/viseme_presets.csv", "viseme", {str(i): i for i in range(len(viseme_names()))})
 
 
 def expression_id(name_or_id: str | int) -> int:

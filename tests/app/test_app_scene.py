@@ -170,12 +170,6 @@ def test_framing_fills_the_view(plotter, synthetic_face):
     assert corner.sum() < 3 * 120, "background should be dark grey"
 
 
-def test_vertex_normals_match_core(synthetic_face):
-    moved = synthetic_face.vertices * np.array([1.3, 0.8, 1.1]) + 5.0
-    fast = scene.VertexNormals(synthetic_face.triangles, synthetic_face.n_vertices)
-    np.testing.assert_allclose(fast(moved), vertex_normals(moved, synthetic_face.triangles), atol=1e-12)
-
-
 def test_scalar_overlay_in_place_and_back(plotter, synthetic_face):
     actor = scene.add_face_actor(plotter, synthetic_face, "textured")
     scene.set_camera_view(plotter, "front", actor.mesh.points)

@@ -77,3 +77,18 @@ def test_closest_surface_point_and_rays():
     hits, ray, _tri = face.ray_hits([[0.5, 0.2, 5.0], [3.0, 3.0, 5.0]], [[0, 0, -1], [0, 0, -1]])
     assert ray.tolist() == [0] and hits == pytest.approx(np.array([[0.5, 0.2, 0.0]]))
     assert face.kdtree.query([0.9, 0.1, 0.0])[1] == 1
+
+
+def test_vertex_normals_known_answers():
+    import trimesh
+
+    from core.face import VertexNormals
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    normals = VertexNormals(sphere.faces, len(sphere.vertices))(np.asarray(sphere.vertices))
+    radial = sphere.vertices / np.linalg.norm(sphere.vertices, axis=1, keepdims=True)
+    assert np.einsum("ij,ij->i", normals, radial).min() > 0.999  # outward, unit, radial
+    plane = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 2, 2]], float)
+    tri = np.array([[0, 1, 2], [1, 3, 2]])
+    n = vertex_normals(plane, tri)
+    assert np.allclose(n[:4], [0, 0, 1]) and np.allclose(n[4], 0)  # unused vertex: zero, not NaN
