@@ -2,6 +2,7 @@
 # Install the Debian packages Mimica needs that pip cannot provide:
 #   - the xcb libraries Qt's "xcb" platform plugin loads (the real window),
 #   - Mesa/EGL/GL for VTK rendering, fontconfig for Qt text,
+#   - espeak-ng for lip-sync from text (phonemes with timings, speech audio),
 #   - Xvfb + xauth so the window and GUI tests run on a machine without a screen.
 # Usage: scripts/install_system_deps.sh          (installs what is missing)
 # Set MIMICA_NO_APT=1 to only report what is missing.
@@ -12,6 +13,7 @@ packages=(
   libxcb-icccm4 libxcb-image0 libxcb-keysyms1 libxcb-randr0 libxcb-render-util0
   libxcb-shape0 libxcb-xinerama0 libxcb-xkb1 libxkbcommon-x11-0 libxcb-cursor0
   libegl1 libgl1 libfontconfig1 libdbus-1-3
+  espeak-ng
 )
 
 missing=()
