@@ -158,20 +158,32 @@ def mirror_name(n: str) -> str:
 
 UPPER_LIP = ["2.2", "2.6", "2.4", "8.1", "8.5", "8.10", "8.3"]
 LOWER_LIP = ["2.3", "2.8", "2.4", "8.2", "8.7", "8.3"]
-JAW_CORE = ["2.1", "2.10", "2.11", "2.3", "2.8", "8.2", "8.7"]
+JAW_CORE = ["2.1", "2.10", "2.11", "2.3", "2.8", "8.2", "8.7", "2.4", "8.3"]
+# The mouth corners hang between the upper jaw and the mandible: when the jaw drops they follow it
+# only part of the way (JAW_CORNER_WEIGHT), the lower lip grading from that at the corners to the full
+# motion at the midline ("profile": "jaw"). The upper lip next to each corner follows the corner
+# (a second jaw entry, "scale" = the corner weight), so the opening becomes an oval instead of a box
+# with vertical walls at the corners. Several entries of one FAP combine by their maximum.
+JAW_CORNER_WEIGHT = 0.4
+JAW_EXTRA = {"symmetric": True, "profile": "jaw", "corner_weight": JAW_CORNER_WEIGHT}
+BROW_REGION = ["4.1", "4.3", "4.5", "el.ai", "el.ao", "11.1", "11.3", "10.9", "9.7", "3.13", "3.7", "3.11",
+               "el.ui", "3.1", "el.uo"]
+BROW = {"pinned": ["3.7", "el.uo", "3.1", "el.ui", "3.11"]}
+UPPER_CORNER = (["2.4", "8.3", "2.6", "8.5", "8.10"], ["2.4", "8.3"], 4.0,
+                {"symmetric": True, "scale": JAW_CORNER_WEIGHT})
 # (fap, vertex set (left side; mirrored for the right FAP), core, w, extra)
 # A base triangle is in the region when all three vertices are in the set; core points get the
 # full value and the falloff runs from them (the FAP's own FP by default, as in thesis A).
 LEFT_REGIONS = {
-    3: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, {"symmetric": True}),
-    4: (UPPER_LIP, ["2.2"], 3.0, {"symmetric": True}),
-    5: (LOWER_LIP, ["2.3"], 3.0, {"symmetric": True}),
+    3: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, JAW_EXTRA),
+    4: (UPPER_LIP, ["2.2"], 8.0, {"symmetric": True}),
+    5: (LOWER_LIP, ["2.3"], 8.0, {"symmetric": True}),
     6: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
     8: (UPPER_LIP, ["2.6"], 2.5, {}),
     10: (LOWER_LIP, ["2.8"], 2.5, {}),
     12: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
-    14: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, {"symmetric": True}),
-    15: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, {"symmetric": True}),
+    14: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, JAW_EXTRA),
+    15: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, JAW_EXTRA),
     16: (LOWER_LIP, ["2.3", "8.2"], 3.0, {"symmetric": True}),
     17: (UPPER_LIP, ["2.2", "8.1"], 3.0, {"symmetric": True}),
     18: (["2.10", "2.11", "2.1", "8.2", "8.7", "2.8", "2.3"], ["2.10"], 3.0, {"symmetric": True}),
@@ -181,10 +193,14 @@ LEFT_REGIONS = {
     21: (["3.7", "el.lo", "3.3", "el.li", "3.11", "el.bo", "3.9", "el.bi"], ["3.7", "el.lo", "3.3", "el.li", "3.11"],
          1.5, {"chain": True, "profile": "opening", "opposite": ["3.7", "el.uo", "3.1", "el.ui", "3.11"],
                "tilt": 0.12}),
-    31: (["4.1", "4.3", "el.ai", "11.1", "11.3", "9.7", "3.13"], ["4.1"], 3.0, {}),
-    33: (["4.1", "4.3", "4.5", "el.ao", "el.ai", "3.13", "11.3"], ["4.3"], 3.0, {}),
-    35: (["4.3", "4.5", "el.ao", "10.9", "11.3", "3.7"], ["4.5"], 3.0, {}),
-    37: (["4.1", "4.3", "el.ai", "9.7", "11.1", "11.3"], ["4.1"], 3.0, {}),
+    # Brows: every brow FAP of a side shares one region, the brow and forehead down over the upper lid
+    # to its margin, which stays pinned. Shared regions overlap, so raising inner, middle and outer
+    # together lifts the brow as one smooth band instead of three bumps with creases between them,
+    # and the skin between brow and lid stretches over the whole lid instead of creasing under the brow.
+    31: (BROW_REGION, ["4.1"], 3.0, BROW),
+    33: (BROW_REGION, ["4.3"], 3.0, BROW),
+    35: (BROW_REGION, ["4.5"], 3.0, BROW),
+    37: (BROW_REGION, ["4.1"], 3.0, BROW),
     39: (["5.1", "5.3", "8.3", "2.4", "10.7", "2.13", "9.1", "9.5", "8.5", "8.7"], ["5.1"], 3.0, {}),
     41: (["5.3", "5.1", "el.bo", "3.9", "el.bi", "10.9", "10.7", "9.1", "9.13", "9.5"], ["5.3"], 3.0, {}),
     51: (["8.1", "8.10", "8.5", "2.2", "2.6", "9.15"], ["8.1"], 3.0, {"symmetric": True}),
@@ -208,27 +224,44 @@ def region_table(tri: np.ndarray) -> list[dict]:
         ids = {index[n] for n in names}
         return [int(t) for t in np.nonzero([set(r) <= ids for r in tri])[0]]
 
+    eye_opening = {t for ts in eye_opening_triangles(tri).values() for t in ts}
     out = []
-    for fap, (names, core, w, extra) in LEFT_REGIONS.items():
+    entries = list(LEFT_REGIONS.items()) + [(fap, UPPER_CORNER) for fap in (3, 14, 15)]
+    for fap, (names, core, w, extra) in entries:
         variants = [(fap, names, core, extra)]
         if extra.get("symmetric"):
             variants = [(fap, names + [mirror_name(n) for n in names], sorted(set(core + [mirror_name(c) for c in core])),
                          extra)]
         elif fap in PAIRS:
             variants.append((PAIRS[fap], [mirror_name(n) for n in names], [mirror_name(c) for c in core],
-                             {**extra, "opposite": [mirror_name(n) for n in extra.get("opposite", [])]}))
+                             {**extra, "opposite": [mirror_name(n) for n in extra.get("opposite", [])],
+                              "pinned": [mirror_name(n) for n in extra.get("pinned", [])]}))
         for number, vnames, vcore, vextra in variants:
-            entry = {"fap": number, "triangles": triangles_within(vnames), "core": list(vcore), "w": w}
+            triangles = triangles_within(vnames)
+            if not vextra.get("chain"):
+                # A skirt: every triangle around a core point joins the region, so no core sits on the
+                # region's border and the weight can fade to zero on all sides (no crease).
+                core_ids = {index[c] for c in vcore}
+                skirt = [int(t) for t in np.nonzero([bool(set(r) & core_ids) for r in tri])[0]]
+                triangles = sorted(set(triangles) | set(skirt) - set(eye_opening))
+            entry = {"fap": number, "triangles": triangles, "core": list(vcore), "w": w}
             if vextra.get("chain"):
                 entry["core_is_chain"] = True
-            if vextra.get("profile"):
-                entry["profile"] = vextra["profile"]
+            if vextra.get("profile") == "opening":
+                entry["profile"] = "opening"
                 entry["opposite"] = vextra["opposite"]
+            elif vextra.get("profile") == "jaw":
+                entry["profile"] = "jaw"
+                entry["corner_weight"] = vextra["corner_weight"]
+            if vextra.get("pinned"):
+                entry["pinned"] = vextra["pinned"]
+            if vextra.get("scale"):
+                entry["scale"] = vextra["scale"]
             if vextra.get("tilt"):
                 entry["forward_tilt"] = vextra["tilt"]
             assert entry["triangles"], f"FAP {number} has an empty region"
             out.append(entry)
-    return sorted(out, key=lambda e: e["fap"])
+    return sorted(out, key=lambda e: (e["fap"], -len(e["triangles"])))
 
 
 def write_json(tri: np.ndarray) -> Path:

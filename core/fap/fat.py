@@ -39,7 +39,8 @@ from .template import BaseTemplate, DenseTemplate, TemplateError, densify, load_
 
 N_FAPS = tables.N_FAPS
 LID_PAIRS = ((19, 21), (20, 22))  # (upper, lower) per eye
-OUTSIDE_FADE_MM = 6.0  # skin beyond the template's outline follows it, fading over this distance
+OUTSIDE_FADE_MM = 6.0
+LID_CLEARANCE_MM = 0.4  # a closing lid slides this far outside the eyeball  # skin beyond the template's outline follows it, fading over this distance
 
 
 def lid_contact(values: np.ndarray) -> np.ndarray:
@@ -80,6 +81,8 @@ class FapDeformer:
         self.fapu_vector = np.array([self.fapu.get(s.unit, 0.0) for s in self.specs])
         self._rest = face.vertices.ravel()
         self._eyes = self._eyeball_pivots()
+        self._lid_guards = self._lid_guards_over_eyeballs()
+        self._eye_rims = self._eye_rims_of_skin()
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
         if self._eyes:
@@ -93,13 +96,17 @@ class FapDeformer:
         d = self.dense
         N = len(d.vertices)
         edges = np.concatenate([d.triangles[:, [0, 1]], d.triangles[:, [1, 2]], d.triangles[:, [2, 0]]])
-        adj = scipy.sparse.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(N, N)).tocsr()
-        adj = ((adj + adj.T) > 0).astype(float)
-        rows, cols, vals = [], [], []
-        weights = {}
+        length = np.linalg.norm(d.vertices[edges[:, 0]] - d.vertices[edges[:, 1]], axis=1)
+        # Distances are measured along the surface in units of the median edge length: the thesis's
+        # hop count, without the hexagonal/triangular iso-lines hops draw on a subdivided mesh.
+        hop = float(np.median(length))
+        adj = scipy.sparse.coo_matrix((length / hop, (edges[:, 0], edges[:, 1])), shape=(N, N)).tocsr()
+        adj = adj.maximum(adj.T).tocsr()
+        ignored = self._eye_opening_interior()
+        weights: dict[int, np.ndarray] = {}
+        tilt: dict[int, float] = {}
         for entry in self.template.regions:
             fap = entry["fap"]
-            spec = self.specs[fap - 1]
             region = d.in_base_triangles(entry["triangles"])
             if entry.get("core_is_chain"):
                 core = d.on_chain(entry["core"]) & region
@@ -109,18 +116,24 @@ class FapDeformer:
             ids = np.nonzero(region)[0]
             sub = adj[ids][:, ids]
             sources = np.nonzero(core[ids])[0]
-            dist, _pred, nearest = dijkstra(sub, indices=sources, unweighted=True, min_only=True,
-                                            return_predecessors=True)
+            dist, _pred, nearest = dijkstra(sub, indices=sources, min_only=True, return_predecessors=True)
             reach = np.isfinite(dist)
             dmax = max(float(dist[reach].max()), 1.0)
             w = np.where(reach, np.exp(-np.where(reach, dist, 0) ** 2 / (2 * dmax * entry["w"])), 0.0)
+            pinned = d.on_chain(entry["pinned"])[ids] if entry.get("pinned") else None
+            w *= self._border_taper(adj, region, ignored, ids, sub, dist, core[ids], pinned)
             if entry.get("profile") == "opening":
                 w *= self._opening_profile(ids, nearest, entry)
-            weight = np.zeros(N)
-            weight[ids] = w
-            weights[fap] = weight
-            direction = np.array(spec.axis, float)
-            direction[2] += entry.get("forward_tilt", 0.0)
+            elif entry.get("profile") == "jaw":
+                w *= self._jaw_profile(ids, entry["corner_weight"])
+            w *= entry.get("scale", 1.0)
+            weight = weights.setdefault(fap, np.zeros(N))
+            weight[ids] = np.maximum(weight[ids], w)
+            tilt[fap] = max(tilt.get(fap, 0.0), entry.get("forward_tilt", 0.0))
+        rows, cols, vals = [], [], []
+        for fap, weight in weights.items():
+            direction = np.array(self.specs[fap - 1].axis, float)
+            direction[2] += tilt[fap]
             nz = np.nonzero(weight)[0]
             for k in range(3):
                 if direction[k]:
@@ -130,6 +143,53 @@ class FapDeformer:
         F = scipy.sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                     shape=(3 * N, N_FAPS)).tocsr()
         return F, weights
+
+    def _eye_opening_interior(self) -> np.ndarray:
+        """(N,) bool: dense vertices strictly inside the triangles covering the eye openings."""
+        d, t = self.dense, self.template
+        covered = sorted(t.eye_opening_triangles)
+        others = [i for i in range(len(t.triangles)) if i not in t.eye_opening_triangles]
+        return d.in_base_triangles(covered) & ~d.in_base_triangles(others)
+
+    @staticmethod
+    def _border_taper(adj, region, ignored, ids, sub, dist_core, core_local, pinned=None) -> np.ndarray:
+        """Per region vertex: 0 on the region's inner border rising smoothly to 1 half-way to the core.
+
+        The thesis's Gaussian keeps a nonzero weight where a region ends, so neighbouring regions
+        meet in a crease. Region vertices with a neighbour outside the region (eye-opening covers and
+        the template's own openings and outline do not count) form the border, plus ``pinned``
+        vertices (e.g. a lid margin under a brow region).
+        """
+        outside = ~region & ~ignored
+        touches = np.asarray(adj[ids][:, np.nonzero(outside)[0]].sum(axis=1)).ravel() > 0
+        if pinned is not None:
+            touches |= pinned
+        border = np.nonzero(touches & ~core_local)[0]
+        if not len(border):
+            return np.ones(len(ids))
+        dist_border = dijkstra(sub, indices=border, min_only=True)
+        ratio = np.clip(2 * dist_border / np.maximum(dist_core + dist_border, 1e-9), 0.0, 1.0)
+        ratio = np.where(np.isfinite(ratio), ratio, 1.0)
+        taper = ratio * ratio * ratio * (ratio * (6 * ratio - 15) + 10)  # smootherstep: C2 at both ends
+        return np.where(core_local, 1.0, taper)
+
+    def _jaw_profile(self, ids, corner_weight: float) -> np.ndarray:
+        """Per region vertex: how much of the jaw's motion it follows near the mouth corners.
+
+        The corners follow ``corner_weight`` of it, the lower lip grades to the full motion at the
+        midline (a cosine in the horizontal distance from the midline), and the effect fades out
+        below the corners over the corner-to-chin height, where the mandible moves as a whole.
+        """
+        v = self.dense.vertices
+        left, right = (v[self.template.index(n)] for n in ("2.4", "2.5"))
+        chin = v[self.template.index("2.1")]
+        mid_x, half_width = (left[0] + right[0]) / 2, abs(left[0] - right[0]) / 2
+        corner_y = (left[1] + right[1]) / 2
+        u = np.clip(np.abs(v[ids, 0] - mid_x) / half_width, 0.0, 1.0)
+        lateral = 0.5 * (1 - np.cos(np.pi * u))
+        below = np.clip((corner_y - v[ids, 1]) / max(corner_y - chin[1], 1e-6), 0.0, 1.0)
+        vertical = 1 - below * below * (3 - 2 * below)
+        return 1 - (1 - corner_weight) * lateral * vertical
 
     def _opening_profile(self, ids, nearest, entry) -> np.ndarray:
         """Per region vertex: the eye opening's height at its nearest margin vertex / the height at the FP."""
@@ -159,16 +219,23 @@ class FapDeformer:
         lower_pts = {t.index(p) for p in t.lower_lip_points}
         tri_upper = np.array([bool(upper_pts & s) for s in base_tri_of])
         tri_lower = np.array([bool(lower_pts & s) for s in base_tri_of])
+        # Skin never binds to the covers of the eye openings: they do not move with the lids, and a
+        # lid-margin vertex bound half to them would close only part of the way (a torn margin).
+        skin_tris = ~self._eye_opening_interior()[d.triangles].any(axis=1)
+        # Skin beyond the template's outline follows it with a fade; the distance for that fade is
+        # to the whole template (a rim vertex in an eye opening is inside it, not beyond it).
+        whole = TriangleSet(d.vertices, d.triangles).closest(face.vertices[skin], k=24, widen=False)[0]
+        outside_mm = np.zeros(n)
+        outside_mm[skin] = np.linalg.norm(whole - face.vertices[skin], axis=1)
         rows, cols, vals = [], [], []
-        for label, allowed in ((0, np.ones(len(d.triangles), bool)), (1, ~tri_lower), (-1, ~tri_upper)):
+        for label, allowed in ((0, skin_tris), (1, skin_tris & ~tri_lower), (-1, skin_tris & ~tri_upper)):
             sel = skin[side == label]
             if not len(sel):
                 continue
             tri_ids = np.nonzero(allowed)[0]
             ts = TriangleSet(d.vertices, d.triangles[tri_ids])
-            pos, tri, bary = ts.closest(face.vertices[sel], k=24, widen=False)
-            dist = np.linalg.norm(pos - face.vertices[sel], axis=1)
-            fade = np.exp(-(np.maximum(dist - 1.0, 0.0) / OUTSIDE_FADE_MM) ** 2)
+            _pos, tri, bary = ts.closest(face.vertices[sel], k=24, widen=False)
+            fade = np.exp(-(np.maximum(outside_mm[sel] - 1.0, 0.0) / OUTSIDE_FADE_MM) ** 2)
             corners = d.triangles[tri_ids[tri]]
             rows.append(np.repeat(sel, 3))
             cols.append(corners.ravel())
@@ -237,6 +304,56 @@ class FapDeformer:
             out[name] = (idx, sol[:3])
         return out if len(out) == 2 else {}
 
+    def _lid_guards_over_eyeballs(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per eye: (lid vertex indices, eyeball centre (3,), smallest allowed distance (k,) mm).
+
+        The FAT moves a lid in a straight line, but the eyeball bulges forward: a closing lid would
+        pass behind the cornea. Lid vertices are kept at least ``LID_CLEARANCE_MM`` outside the
+        eyeball (a least-squares sphere), or at their rest distance when that is smaller, so the
+        neutral face is unchanged.
+        """
+        guards = []
+        for name, faps in (("eyeball_l", (19, 21)), ("eyeball_r", (20, 22))):
+            if name not in self._eyes:
+                continue
+            idx, centre = self._eyes[name]
+            p = self.face.vertices[idx]
+            radius = float(np.percentile(np.linalg.norm(p - centre, axis=1), 95))  # the cap is not quite a sphere
+            moved = sum(self.binding @ self.template_weights[f] for f in faps if f in self.template_weights)
+            lid = np.nonzero(np.asarray(moved) > 1e-6)[0]
+            rest = np.linalg.norm(self.face.vertices[lid] - centre, axis=1)
+            guards.append((lid, centre, np.minimum(rest, radius + LID_CLEARANCE_MM)))
+        return guards
+
+    def _eye_rims_of_skin(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per eye: (upper rim, lower rim) vertex indices of the skin's eye opening, ordered by x.
+
+        The lid profile comes from the template's margins, which are a smoothed copy of the face's
+        rim; near the corners that can leave the closed rims up to a millimetre apart or crossed.
+        ``deform`` therefore lifts any upper-rim vertex that ends below the lower rim.
+        """
+        face = self.face
+        from ..subdivision import boundary_edges
+
+        rim = np.unique(boundary_edges(face.triangles).ravel())
+        in_part = np.zeros(face.n_vertices, bool)
+        for idx in face.parts.values():
+            in_part[idx] = True
+        rim = rim[~in_part[rim]]
+        out = []
+        for outer, inner in (("3.7", "3.11"), ("3.12", "3.8")):
+            if not {outer, inner} <= set(face.landmark_names):
+                continue
+            a, b = face.landmark_position(outer), face.landmark_position(inner)
+            lo, hi = sorted((a[0], b[0]))
+            p = face.vertices[rim]
+            line_y = np.interp(p[:, 0], [lo, hi], [a[1], b[1]] if a[0] < b[0] else [b[1], a[1]])
+            near = (p[:, 0] > lo - 1.0) & (p[:, 0] < hi + 1.0) & (np.abs(p[:, 1] - line_y) < 12.0)
+            upper, lower = rim[near & (p[:, 1] > line_y)], rim[near & (p[:, 1] <= line_y)]
+            if len(upper) and len(lower):
+                out.append((upper, lower[np.argsort(face.vertices[lower, 0])]))
+        return out
+
     def _estimate_head_pivot(self) -> np.ndarray:
         """Top of the spine (FP 7.1) if marked, else 45 mm behind the ear contacts, level with the lower ones."""
         face = self.face
@@ -277,6 +394,19 @@ class FapDeformer:
         x = (self._rest + self.matrix @ (values * self.fapu_vector)).reshape(-1, 3)
         for layer in layers:
             x = x + layer(x)
+        if values[18:22].any():
+            for upper, lower in self._eye_rims:
+                y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
+                x[upper, 1] = np.maximum(x[upper, 1], y_lower)
+            for lid, centre, min_dist in self._lid_guards:
+                r = x[lid] - centre
+                inside = (r * r).sum(axis=1) < min_dist * min_dist
+                if inside.any():
+                    # Push forward (not radially) onto the guard sphere: the lid keeps its height, so
+                    # closing lids still meet where the FAT puts them.
+                    sel = lid[inside]
+                    planar = (r[inside, :2] ** 2).sum(axis=1)
+                    x[sel, 2] = centre[2] + np.sqrt(min_dist[inside] ** 2 - planar)
         if self._eyes:
             for name, (yaw, pitch) in (("eyeball_l", (23, 25)), ("eyeball_r", (24, 26))):
                 a, b = values[yaw - 1] * tables.ANGLE_UNIT, values[pitch - 1] * tables.ANGLE_UNIT

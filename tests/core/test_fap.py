@@ -89,7 +89,9 @@ def test_template_has_80_points_140_triangles_and_a_mouth_opening():
     assert len(b) == len(t.outline) + len(t.mouth)
     assert len(t.eye_opening_triangles) == 12
     # Every FAP region refers to existing triangles, none of which covers an eye opening.
-    assert len(t.regions) == 46
+    # One region entry per thesis FAP; the jaw FAPs (3, 14, 15) add an entry for the upper-lip corners.
+    assert sorted({r["fap"] for r in t.regions}) == sorted(tables.thesis_faps())
+    assert len(t.regions) == 46 + 3
     for r in t.regions:
         assert set(r["triangles"]) <= set(range(140)) and not set(r["triangles"]) & t.eye_opening_triangles
 
@@ -186,6 +188,51 @@ def test_lids_close_without_crossing(rig):
     rig.set_faps({19: 1024, 21: 0})
     v = rig.vertices()
     assert f.landmark_position("3.1", v)[1] == pytest.approx(f.landmark_position("3.3")[1], abs=0.3)
+    rig.reset_faps()
+
+
+def test_jaw_moves_the_mouth_corners_part_way_and_the_upper_lip_stays(rig):
+    f = rig.face
+    rig.reset_faps()
+    rig.set_fap(3, 512)
+    v = rig.vertices()
+    drop = 512 * rig.fapu["MNS"]
+    corner = f.landmark_position("2.4", v) - f.landmark_position("2.4")
+    assert -corner[1] == pytest.approx(0.4 * drop, rel=0.1)   # JAW_CORNER_WEIGHT in the template tool
+    assert np.linalg.norm(f.landmark_position("2.2", v) - f.landmark_position("2.2")) < 0.01 * drop
+    rig.reset_faps()
+
+
+def test_region_weights_have_no_jumps(rig):
+    """Neighbouring regions must not meet in a crease: along every dense edge a FAP's weight changes
+    by much less than its full value (the thesis's Gaussian alone jumps from ~0.3-1 to 0 at region
+    borders). The lids are the exception: their margins border the eye openings, where no skin is.
+    """
+    d = rig.deformer
+    t = d.dense.triangles
+    edges = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    for fap, w in d.template_weights.items():
+        if fap in (19, 20, 21, 22):
+            continue
+        assert np.abs(w[edges[:, 0]] - w[edges[:, 1]]).max() < 0.7, fap
+        assert w.max() == pytest.approx(1.0, abs=1e-9) or fap in (3, 14, 15)
+
+
+def test_closed_lids_stay_in_front_of_the_eyeball(rig):
+    f = rig.face
+    rig.reset_faps()
+    rig.set_faps({19: 1024, 21: 1024})
+    v = rig.vertices()
+    eye = f.parts["eyeball_l"]
+    centre, radius_guard = rig.deformer._lid_guards[0][1], rig.deformer._lid_guards[0][2]
+    lid = rig.deformer._lid_guards[0][0]
+    dist = np.linalg.norm(v[lid] - centre, axis=1)
+    assert (dist >= radius_guard - 1e-6).all()
+    # The pupil is covered: a ray from the front through the pupil pole hits skin before the eyeball.
+    pole = f.vertices[eye][np.argmax(f.vertices[eye, 2])]
+    closed = f.with_vertices(v)
+    hit, _tri, _ = closed.ray_hits(pole[None] + [0, 0, 50.0], np.array([[0, 0, -1.0]]))
+    assert hit[0][2] > pole[2] + 0.2
     rig.reset_faps()
 
 
