@@ -549,8 +549,8 @@ class FapPlayerBar(QWidget):
         self.export_button = button("Export .fap…", "fapExport",
                                     "Save the face's current FAP state as a one-frame .fap file")
 
-        self.open_button.clicked.connect(self._open_dialog)
-        self.export_button.clicked.connect(self._export_dialog)
+        self.open_button.clicked.connect(self.open_dialog)
+        self.export_button.clicked.connect(self.export_dialog)
         self.play_button.clicked.connect(self._play_clicked)
         self.stop_button.clicked.connect(self._stop_clicked)
         self.slider.valueChanged.connect(self.player.seek)
@@ -600,12 +600,12 @@ class FapPlayerBar(QWidget):
         return True
 
     # ----------------------------------------------------------- dialogs
-    def _open_dialog(self) -> None:
+    def open_dialog(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Open .fap animation", self._dir, FAP_FILTER)
         if path:
             self.open_file(path)
 
-    def _export_dialog(self) -> None:
+    def export_dialog(self) -> None:
         start = str(Path(self._dir) / "mimica.fap") if self._dir else "mimica.fap"
         path, _ = QFileDialog.getSaveFileName(self, "Export .fap", start, FAP_FILTER)
         if path:

@@ -37,6 +37,7 @@ from PySide6.QtCore import QObject, QRunnable, QSettings, Qt, QThreadPool, QTime
 from PySide6.QtGui import QAction, QActionGroup, QKeySequence
 from PySide6.QtWidgets import (
     QApplication,
+    QDockWidget,
     QFileDialog,
     QLabel,
     QMainWindow,
@@ -430,6 +431,27 @@ class MainWindow(QMainWindow):
         self.fap_dock_action.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
         self.addAction(self.fap_dock_action)
 
+        # .fap playback (a simple player until the timeline lands): a bottom dock.
+        from app.fap_player import FapPlayer, FapPlayerBar
+
+        self.fap_player = FapPlayer(None, parent=self)
+        self.fap_player_bar = FapPlayerBar(self.fap_player, self)
+        self.fap_player_bar.message.connect(lambda text: self.statusBar().showMessage(text, 12000))
+        self.fap_player_dock = QDockWidget("FAP player", self)
+        self.fap_player_dock.setObjectName("fapPlayerDock")
+        self.fap_player_dock.setWidget(self.fap_player_bar)
+        self.fap_player_dock.setFeatures(QDockWidget.DockWidgetFeature.DockWidgetClosable
+                                         | QDockWidget.DockWidgetFeature.DockWidgetMovable
+                                         | QDockWidget.DockWidgetFeature.DockWidgetFloatable)
+        self.addDockWidget(Qt.DockWidgetArea.BottomDockWidgetArea, self.fap_player_dock)
+        self.fap_player_dock_action = self.fap_player_dock.toggleViewAction()
+        self.fap_player_dock_action.setText("FAP &player")
+        self.fap_player_dock_action.setStatusTip("Show or hide the .fap player bar")
+        self.open_fap_action = self._action("Open .fap &animation…", self._open_fap, "Ctrl+Shift+O",
+                                            tip="Open an MPEG-4 .fap animation and play it on this face")
+        self.export_fap_action = self._action("&Export .fap…", self.fap_player_bar.export_dialog, "Ctrl+Shift+E",
+                                              tip="Save the face's current FAP state as a one-frame .fap file")
+
     def _create_menus(self) -> None:
         bar = self.menuBar()
         file_menu = bar.addMenu("&File")
@@ -437,6 +459,9 @@ class MainWindow(QMainWindow):
         self.recent_menu = file_menu.addMenu("Open &recent")
         self._create_recent_actions()
         file_menu.addAction(self.save_action)
+        file_menu.addSeparator()
+        file_menu.addAction(self.open_fap_action)
+        file_menu.addAction(self.export_fap_action)
         file_menu.addSeparator()
         file_menu.addAction(self.screenshot_action)
         file_menu.addSeparator()
@@ -454,6 +479,7 @@ class MainWindow(QMainWindow):
         view_menu.addAction(self.reset_camera_action)
         view_menu.addSeparator()
         view_menu.addAction(self.fap_dock_action)
+        view_menu.addAction(self.fap_player_dock_action)
         self.view_menu = view_menu
 
         help_menu = bar.addMenu("&Help")
@@ -515,6 +541,8 @@ class MainWindow(QMainWindow):
         self._closing = True
         self._tick_timer.stop()
         self._disconnect_rig()
+        self.fap_player.stop()
+        self.fap_player.set_rig(None)
         self.fap_dock.set_rig(None, "")
         self._pool.clear()
         self._pool.waitForDone(5000)  # a worker must not outlive the window it reports to
@@ -748,12 +776,19 @@ class MainWindow(QMainWindow):
             # The actor starts at the neutral face; show the rig's state if it is not neutral.
             self._geometry_dirty = bool(rig.effective_fap_values().any())
         self.fap_dock.set_rig(rig, self.rig_message)
+        self.fap_player.set_rig(rig)
+        self.open_fap_action.setEnabled(rig is not None)
+        self.export_fap_action.setEnabled(rig is not None)
         if rig is None and message:
             self.statusBar().showMessage(message.splitlines()[0], 15000)
         elif rig is not None:
             self.statusBar().clearMessage()
         self._overlay_dirty = True
         self._schedule_tick()
+
+    def _open_fap(self) -> None:
+        self.fap_player_dock.show()
+        self.fap_player_bar.open_dialog()
 
     def _on_rig_changed(self) -> None:
         self._geometry_dirty = True

@@ -6,7 +6,11 @@ Built once per face (about a second for the 50k-vertex default face):
 2. each FAP's influence region is the set of dense vertices inside its base triangles
    (``resources/templates/mpeg4_80.json``); d[x] is the breadth-first hop distance from the FAP's
    core inside the region graph, d_max the largest, and the weight is
-   ``exp(-d² / (2·d_max·w))`` with the FAP's w (thesis A §5). The core is the FAP's feature point
+   ``exp(-d² / (2·d_max·w))`` with the FAP's w (thesis A §5); d is measured along the surface in
+   median edge lengths (the thesis's hops without their hexagonal iso-lines). Mimica multiplies the
+   Gaussian by a smooth taper that is 1 from the core to half-way to the region's border and 0 on it,
+   because the Gaussian alone stops at a nonzero weight and neighbouring regions meet in a crease;
+   every region also includes the triangles around its core points (a skirt) so the taper has room. The core is the FAP's feature point
    (thesis A), widened where a rigid part must follow in full (the jaw moves the lower lip and
    chin together; the lip-corner FAPs move the inner and outer corner together). For the eyelids
    the core is the whole lid margin, each margin vertex weighted by the local height of the eye
