@@ -95,7 +95,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     from app.render import render_face_png
 
-    if args.fap or args.expression or args.viseme:
+    if args.fap or args.expression or args.viseme or args.muscles or args.jaw is not None:
         face = face.with_vertices(_animated_vertices(face, args))
     try:
         render_face_png(face, out, view=args.view, size=args.size, mode=args.mode,
@@ -164,7 +164,67 @@ def _animated_vertices(face, args) -> np.ndarray:
             rig.set_viseme(name, _intensity(value, f"--viseme {name}"))
     except ValueError as exc:
         raise CliError(str(exc)) from None
+    if args.muscles or args.jaw is not None:
+        _apply_muscles(face, rig, args)
     return rig.vertices()
+
+
+def parse_muscle_forces(text: str):
+    """``"kiss"`` (a preset) or ``"zygomatic_major=9,risorius:left=6,orbicularis_oris=8"`` -> ForceSet.
+
+    A paired muscle without a side gets the force on both sides.
+    """
+    from core.muscles import ForceSet, control_keys, preset, preset_names
+
+    text = text.strip()
+    if text in preset_names():
+        return preset(text)
+    if "=" not in text:
+        raise CliError(f"--muscles {text!r}: not a preset ({', '.join(preset_names())}) "
+                       "and not name=force pairs, e.g. --muscles risorius=40,zygomatic_major:left=9")
+    keys = control_keys()
+    names = sorted({name for name, _side in keys})
+    forces = {}
+    for item in text.split(","):
+        target, sep, value = item.partition("=")
+        name, _, side = target.strip().partition(":")
+        side = side.strip() or None
+        if not sep or not name or not value.strip():
+            raise CliError(f"--muscles {item!r}: expected name=force, e.g. risorius=40")
+        if name not in names:
+            raise CliError(f"--muscles: unknown muscle {name!r}; muscles are {', '.join(names)}")
+        sides = [s for n, s in keys if n == name]
+        if side is not None and side not in sides:
+            raise CliError(f"--muscles {item!r}: side must be one of {', '.join(str(s) for s in sides)}")
+        force = _number(value, f"--muscles {name}")
+        for s in ([side] if side is not None else sides):
+            forces[(name, s)] = force
+    return ForceSet(forces=forces)
+
+
+def _apply_muscles(face, rig, args) -> None:
+    """Build the face's muscle model, set --muscles / --jaw and solve the pose to equilibrium."""
+    import time
+
+    from core.muscles import MuscleLayer, SolverDiverged
+
+    force_set = parse_muscle_forces(args.muscles) if args.muscles else None
+    try:
+        layer = MuscleLayer(face)
+        if force_set is not None:
+            layer.apply(force_set)
+        if args.jaw is not None:
+            layer.set_jaw(args.jaw)
+        layer.attach(rig)
+        start = time.perf_counter()
+        while not layer.converged:
+            layer.relax(budget_s=1.0)
+            if time.perf_counter() - start > 60:
+                raise CliError("the muscle model did not settle within 60 s; try smaller forces")
+    except SolverDiverged as exc:
+        raise CliError(str(exc)) from None
+    except ValueError as exc:
+        raise CliError(f"--muscles/--jaw: {exc}") from None
 
 
 # ------------------------------------------------------------------ parser
@@ -196,6 +256,11 @@ def _add_render(sub) -> None:
     anim.add_argument("--viseme", metavar="ID[:PERCENT]",
                       help="viseme preset by id 0-14 or name (PP, FF, TH, DD, kk, CH, SS, nn, RR, aa, E, ih, oh, "
                            "ou), e.g. 10:80")
+    bio = p.add_argument_group("muscles (thesis C's biomechanical model; the face needs its feature points)")
+    bio.add_argument("--muscles", metavar="PRESET|NAME=FORCE,...",
+                     help="a preset (discreet_smile, half_smile, sadness, disgust, kiss) or forces such as "
+                          "risorius=42,zygomatic_major:left=9 (no side = both sides)")
+    bio.add_argument("--jaw", type=float, metavar="DEG", help="jaw rotation in degrees (opens the mouth)")
     p.set_defaults(func=cmd_render)
 
 
@@ -214,7 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
                "  mimica                                   open the window on the default face\n"
                "  mimica gui head.obj                      open the window on head.obj\n"
                "  mimica render --out face.png             render the default face (no display needed)\n"
-               "  mimica render head.ply -o side.png --view side --mode shaded --landmarks\n\n"
+               "  mimica render head.ply -o side.png --view side --mode shaded --landmarks\n"
+               "  mimica render --muscles kiss -o kiss.png  the face after a muscle preset settles\n\n"
                "Run 'mimica COMMAND --help' for a command's options.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

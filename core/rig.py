@@ -158,6 +158,14 @@ class FaceRig:
         mix = ((tables.viseme_id(int(select1)), blend / 63.0), (tables.viseme_id(int(select2)), 1 - blend / 63.0))
         self._set_presets("_visemes", mix)
 
+    def set_expression_mix(self, mix: Mapping[str | int, float]) -> None:
+        """Several expression presets at once, {name or id: intensity 0..1} (they add linearly)."""
+        self._set_presets("_expressions", _mix(mix, tables.expression_id, "expression intensity"))
+
+    def set_viseme_mix(self, mix: Mapping[str | int, float]) -> None:
+        """Several viseme presets at once, {name or id: intensity 0..1} (e.g. coarticulated lip-sync)."""
+        self._set_presets("_visemes", _mix(mix, tables.viseme_id, "viseme intensity"))
+
     def _set_presets(self, attribute: str, mix: tuple[tuple[int, float], ...]) -> None:
         if getattr(self, attribute) != mix:
             setattr(self, attribute, mix)
@@ -213,6 +221,13 @@ class FaceRig:
     def _touch(self) -> None:
         self._cache = None
         self.changed.emit()
+
+
+def _mix(mix: Mapping, to_id: Callable, what: str) -> tuple[tuple[int, float], ...]:
+    """{name or id: intensity} -> ((id, intensity), ...), strongest first (so ``expression``/``viseme``
+    name the main preset); all validated before anything changes; neutral when empty."""
+    items = sorted(((to_id(k), _fraction(v, what)) for k, v in mix.items()), key=lambda e: -e[1])
+    return tuple(e for e in items if e[0] and e[1] > 0) or ((0, 0.0),)
 
 
 def _fraction(value: float, what: str) -> float:

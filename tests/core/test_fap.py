@@ -333,3 +333,15 @@ def test_rig_signals_once_per_change(rig):
 def test_face_without_feature_points_gets_a_clear_error(grid_face):
     with pytest.raises(TemplateError, match="feature points"):
         densify(grid_face)
+
+
+def test_preset_mix_adds_several_visemes_and_keeps_the_strongest_first(rig):
+    rig.set_viseme_mix({1: 0.3, 10: 0.7})
+    assert rig.viseme == (10, 0.7)
+    expected = 0.3 * tables.viseme_table()[1] + 0.7 * tables.viseme_table()[10]
+    assert np.allclose(rig.preset_values(), expected)
+    with pytest.raises(ValueError):
+        rig.set_viseme_mix({1: 0.5, 2: 1.5})
+    assert rig.viseme == (10, 0.7)   # unchanged after a refused mix
+    rig.set_viseme_mix({})
+    assert rig.viseme == (0, 0.0) and not rig.preset_values().any()
