@@ -1,0 +1,647 @@
+"""Mimica project files (``.mimica``): the face, its landmarks, rig settings, timeline, speech and view.
+
+A project is human-readable JSON::
+
+    {"format": "mimica-project", "version": 1, "generator": "Mimica 0.1.0",
+     "face": {"builtin": "default_face"}                       # the built-in face: nothing else stored
+          or {"path": "anna.face.ply", "absolute": "/home/u/anim/anna.face.ply", "sha256": "…"},
+     "landmarks": [{"name": "2.1", "triangle": 812, "barycentric": [0.2, 0.3, 0.5], "xyz": [x, y, z]}, …],
+     "rig": {"faps": {"3": 120.0}, "expressions": [{"id": 1, "name": "joy", "intensity": 0.5}],
+             "visemes": [{"id": 1, "intensity": 0.3}], "muscles": [{"name": "risorius", "side": "left",
+             "force": 4.0}], "jaw": 0.0},
+     "timeline": {"duration": 10.0, "fps": 30, "tracks": [{"key": "fap:3", "keys": [[0.0, 0.0, "smooth"], …]}]},
+     "speech": [{"text": "Olá", "lang": "pt-br", "start_s": 1.0, "rate_wpm": 175}],
+     "view": {…}}                                              # opaque to core: camera, display mode, overlays
+
+Choices:
+
+- **The face is referenced, never copied into the JSON.** The built-in default face is stored as
+  ``{"builtin": "default_face"}``; any other face is a file next to (or below) the project, stored
+  by a path relative to the project (kept working when the folder moves), the absolute path as a
+  fallback (when only the project file moved) and its SHA-256, so a changed file is detected and
+  reported on opening. A face that exists only in memory (generated, edited) is written next to the
+  project as ``<project>.face.ply`` by :func:`embed_face` (binary PLY keeps vertex order, doubles,
+  uv, and the texture as ``<project>.face.png``), then referenced like any file.
+- Landmarks are stored as surface points (triangle + barycentric) plus their position; when the
+  face file changed since saving (hash differs) or a triangle no longer exists, landmarks are
+  placed at the surface point closest to their saved position and a note says so.
+- Floats are written with Python's shortest round-trip repr, so reopening restores every FAP value,
+  key time and value bit for bit. NaN/Infinity are refused on save and on load.
+- Reading never executes anything (plain JSON; no pickle). Every problem raises
+  :class:`ProjectError` (a ValueError) naming the file and the field, e.g.
+  ``timeline.tracks[2].keys[5][1]``; a file from a newer Mimica raises :class:`ProjectVersionError`.
+- Saving is atomic (temporary file + rename). Autosave writes ``<project>.mimica.autosave`` next to a
+  saved project (so relative face paths stay valid) or ``<state dir>/<id>.mimica.autosave`` for an
+  untitled one (``$XDG_STATE_HOME/mimica/autosave``, default ``~/.local/state/mimica/autosave``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .face import Face, SurfacePoint
+from .fap import tables
+from .mesh_io import save_face, write_atomic, write_reporting_errors
+from .timeline import Key, Timeline, TimelineError, Track, canonical_key
+
+FORMAT_NAME = "mimica-project"
+FORMAT_VERSION = 1
+SUFFIX = ".mimica"
+AUTOSAVE_SUFFIX = ".autosave"
+BUILTIN_FACES = ("default_face",)
+MAX_FILE_BYTES = 512 * 1024 * 1024
+GENERATOR = "Mimica 0.1.0"
+
+
+class ProjectError(ValueError):
+    """A project file cannot be read or written; ``str(error)`` is a message for the user."""
+
+
+class ProjectVersionError(ProjectError):
+    """The file was written by a newer Mimica (a newer format version)."""
+
+
+# ====================================================================== data
+@dataclass(frozen=True)
+class FaceRef:
+    """Where the project's face comes from: a built-in face, or a file (absolute path in memory)."""
+
+    builtin: str | None = None
+    path: Path | None = None
+    sha256: str | None = None
+
+    @classmethod
+    def default_face(cls) -> "FaceRef":
+        return cls(builtin="default_face")
+
+    @classmethod
+    def for_file(cls, path: str | os.PathLike) -> "FaceRef":
+        """Reference a face file (hashed now, to detect later changes)."""
+        path = Path(path).resolve()
+        return cls(path=path, sha256=file_sha256(path))
+
+
+@dataclass
+class RigSettings:
+    """The rig's own parameter values (what the sliders show), not the animation.
+
+    faps : FAP number -> value (FAP units; FAPs not listed are 0); expressions / visemes : the active
+    presets as (id, intensity 0..1); muscles : (name, side or None) -> force; jaw : degrees.
+    """
+
+    faps: dict[int, float] = field(default_factory=dict)
+    expressions: tuple[tuple[int, float], ...] = ()
+    visemes: tuple[tuple[int, float], ...] = ()
+    muscles: dict[tuple[str, str | None], float] = field(default_factory=dict)
+    jaw: float = 0.0
+
+    @classmethod
+    def from_rig(cls, rig, muscles: Mapping[tuple[str, str | None], float] | None = None,
+                 jaw: float = 0.0) -> "RigSettings":
+        """Capture a ``FaceRig``'s values (plus the muscle layer's forces and jaw, which the app holds)."""
+        values = rig.fap_values()
+        return cls(
+            faps={i + 1: float(v) for i, v in enumerate(values) if v != 0.0},
+            expressions=tuple((int(i), float(w)) for i, w in rig.expressions if i != 0 and w != 0.0),
+            visemes=tuple((int(i), float(w)) for i, w in rig.visemes if i != 0 and w != 0.0),
+            muscles={(str(n), s): float(f) for (n, s), f in (muscles or {}).items()},
+            jaw=float(jaw),
+        )
+
+    def apply(self, rig, muscles=None) -> None:
+        """Put these values on a ``FaceRig`` (and a muscle layer with ``set_forces``/``set_jaw``)."""
+        rig.reset_faps()
+        if self.faps:
+            rig.set_faps(self.faps)
+        _restore_presets(rig, self.expressions, "expression")
+        _restore_presets(rig, self.visemes, "viseme")
+        if muscles is not None:
+            if self.muscles:
+                muscles.set_forces(dict(self.muscles))
+            muscles.set_jaw(self.jaw)
+
+
+def _restore_presets(rig, mix: tuple[tuple[int, float], ...], kind: str) -> None:
+    mix_method = getattr(rig, f"set_{kind}_mix", None)
+    single = getattr(rig, f"set_{kind}")
+    if not mix:
+        single(None, 0.0)
+    elif len(mix) == 1:
+        single(mix[0][0], mix[0][1])
+    elif mix_method is not None:
+        mix_method(dict(mix))
+    elif len(mix) == 2 and kind == "expression" and all(abs(w * 63 - round(w * 63)) < 1e-9 for _, w in mix):
+        (a, wa), (b, wb) = mix
+        rig.set_fap2(a, round(wa * 63), b, round(wb * 63))
+    elif len(mix) == 2 and kind == "viseme" and abs(mix[0][1] + mix[1][1] - 1) < 1e-9:
+        (a, wa), (b, _) = mix
+        rig.set_fap1(a, b, round(wa * 63))
+    else:
+        best = max(mix, key=lambda e: e[1])
+        single(best[0], best[1])
+
+
+@dataclass(frozen=True)
+class SpeechClip:
+    """A lip-sync clip: the text spoken from ``start_s`` (its audio is regenerated from this)."""
+
+    text: str
+    lang: str
+    start_s: float
+    rate_wpm: int = 175
+
+
+@dataclass
+class Project:
+    """Everything a .mimica file holds. ``landmarks`` None = keep the face's own landmarks."""
+
+    face: FaceRef = field(default_factory=FaceRef.default_face)
+    landmarks: dict[str, SurfacePoint] | None = None
+    landmark_positions: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    rig: RigSettings = field(default_factory=RigSettings)
+    timeline: Timeline = field(default_factory=Timeline)
+    speech: list[SpeechClip] = field(default_factory=list)
+    view: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_state(cls, face: Face, face_ref: FaceRef, rig=None, timeline: Timeline | None = None, *,
+                   muscles: Mapping[tuple[str, str | None], float] | None = None, jaw: float = 0.0,
+                   speech: list[SpeechClip] | None = None, view: dict | None = None) -> "Project":
+        """A project from the app's live objects (the face's landmarks and their positions included)."""
+        names = face.landmark_names
+        positions = face.landmark_positions(names) if names else np.zeros((0, 3))
+        return cls(
+            face=face_ref,
+            landmarks=dict(face.landmarks),
+            landmark_positions={n: tuple(float(c) for c in p) for n, p in zip(names, positions)},
+            rig=RigSettings.from_rig(rig, muscles, jaw) if rig is not None else RigSettings(),
+            timeline=timeline if timeline is not None else Timeline(),
+            speech=list(speech or []),
+            view=dict(view or {}),
+        )
+
+
+# ====================================================================== writing
+def file_sha256(path: str | os.PathLike) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def embed_face(face: Face, project_path: str | os.PathLike) -> FaceRef:
+    """Write ``face`` next to the project as ``<project>.face.ply`` and return its reference."""
+    project_path = Path(project_path)
+    target = project_path.with_name(project_path.name.removesuffix(SUFFIX) + ".face.ply")
+    save_face(face, target)
+    return FaceRef.for_file(target)
+
+
+def to_document(project: Project, base_dir: str | os.PathLike | None = None) -> dict:
+    """The JSON document of ``project``; face paths relative to ``base_dir`` (absolute if None)."""
+    doc: dict[str, Any] = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "generator": GENERATOR}
+    ref = project.face
+    if ref.builtin is not None:
+        if ref.builtin not in BUILTIN_FACES:
+            raise ProjectError(f"unknown built-in face {ref.builtin!r}; built-in faces are {', '.join(BUILTIN_FACES)}")
+        doc["face"] = {"builtin": ref.builtin}
+    elif ref.path is not None:
+        absolute = Path(ref.path).resolve()
+        entry = {"path": _relative(absolute, base_dir), "absolute": str(absolute)}
+        if ref.sha256:
+            entry["sha256"] = ref.sha256
+        doc["face"] = entry
+    else:
+        raise ProjectError("the project's face has neither a built-in name nor a file; save the face first "
+                           "(core.project.embed_face)")
+    if project.landmarks is None:
+        doc["landmarks"] = None
+    else:
+        doc["landmarks"] = [
+            {"name": name, "triangle": int(p.triangle), "barycentric": [float(b) for b in p.barycentric],
+             **({"xyz": [float(c) for c in project.landmark_positions[name]]}
+                if name in project.landmark_positions else {})}
+            for name, p in project.landmarks.items()
+        ]
+    rig = project.rig
+    names = tables.expression_names()
+    doc["rig"] = {
+        "faps": {str(int(n)): float(v) for n, v in sorted(rig.faps.items())},
+        "expressions": [{"id": int(i), "name": names[int(i)], "intensity": float(w)} for i, w in rig.expressions],
+        "visemes": [{"id": int(i), "intensity": float(w)} for i, w in rig.visemes],
+        "muscles": [{"name": n, "side": s, "force": float(f)} for (n, s), f in rig.muscles.items()],
+        "jaw": float(rig.jaw),
+    }
+    tl = project.timeline
+    doc["timeline"] = {
+        "duration": tl.duration, "fps": tl.fps,
+        "tracks": [{"key": key, "keys": [[k.time, k.value, k.interpolation] for k in track.keys]}
+                   for key, track in tl.tracks.items()],
+    }
+    doc["speech"] = [{"text": c.text, "lang": c.lang, "start_s": float(c.start_s), "rate_wpm": int(c.rate_wpm)}
+                     for c in project.speech]
+    doc["view"] = _plain(project.view, "view")
+    return doc
+
+
+def _relative(path: Path, base_dir) -> str:
+    if base_dir is None:
+        return path.as_posix()
+    try:
+        return Path(os.path.relpath(path, Path(base_dir).resolve())).as_posix()
+    except ValueError:  # another drive (Windows)
+        return path.as_posix()
+
+
+def _plain(value, where: str):
+    """``value`` as plain JSON types (numpy scalars/arrays converted); ProjectError names what is not."""
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise ProjectError(f"{where}: keys must be strings, got {k!r}")
+            out[k] = _plain(v, f"{where}.{k}")
+        return out
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist(), where)
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ProjectError(f"{where}: {value} cannot be saved (numbers must be finite)")
+    if value is None or isinstance(value, (str, bool, int, float)):
+        return value
+    raise ProjectError(f"{where}: values of type {type(value).__name__} cannot be saved in a project (use numbers, text, "
+                       "lists and dicts)")
+
+
+def save_project(path: str | os.PathLike, project: Project) -> Path:
+    """Write ``project`` to ``path`` (atomically); ProjectError with a user message on failure."""
+    path = Path(path)
+    text = json.dumps(to_document(project, path.parent), indent=1, ensure_ascii=False, allow_nan=False)
+    data = (text + "\n").encode("utf-8")
+    write_reporting_errors(path, lambda: write_atomic(path, data), ProjectError)
+    return path
+
+
+# ====================================================================== reading
+class _Field:
+    """A value in the document with its path, for messages like ``timeline.tracks[2].keys[0]``."""
+
+    def __init__(self, value, path: str, file: str):
+        self.value, self.path, self.file = value, path, file
+
+    def fail(self, what: str) -> ProjectError:
+        return ProjectError(f"'{self.file}': {self.path} {what}")
+
+    def __getitem__(self, key) -> "_Field":
+        if isinstance(key, int):
+            return _Field(self.value[key], f"{self.path}[{key}]", self.file)
+        if key not in self.value:
+            raise ProjectError(f"'{self.file}': field {self.path + '.' if self.path else ''}{key} is missing")
+        return _Field(self.value[key], f"{self.path}.{key}" if self.path else key, self.file)
+
+    def get(self, key, default=None) -> "_Field":
+        if key not in self.value:
+            return _Field(default, f"{self.path}.{key}" if self.path else key, self.file)
+        return self[key]
+
+    def of(self, kind, what: str):
+        if not isinstance(self.value, kind) or (kind in (int, (int, float)) and isinstance(self.value, bool)):
+            raise self.fail(f"must be {what}, got {_describe(self.value)}")
+        return self.value
+
+    def dict(self) -> dict:
+        return self.of(dict, "an object {…}")
+
+    def list(self) -> list:
+        return self.of(list, "a list […]")
+
+    def str(self) -> str:
+        return self.of(str, "text")
+
+    def number(self) -> float:
+        v = float(self.of((int, float), "a number"))
+        if not math.isfinite(v):
+            raise self.fail(f"must be a finite number, got {v}")
+        return v
+
+    def int(self) -> int:
+        return self.of(int, "a whole number")
+
+    def items(self):
+        return [(k, _Field(v, f"{self.path}.{k}", self.file)) for k, v in self.dict().items()]
+
+    def elements(self):
+        return [_Field(v, f"{self.path}[{i}]", self.file) for i, v in enumerate(self.list())]
+
+
+def _describe(value) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return f"{str(value).lower()}"
+    if isinstance(value, (int, float)):
+        return f"the number {value!r}"
+    if isinstance(value, str):
+        return f"the text {value[:40]!r}"
+    return "a list" if isinstance(value, list) else "an object"
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"{name} is not a valid number in a project file")
+
+
+def read_document(path: str | os.PathLike) -> dict:
+    """The parsed JSON of a project file, with the header checked (format and version)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ProjectError(f"the project '{path}' does not exist" if not path.exists()
+                           else f"'{path}' is not a file")
+    if path.stat().st_size > MAX_FILE_BYTES:
+        raise ProjectError(f"'{path.name}' is {path.stat().st_size / 2**20:.0f} MB, too large for a Mimica project")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise ProjectError(f"'{path.name}' is not a Mimica project (it is not UTF-8 text)") from None
+    except OSError as exc:
+        raise ProjectError(f"cannot read '{path}': {exc.strerror or exc}") from None
+    try:
+        document = json.loads(text, parse_constant=_reject_constant)
+    except json.JSONDecodeError as exc:
+        raise ProjectError(f"'{path.name}' is damaged: invalid JSON at line {exc.lineno}, column {exc.colno} "
+                           f"({exc.msg}); open its autosave or a backup") from None
+    except ValueError as exc:
+        raise ProjectError(f"'{path.name}' is damaged: {exc}") from None
+    if not isinstance(document, dict) or document.get("format") != FORMAT_NAME:
+        raise ProjectError(f"'{path.name}' is not a Mimica project (no \"format\": \"{FORMAT_NAME}\")")
+    version = document.get("version")
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise ProjectError(f"'{path.name}': field version must be a whole number, got {_describe(version)}")
+    if version > FORMAT_VERSION:
+        raise ProjectVersionError(f"'{path.name}' was made by a newer Mimica (format {version}); this Mimica reads "
+                                  f"up to {FORMAT_VERSION} — update Mimica")
+    if version < 1:
+        raise ProjectError(f"'{path.name}': unknown project format version {version}")
+    return document
+
+
+def load_project(path: str | os.PathLike) -> Project:
+    """Read a .mimica file (relative face paths resolve against its folder). Raises ProjectError."""
+    path = Path(path)
+    doc = _Field(read_document(path), "", path.name)
+    base = path.resolve().parent
+    face = _read_face(doc["face"], base)
+    landmarks, positions = _read_landmarks(doc.get("landmarks"))
+    rig = _read_rig(doc["rig"])
+    timeline = _read_timeline(doc["timeline"])
+    speech = [_read_clip(c) for c in doc.get("speech", []).elements()]
+    view = doc.get("view", {}).dict()
+    return Project(face=face, landmarks=landmarks, landmark_positions=positions, rig=rig, timeline=timeline,
+                   speech=speech, view=view)
+
+
+def _read_face(f: _Field, base: Path) -> FaceRef:
+    entry = f.dict()
+    if "builtin" in entry:
+        name = f["builtin"].str()
+        if name not in BUILTIN_FACES:
+            raise f["builtin"].fail(f"names an unknown built-in face {name!r} (known: {', '.join(BUILTIN_FACES)})")
+        return FaceRef(builtin=name)
+    rel = f["path"].str()
+    candidates = [base / rel]
+    if "absolute" in entry:
+        candidates.append(Path(f["absolute"].str()))
+    sha = f["sha256"].str() if "sha256" in entry else None
+    chosen = next((c for c in candidates if c.is_file()), candidates[0])
+    return FaceRef(path=chosen.resolve() if chosen.exists() else chosen, sha256=sha)
+
+
+def _read_landmarks(f: _Field):
+    if f.value is None:
+        return None, {}
+    landmarks, positions = {}, {}
+    for e in f.elements():
+        name = e["name"].str()
+        if name in landmarks:
+            raise e["name"].fail(f"repeats the landmark {name!r}")
+        tri = e["triangle"].int()
+        bary = e["barycentric"]
+        values = [b.number() for b in bary.elements()]
+        if len(values) != 3:
+            raise bary.fail(f"must hold 3 numbers, got {len(values)}")
+        try:
+            landmarks[name] = SurfacePoint(tri, tuple(values))
+        except ValueError as exc:
+            raise bary.fail(str(exc)) from None
+        if "xyz" in e.value:
+            xyz = [c.number() for c in e["xyz"].elements()]
+            if len(xyz) != 3:
+                raise e["xyz"].fail(f"must hold 3 numbers, got {len(xyz)}")
+            positions[name] = tuple(xyz)
+    return landmarks, positions
+
+
+def _read_rig(f: _Field) -> RigSettings:
+    faps = {}
+    for k, v in f.get("faps", {}).items():
+        if not k.isdigit():
+            raise v.fail("must be keyed by FAP number")
+        try:
+            spec = tables.fap_spec(int(k))
+        except ValueError as exc:
+            raise v.fail(str(exc)) from None
+        faps[spec.number] = v.number()
+    expressions = []
+    for e in f.get("expressions", []).elements():
+        try:
+            eid = tables.expression_id(e["id"].int())
+        except ValueError as exc:
+            raise e["id"].fail(str(exc)) from None
+        expressions.append((eid, _intensity(e["intensity"])))
+    visemes = []
+    for e in f.get("visemes", []).elements():
+        try:
+            vid = tables.viseme_id(e["id"].int())
+        except ValueError as exc:
+            raise e["id"].fail(str(exc)) from None
+        visemes.append((vid, _intensity(e["intensity"])))
+    muscles = {}
+    for e in f.get("muscles", []).elements():
+        side = e.get("side").value
+        if side not in (None, "left", "right"):
+            raise e["side"].fail(f"must be \"left\", \"right\" or null, got {_describe(side)}")
+        muscles[(e["name"].str(), side)] = e["force"].number()
+    return RigSettings(faps=faps, expressions=tuple(expressions), visemes=tuple(visemes), muscles=muscles,
+                       jaw=f.get("jaw", 0.0).number())
+
+
+def _intensity(f: _Field) -> float:
+    v = f.number()
+    if not 0.0 <= v <= 1.0:
+        raise f.fail(f"must be between 0 and 1, got {v:g}")
+    return v
+
+
+def _read_timeline(f: _Field) -> Timeline:
+    duration, fps = f["duration"].number(), f["fps"].int()
+    try:
+        timeline = Timeline(duration, fps)
+    except TimelineError as exc:
+        raise f.fail(f"is invalid: {exc}") from None
+    tracks = {}
+    for t in f["tracks"].elements():
+        key = t["key"].str()
+        try:
+            ck = canonical_key(key)
+        except TimelineError as exc:
+            raise t["key"].fail(f"is invalid: {exc}") from None
+        if ck in tracks:
+            raise t["key"].fail(f"repeats the track {ck}")
+        keys = []
+        for k in t["keys"].elements():
+            row = k.list()
+            if len(row) != 3:
+                raise k.fail(f"must be [time, value, interpolation], got {len(row)} items")
+            keys.append(Key(k[0].number(), k[1].number(), k[2].str()))
+        try:
+            tracks[ck] = Track(ck, keys)
+        except TimelineError as exc:
+            raise t["keys"].fail(f"are invalid: {exc}") from None
+    try:
+        return Timeline(duration, fps, tracks)
+    except TimelineError as exc:
+        raise f["tracks"].fail(f"do not fit the timeline: {exc}") from None
+
+
+def _read_clip(f: _Field) -> SpeechClip:
+    start = f["start_s"].number()
+    if start < 0:
+        raise f["start_s"].fail(f"must be >= 0, got {start:g}")
+    return SpeechClip(f["text"].str(), f["lang"].str(), start, f.get("rate_wpm", 175).int())
+
+
+# ====================================================================== the face
+def open_face(project: Project, notes: list[str] | None = None) -> Face:
+    """Load the project's face and put the project's landmarks on it.
+
+    notes : receives a sentence for each thing the user should know (face file changed, landmark
+    relocated). Raises ProjectError when the face file is missing or unreadable.
+    """
+    from .mesh_io import MeshLoadError, load_face
+
+    notes = notes if notes is not None else []
+    ref = project.face
+    changed = False
+    if ref.builtin is not None:
+        from .default_face import load_default_face
+
+        face = load_default_face()
+    else:
+        path = Path(ref.path)
+        if not path.is_file():
+            raise ProjectError(f"the project's face file '{path}' is missing; put it back next to the project "
+                               "or open the face and save the project again")
+        if ref.sha256 and file_sha256(path) != ref.sha256:
+            changed = True
+            notes.append(f"The face file '{path.name}' changed since the project was saved; landmarks were placed "
+                         "at the surface points closest to their saved positions.")
+        try:
+            face = load_face(path)
+        except MeshLoadError as exc:
+            raise ProjectError(str(exc)) from None
+    if project.landmarks is not None:
+        for name in list(face.landmark_names):
+            face.remove_landmark(name)
+        relocate = {}
+        for name, point in project.landmarks.items():
+            ok = 0 <= point.triangle < face.n_triangles
+            if (changed or not ok) and name in project.landmark_positions:
+                relocate[name] = project.landmark_positions[name]
+            elif ok:
+                face.set_landmark(name, point)
+            else:
+                notes.append(f"Landmark '{name}' was dropped: its triangle {point.triangle} does not exist on "
+                             "this face and the project holds no position for it.")
+        if relocate:
+            _, tris, barys = face.closest_surface_points(np.array(list(relocate.values()), float))
+            for name, tri, bary in zip(relocate, tris, barys):
+                face.set_landmark(name, SurfacePoint(int(tri), tuple(float(b) for b in bary)))
+            if not changed:
+                notes.append(f"{len(relocate)} landmark(s) referred to triangles this face does not have and were "
+                             "placed at the surface points closest to their saved positions.")
+    return face
+
+
+# ====================================================================== autosave
+def default_state_dir() -> Path:
+    base = os.environ.get("XDG_STATE_HOME") or os.path.join(os.path.expanduser("~"), ".local", "state")
+    return Path(base) / "mimica" / "autosave"
+
+
+def autosave_path(project_path: str | os.PathLike | None = None, *, untitled_id: str = "untitled",
+                  state_dir: str | os.PathLike | None = None) -> Path:
+    """``<project>.autosave`` beside a saved project, or ``<state dir>/<untitled_id>.mimica.autosave``."""
+    if project_path is not None:
+        p = Path(project_path)
+        return p.with_name(p.name + AUTOSAVE_SUFFIX)
+    if not untitled_id or any(c in untitled_id for c in "/\\\0") or untitled_id.startswith("."):
+        raise ProjectError(f"bad autosave name {untitled_id!r}")
+    return Path(state_dir or default_state_dir()) / f"{untitled_id}{SUFFIX}{AUTOSAVE_SUFFIX}"
+
+
+def write_autosave(project: Project, project_path: str | os.PathLike | None = None, *,
+                   untitled_id: str = "untitled", state_dir: str | os.PathLike | None = None) -> Path:
+    """Write the autosave copy of ``project`` (atomically); returns its path."""
+    target = autosave_path(project_path, untitled_id=untitled_id, state_dir=state_dir)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    return save_project(target, project)
+
+
+def find_autosave(project_path: str | os.PathLike | None = None, *, untitled_id: str = "untitled",
+                  state_dir: str | os.PathLike | None = None) -> Path | None:
+    """The autosave worth offering to recover: it exists and is newer than the project file (if any)."""
+    target = autosave_path(project_path, untitled_id=untitled_id, state_dir=state_dir)
+    if not target.is_file():
+        return None
+    if project_path is not None and Path(project_path).is_file():
+        if target.stat().st_mtime_ns <= Path(project_path).stat().st_mtime_ns:
+            return None
+    return target
+
+
+def untitled_autosaves(state_dir: str | os.PathLike | None = None) -> list[Path]:
+    """Autosaves of untitled projects (newest first), e.g. to offer recovery at start-up."""
+    folder = Path(state_dir or default_state_dir())
+    if not folder.is_dir():
+        return []
+    found = list(folder.glob(f"*{SUFFIX}{AUTOSAVE_SUFFIX}"))
+    return sorted(found, key=lambda p: p.stat().st_mtime_ns, reverse=True)
+
+
+def discard_autosave(project_path: str | os.PathLike | None = None, *, untitled_id: str = "untitled",
+                     state_dir: str | os.PathLike | None = None) -> None:
+    """Delete the autosave after a clean save or close (no error if there is none)."""
+    target = autosave_path(project_path, untitled_id=untitled_id, state_dir=state_dir)
+    try:
+        target.unlink()
+    except FileNotFoundError:
+        pass
+
+
+__all__ = [
+    "FORMAT_NAME", "FORMAT_VERSION", "SUFFIX", "ProjectError", "ProjectVersionError", "FaceRef", "RigSettings",
+    "SpeechClip", "Project", "embed_face", "to_document", "save_project", "read_document", "load_project",
+    "open_face", "file_sha256", "autosave_path", "write_autosave", "find_autosave", "untitled_autosaves",
+    "discard_autosave", "default_state_dir",
+]
