@@ -136,14 +136,15 @@ def _restore_presets(rig, mix: tuple[tuple[int, float], ...], kind: str) -> None
         single(None, 0.0)
     elif len(mix) == 1:
         single(mix[0][0], mix[0][1])
-    elif mix_method is not None:
-        mix_method(dict(mix))
+    # A FAP 2 / FAP 1 blend is restored through the same call so its order is kept exactly.
     elif len(mix) == 2 and kind == "expression" and all(abs(w * 63 - round(w * 63)) < 1e-9 for _, w in mix):
         (a, wa), (b, wb) = mix
         rig.set_fap2(a, round(wa * 63), b, round(wb * 63))
     elif len(mix) == 2 and kind == "viseme" and abs(mix[0][1] + mix[1][1] - 1) < 1e-9:
         (a, wa), (b, _) = mix
         rig.set_fap1(a, b, round(wa * 63))
+    elif mix_method is not None:
+        mix_method(dict(mix))
     else:
         best = max(mix, key=lambda e: e[1])
         single(best[0], best[1])
