@@ -5,12 +5,13 @@ The ``mimica`` command.
     mimica                       open the window on the default face
     mimica gui [FACE]            open the window on FACE (or the default face)
     mimica render [FACE] --out PNG [--view ...] [--size WxH] [--mode ...] [--landmarks]
+                 [--fap ...] [--expression ...] [--viseme ...] [--muscles ...] [--jaw DEG]
+    mimica landmarks | register | evaluate-landmarks     (see app/cli_scan.py)
 
 Heavy imports (Qt, VTK, mesh loaders) happen inside the subcommand handlers
 so ``mimica --help`` is instant and ``mimica render`` never loads Qt.
 User errors print one line on stderr and exit non-zero, without a traceback.
-Later subcommands (evaluate-landmarks, export, lipsync, demo) plug in via
-:data:`SUBCOMMANDS`.
+Scan commands (landmarks, register, evaluate-landmarks) are in :mod:`app.cli_scan`.
 """
 
 from __future__ import annotations
@@ -264,8 +265,11 @@ def _add_render(sub) -> None:
     p.set_defaults(func=cmd_render)
 
 
-#: Subcommand builders, in help order. Later: evaluate-landmarks, export, lipsync, demo.
-SUBCOMMANDS: list[Callable] = [_add_gui, _add_render]
+def _subcommands() -> list[Callable]:
+    """Subcommand builders, in help order (scan and timeline commands live in their own modules)."""
+    from app import cli_scan
+
+    return [_add_gui, _add_render, cli_scan.add_landmarks, cli_scan.add_register, cli_scan.add_evaluate]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -286,7 +290,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
-    for add in SUBCOMMANDS:
+    for add in _subcommands():
         add(sub)
     return parser
 

@@ -165,7 +165,7 @@ class _LoadTask(QRunnable):
         try:
             face = self.loader(progress)
         except Exception as exc:  # noqa: BLE001 - every failure becomes a message box
-            if _is_mesh_load_error(exc):
+            if _is_mesh_load_error(exc) or isinstance(exc, ValueError):  # input errors speak to the user
                 message = str(exc)
             else:
                 traceback.print_exc()
@@ -180,6 +180,37 @@ class _LoadTask(QRunnable):
             rig = self.prepare(face)  # never raises
         if self.wanted(gen):
             self.signals.loaded.emit(gen, (face, rig), self.path)
+
+
+class _JobSignals(QObject):
+    done = Signal(object)
+    failed = Signal(str)
+
+
+class _BackgroundJob(QRunnable):
+    """Runs ``work()`` off the GUI thread; ``done(result)`` or ``failed(message)`` on the GUI thread.
+
+    ``ValueError`` messages are meant for the user (the solvers' input errors); anything else is
+    reported as unexpected, with its traceback on stderr.
+    """
+
+    def __init__(self, work: Callable[[], object]):
+        super().__init__()
+        self.work = work
+        self.signals = _JobSignals()
+        self.setAutoDelete(True)
+
+    def run(self) -> None:  # worker thread
+        try:
+            result = self.work()
+        except ValueError as exc:
+            self.signals.failed.emit(str(exc))
+            return
+        except Exception as exc:  # noqa: BLE001 - every failure becomes a message box
+            traceback.print_exc()
+            self.signals.failed.emit(f"Unexpected error: {type(exc).__name__}: {exc}")
+            return
+        self.signals.done.emit(result)
 
 
 # ------------------------------------------------------------ excepthook
@@ -332,6 +363,7 @@ class MainWindow(QMainWindow):
         self._create_docks()
         self._create_menus()
         self._create_status_bar()
+        self._attach_tools()
         self._restore_window_state()
 
         if face is not None:
@@ -481,6 +513,12 @@ class MainWindow(QMainWindow):
         view_menu.addAction(self.fap_dock_action)
         view_menu.addAction(self.fap_player_dock_action)
         self.view_menu = view_menu
+
+        self.tools_menu = bar.addMenu("&Tools")
+        self.rebuild_animation_action = self._action(
+            "Rebuild animation from landmarks", self.rebuild_animation,
+            tip="Rebuild the FAP and muscle rigs from the current (corrected) landmarks")
+        self.tools_menu.addAction(self.rebuild_animation_action)
 
         help_menu = bar.addMenu("&Help")
         help_menu.addAction(self.about_action)
@@ -785,6 +823,98 @@ class MainWindow(QMainWindow):
             self.statusBar().clearMessage()
         self._overlay_dirty = True
         self._schedule_tick()
+
+    # ------------------------------------------------------------ tools (landmarks, muscles, timeline)
+    def _attach_tools(self) -> None:
+        """Docks that live in their own modules attach themselves (menus and signals included)."""
+        from app.landmark_dock import attach_landmark_editor
+
+        self.landmark_editor = attach_landmark_editor(self)
+        self.landmark_dock.detect_requested.connect(self.detect_landmarks)
+        self.landmark_dock.build_requested.connect(self.build_correspondence)
+        self._jobs: list[_BackgroundJob] = []
+
+    def _run_job(self, work: Callable[[], object], done: Callable[[object], None], title: str,
+                 message: str) -> None:
+        """Run ``work`` in the background with a busy indicator; errors go to a message box."""
+        job = _BackgroundJob(work)
+        self._jobs.append(job)
+
+        def finish(*_):
+            if job in self._jobs:
+                self._jobs.remove(job)
+            if not self._jobs:
+                self.progress_bar.setRange(0, 1000)
+                self.progress_bar.hide()
+
+        def ok(result):
+            finish()
+            if not self._closing:
+                done(result)
+
+        def failed(text):
+            finish()
+            if not self._closing:
+                self.show_error(title, text)
+
+        job.signals.done.connect(ok)
+        job.signals.failed.connect(failed)
+        self.progress_bar.setRange(0, 0)  # busy
+        self.progress_bar.show()
+        self.statusBar().showMessage(message)
+        self._pool.start(job)
+
+    def detect_landmarks(self, fixed: dict | None = None) -> None:
+        """Detect the MPEG-4 landmarks on the current face (keeping ``fixed`` ones), in the background."""
+        if self.face is None:
+            return
+        face = self.face
+
+        def work():
+            from core.registration.pipeline import detect_landmarks
+
+            return detect_landmarks(face, fixed=fixed or None)
+
+        def done(detection):
+            if self.face is not face:
+                return  # the face changed meanwhile
+            self.landmark_editor.apply_detection(detection.landmarks, detection.confidence)
+            low = detection.low_confidence()
+            note = f"; {len(low)} with low confidence are worth checking" if low else ""
+            self.statusBar().showMessage(
+                f"Detected {len(detection.landmarks)} landmarks in {detection.timings.get('total_s', 0):.1f} s{note}.",
+                15000)
+            if detection.report:
+                self._show_notes(detection.report, "landmark detection")
+
+        what = "Re-running matching with your edits fixed…" if fixed else "Detecting landmarks…"
+        self._run_job(work, done, "Cannot detect landmarks", what)
+
+    def build_correspondence(self) -> None:
+        """Register the current face to the MPEG-4 template and switch the view to the canonical face."""
+        if self.face is None:
+            return
+        face = self.face
+        landmarks = dict(face.landmarks)
+
+        def loader(progress):
+            from core.registration.pipeline import register_scan
+
+            progress(0.1, "Building the dense correspondence…")
+            registration = register_scan(face, landmarks)
+            return registration.face
+
+        self._fallback_to_default = False
+        self._start_load("", loader, "Building the canonical face from the landmarks…")
+
+    def rebuild_animation(self) -> None:
+        """Rebuild the animation rig (FAPs, muscles) from the current, corrected landmarks."""
+        if self.face is None:
+            return
+        face = self.face
+        self._fallback_to_default = False
+        self._start_load(self.face_path or "", lambda progress: face,
+                         "Rebuilding the animation from the corrected landmarks…")
 
     def _open_fap(self) -> None:
         self.fap_player_dock.show()

@@ -36,7 +36,7 @@ def test_window_opens_on_given_face(window, synthetic_face):
     assert window.units_label.text() == "units: mm"
     assert window.width() >= 800 and window.height() >= 600
     menus = [a.text().replace("&", "") for a in window.menuBar().actions()]
-    assert menus == ["File", "View", "Help"]
+    assert menus == ["File", "Edit", "View", "Tools", "Help"]
     shortcuts = {a.text().replace("&", ""): a.shortcut().toString() for a in window.actions()}
     assert shortcuts["Open face…"] == "Ctrl+O" and shortcuts["Save face as…"] == "Ctrl+S"
     assert shortcuts["Quit"] == "Ctrl+Q" and shortcuts["Reset camera"] == "R"
