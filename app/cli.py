@@ -7,6 +7,7 @@ The ``mimica`` command.
     mimica render [FACE] --out PNG [--view ...] [--size WxH] [--mode ...] [--landmarks]
                  [--fap ...] [--expression ...] [--viseme ...] [--muscles ...] [--jaw DEG]
     mimica landmarks | register | evaluate-landmarks     (see app/cli_scan.py)
+    mimica export | lipsync | demo                       (see app/cli_timeline.py)
 
 Heavy imports (Qt, VTK, mesh loaders) happen inside the subcommand handlers
 so ``mimica --help`` is instant and ``mimica render`` never loads Qt.
@@ -267,9 +268,10 @@ def _add_render(sub) -> None:
 
 def _subcommands() -> list[Callable]:
     """Subcommand builders, in help order (scan and timeline commands live in their own modules)."""
-    from app import cli_scan
+    from app import cli_scan, cli_timeline
 
-    return [_add_gui, _add_render, cli_scan.add_landmarks, cli_scan.add_register, cli_scan.add_evaluate]
+    return [_add_gui, _add_render, cli_scan.add_landmarks, cli_scan.add_register, cli_scan.add_evaluate,
+            cli_timeline.add_export, cli_timeline.add_lipsync, cli_timeline.add_demo]
 
 
 def build_parser() -> argparse.ArgumentParser:
