@@ -10,7 +10,11 @@ interpolation). For random times t (a scrub):
 
 Also printed: the timeline evaluation alone. Medians over ``--repeats`` times.
 
-Usage: python benchmarks/bench_timeline.py [--repeats 300]
+With ``--export``, also the wall seconds to export 10 s of 1280x720 video at 30 fps of this timeline
+(``export_s``, through the window's path: a child process renders off screen, ffmpeg encodes), with
+the per-frame render / encoder-wait split. Rendering here is software (Mesa llvmpipe).
+
+Usage: python benchmarks/bench_timeline.py [--repeats 300] [--export]
 """
 
 from __future__ import annotations
@@ -57,6 +61,7 @@ def median_ms(fn, times) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=300)
+    parser.add_argument("--export", action="store_true", help="also time a 10 s 1280x720 MP4 export")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     tl = build_timeline(rng)
@@ -94,6 +99,23 @@ def main() -> None:
     print(f"rig_eval_ms median={dense_ms:.3f} (evaluate + FAT product, {len(base) // 3} template vertices)")
     print(f"rig_eval_full_ms median={full_ms:.3f} (evaluate + apply_to_rig + rig.vertices(), "
           f"{face.n_vertices} vertices)")
+    if args.export:
+        export_video(face, full_pose)
+
+
+def export_video(face, pose) -> None:
+    import tempfile
+
+    from app.export import ExportSettings, export_in_subprocess
+
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = ExportSettings(path=Path(tmp) / "bench.mp4", end_s=10.0, size=(1280, 720), fps=30)
+        t0 = time.perf_counter()
+        result = export_in_subprocess(face, lambda t: np.array(pose(t)), settings)
+        wall = time.perf_counter() - t0
+    per = 1000.0 / max(result.frames, 1)
+    print(f"export_s={wall:.1f} ({result.frames} frames 1280x720; render {result.render_seconds * per:.0f} ms/frame, "
+          f"waiting for the encoder {result.encode_seconds * per:.0f} ms/frame)")
 
 
 if __name__ == "__main__":
