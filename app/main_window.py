@@ -829,7 +829,10 @@ class MainWindow(QMainWindow):
         """Docks that live in their own modules attach themselves (menus and signals included)."""
         from app.landmark_dock import attach_landmark_editor
 
+        from app.muscle_dock import attach_muscle_dock
+
         self.landmark_editor = attach_landmark_editor(self)
+        self.muscle_dock = attach_muscle_dock(self)  # after the landmark editor: it uses window.undo_stack
         self.landmark_dock.detect_requested.connect(self.detect_landmarks)
         self.landmark_dock.build_requested.connect(self.build_correspondence)
         self._jobs: list[_BackgroundJob] = []

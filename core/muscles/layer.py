@@ -65,7 +65,8 @@ class MuscleLayer:
         Spring kernel backend (numba when installed).
     """
 
-    changed = Signal()
+    changed = Signal()        # controls or pose changed (widgets listen)
+    pose_changed = Signal()   # the tissue moved: the face must be redrawn (the rig listens)
 
     def __init__(self, face: Face, *, level: int = 3, template_dense=None, backend: str | None = None):
         t0 = time.perf_counter()
@@ -281,9 +282,10 @@ class MuscleLayer:
             self.model.use_binding(getattr(rig.deformer, "binding", None))
         rig.add_layer(name, self.offset)
         if self._rig is not None:
-            self.changed.disconnect(self._rig.touch)
+            self.pose_changed.disconnect(self._rig.touch)
         self._rig = rig
-        self.changed.connect(rig.touch)
+        # Only a new pose changes the face; a slider tick alone (before relax) would redraw it unchanged.
+        self.pose_changed.connect(rig.touch)
 
     def muscle_segments(self) -> list[tuple[str, str | None, np.ndarray, np.ndarray, float]]:
         """[(name, side, P (3,), R (3,), activation 0..1)] in face mm for drawing the linear muscles."""
@@ -321,6 +323,7 @@ class MuscleLayer:
     def _pose_changed(self) -> None:
         self._offsets = None
         self.changed.emit()
+        self.pose_changed.emit()
 
 
 def _bad_key(key):

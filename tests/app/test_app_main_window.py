@@ -197,7 +197,7 @@ def test_geometry_persisted(qtbot, synthetic_face, settings):
     qtbot.addWidget(win)
     win.show()
     qtbot.waitExposed(win)
-    win.resize(1000, 700)
+    win.resize(1100, 700)
     qtbot.wait(50)
     win.set_view_mode("shaded")
     win.close()
@@ -205,7 +205,7 @@ def test_geometry_persisted(qtbot, synthetic_face, settings):
 
     again = MainWindow(synthetic_face, settings=settings, load_default=False)
     qtbot.addWidget(again)
-    assert (again.width(), again.height()) == (1000, 700)
+    assert (again.width(), again.height()) == (1100, 700)
     assert again.view_mode == "shaded"
     again.close()
 
