@@ -1,0 +1,218 @@
+"""High-level scan registration for the CLI and the GUI (thesis A ch. 3).
+
+``detect_landmarks(scan)`` -> :class:`Detection` (the template's points on the scan, each with a
+confidence), ``register_scan(scan, landmarks)`` -> ``correspondence.Registration`` (the canonical
+face with the template's feature points as landmarks, ready for ``core.rig.FaceRig``).
+
+Steps of ``detect_landmarks``: input checks (size, units) -> rigid ICP of the scan to the model
+(point-to-plane, centroid start) -> candidates, HK maps and Colombo seeds -> greedy structural
+matching -> patch refinement on the surface -> confidence (see ``matching``). The model is the
+built-in default face unless given; its context (template points, appearance, frontal raster) is
+cached per model object.
+
+Input checks (clear ValueErrors rather than nonsense): fewer than ``MIN_VERTICES`` vertices or
+triangles; a scan whose size differs from the model's by more than 4x (typically metres or
+inches instead of millimetres: the message names the factor to apply with the loader's unit
+option).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from ..face import Face, SurfacePoint
+from .correspondence import CorrespondenceError, Registration, SurfaceRays, dense_correspondence, landmark_positions_on
+from .matching import MatchParams, ModelContext, match, model_context
+from .templates import TEMPLATE_NAMES, get_template
+
+MIN_VERTICES = 500
+
+
+class ScanInputError(ValueError):
+    """The scan cannot be matched as it is (too small, wrong units, empty)."""
+
+
+@dataclass
+class Detection:
+    """Landmarks detected on a scan.
+
+    landmarks : name -> SurfacePoint on the scan (the template's detected points).
+    confidence : name -> 0..1 (heuristic; low values are worth checking in the picker).
+    report : human-readable lines (fallbacks, rejected seeds, ICP quality).
+    timings : seconds per stage ("icp_s", "features_s", "greedy_s", "refine_s", "total_s").
+    positions : name -> (3,) mm on the scan.
+    transform : (4, 4) scan -> model frame (ICP).
+    sources : name -> "seed" | "candidate" | "refined" | "fixed" | "prediction".
+    """
+
+    landmarks: dict[str, SurfacePoint]
+    confidence: dict[str, float]
+    report: list[str]
+    timings: dict[str, float]
+    template: str
+    positions: dict[str, np.ndarray] = field(default_factory=dict)
+    transform: np.ndarray = field(default_factory=lambda: np.eye(4))
+    sources: dict[str, str] = field(default_factory=dict)
+    rays: SurfaceRays | None = field(default=None, repr=False)
+
+    def low_confidence(self, threshold: float = 0.5) -> list[str]:
+        return [n for n, c in self.confidence.items() if c < threshold]
+
+    def face_with_landmarks(self, scan: Face) -> Face:
+        """A copy of ``scan`` carrying the detected landmarks."""
+        out = scan.with_vertices(scan.vertices)
+        for n, p in self.landmarks.items():
+            out.set_landmark(n, p)
+        return out
+
+
+_MODEL_CACHE: dict = {}
+_DEFAULT_MODEL: list = []
+
+
+def default_model() -> Face:
+    """The built-in default face (loaded once)."""
+    if not _DEFAULT_MODEL:
+        from ..default_face import load_default_face
+
+        _DEFAULT_MODEL.append(load_default_face())
+    return _DEFAULT_MODEL[0]
+
+
+def get_model_context(model: Face, template: str, params: MatchParams) -> ModelContext:
+    key = (id(model), template, params.pixel_mm)
+    hit = _MODEL_CACHE.get(key)
+    if hit is not None and hit[0] is model:
+        return hit[1]
+    ctx = model_context(model, get_template(template), params)
+    if len(_MODEL_CACHE) > 8:
+        _MODEL_CACHE.clear()
+    _MODEL_CACHE[key] = (model, ctx)
+    return ctx
+
+
+def check_scan(scan: Face, model: Face | None = None) -> None:
+    """Raise ScanInputError for meshes that cannot be a face scan in millimetres."""
+    if scan.n_vertices < MIN_VERTICES or scan.n_triangles < MIN_VERTICES:
+        raise ScanInputError(
+            f"the scan has only {scan.n_vertices} vertices and {scan.n_triangles} triangles; landmark detection "
+            f"needs a face surface of at least {MIN_VERTICES} vertices (a range scan has about 50,000). "
+            "Load the full scan, or mark the landmarks by hand")
+    if not np.all(np.isfinite(scan.vertices)):
+        raise ScanInputError("the scan has NaN or infinite vertex coordinates; clean it first")
+    used = np.unique(scan.triangles)
+    size = float(np.linalg.norm(np.ptp(scan.vertices[used], axis=0)))
+    ref = 250.0
+    if model is not None:
+        ref = float(np.linalg.norm(np.ptp(model.vertices, axis=0)))
+    ratio = size / ref
+    if not 0.25 <= ratio <= 4.0:
+        guess = ref / max(size, 1e-12)
+        unit = ""
+        for factor, name in ((1000.0, "metres"), (10.0, "centimetres"), (25.4, "inches"), (0.001, "micrometres")):
+            if 0.4 <= guess / factor <= 2.5:
+                unit = f" It looks like the scan is in {name}: scale it by {factor:g} to get millimetres."
+                break
+        raise ScanInputError(
+            f"the scan is {size:.4g} units across but a face is about {ref:.0f} mm across (ratio {ratio:.3g}); "
+            f"Mimica works in millimetres.{unit}")
+
+
+def _progress(progress, fraction, message):
+    if progress is not None:
+        progress(float(fraction), message)
+
+
+def detect_landmarks(scan: Face, *, template: str = "mpeg4_80", model: Face | None = None,
+                     params: MatchParams | None = None, fixed: Mapping | None = None,
+                     progress: Callable[[float, str], None] | None = None) -> Detection:
+    """Find the points of ``template`` on ``scan`` (see the module docstring).
+
+    model : a Face carrying the template's points as landmarks (derived a48 points are computed
+        from the MPEG-4 feature points); the default face by default.
+    fixed : name -> SurfacePoint on the scan or (3,) position: user-confirmed landmarks kept as they
+        are ("re-run matching keeping my edits fixed"); they also steer their neighbours.
+    progress : called as progress(fraction 0..1, message).
+    """
+    if template not in TEMPLATE_NAMES:
+        from .templates import UnknownTemplateError
+
+        raise UnknownTemplateError(f"unknown landmark template {template!r}; choose one of {', '.join(TEMPLATE_NAMES)}")
+    params = params or MatchParams()
+    t0 = time.perf_counter()
+    model = model if model is not None else default_model()
+    check_scan(scan, model)
+    _progress(progress, 0.0, "preparing the model")
+    ctx = get_model_context(model, template, params)
+    timings = {"model_s": time.perf_counter() - t0}
+    report: list[str] = []
+    fixed_pos = landmark_positions_on(scan, dict(fixed)) if fixed else {}
+
+    _progress(progress, 0.1, "aligning the scan to the model (ICP)")
+    from .icp import icp
+
+    t1 = time.perf_counter()
+    res = icp(scan.vertices[np.unique(scan.triangles)], model, max_iterations=50, sample=3000)
+    timings["icp_s"] = time.perf_counter() - t1
+    if res.rms_mm > 0.05 * ctx.scale or res.inlier_fraction < 0.5:
+        report.append(f"rigid alignment is poor (RMS {res.rms_mm:.1f} mm, {100 * res.inlier_fraction:.0f}% of points "
+                      "paired): is the scan a frontal face? Landmarks may be wrong")
+    T = res.transform
+    _progress(progress, 0.4, "building the ray scene")
+    t2 = time.perf_counter()
+    rays = SurfaceRays(scan.vertices, scan.triangles)
+    timings["rays_s"] = time.perf_counter() - t2
+    if rays.engine != "embree":
+        report.append("embreex is not available: the surface raster uses a nearest-vertex approximation")
+    _progress(progress, 0.5, "matching landmarks")
+    result = match(scan, T, ctx, params, rays=rays, fixed=fixed_pos, report=report)
+    timings.update(result.timings)
+    inv = np.linalg.inv(T)
+    pos_scan = result.positions @ inv[:3, :3].T + inv[:3, 3]
+    names = result.names
+    landmarks = {n: SurfacePoint(int(result.triangle[i]), tuple(result.bary[i])) for i, n in enumerate(names)}
+    for n, p in fixed_pos.items():  # fixed landmarks exactly as given
+        if fixed and isinstance(fixed[n], SurfacePoint):
+            landmarks[n] = fixed[n]
+    timings["total_s"] = time.perf_counter() - t0
+    _progress(progress, 1.0, "done")
+    low = [n for i, n in enumerate(names) if result.confidence[i] < 0.5]
+    if low:
+        report.append(f"{len(low)} landmark(s) with low confidence, worth checking: {', '.join(low[:12])}"
+                      f"{' ...' if len(low) > 12 else ''}")
+    return Detection(landmarks, {n: float(result.confidence[i]) for i, n in enumerate(names)}, report, timings,
+                     template, {n: pos_scan[i] for i, n in enumerate(names)}, T,
+                     {n: result.source[i] for i, n in enumerate(names)}, rays)
+
+
+def register_scan(scan: Face, landmarks: Mapping, *, template: str = "mpeg4_80",
+                  rays: SurfaceRays | None = None) -> Registration:
+    """Dense correspondence of ``scan`` from its landmarks (SurfacePoints or positions; e.g.
+    ``Detection.landmarks`` or ``scan.landmarks``). Returns the Registration: ``.face`` is the
+    canonical Face (same vertex count and meaning for every scan), ``.fallbacks`` the vertices
+    whose normal ray missed, ``.carry_back()`` moves the full scan with the canonical face.
+    ``rays`` reuses the Embree scene of a Detection (``Detection.rays``)."""
+    if template not in TEMPLATE_NAMES:
+        from .templates import UnknownTemplateError
+
+        raise UnknownTemplateError(f"unknown landmark template {template!r}; choose one of {', '.join(TEMPLATE_NAMES)}")
+    if scan.n_triangles == 0:
+        raise CorrespondenceError("the scan has no triangles")
+    positions = landmark_positions_on(scan, dict(landmarks))
+    tpl = get_template(template)
+    missing = [p for p in tpl.base.feature_points if p not in positions]
+    if missing and template == "a48" and not [p for p in missing if p not in tpl.derived]:
+        # a48 temple points are derivable from the MPEG-4 feature points the scan may carry.
+        from .templates import template_positions
+
+        src = scan.with_vertices(scan.vertices)
+        for n, p in landmarks.items():
+            if isinstance(p, SurfacePoint):
+                src.set_landmark(n, p)
+        positions.update({k: v for k, v in template_positions(src, "a48").items() if k not in positions})
+    surfaces = (rays, rays) if rays is not None and not scan.parts else None
+    return dense_correspondence(scan, positions, template=template, rays=surfaces)

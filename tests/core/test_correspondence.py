@@ -1,0 +1,81 @@
+"""Dense correspondence by subdivision + projection (thesis A §3.4) and carry-back to the scan."""
+
+import numpy as np
+import pytest
+
+from core.registration.correspondence import CorrespondenceError, SurfaceRays, dense_correspondence
+from core.registration.pipeline import register_scan
+from core.surface_query import TriangleSet
+
+
+@pytest.fixture(scope="module")
+def scan():
+    from core.default_face import load_default_face
+    from core.registration.virtual_scanner import scan_face
+
+    return scan_face(load_default_face(), n_target=30_000, rng=np.random.default_rng(5)).face
+
+
+@pytest.fixture(scope="module")
+def registration(scan):
+    return register_scan(scan, scan.landmarks, template="mpeg4_80")
+
+
+def test_embree_is_used(scan):
+    assert SurfaceRays(scan.vertices, scan.triangles).engine == "embree"
+
+
+def test_every_canonical_vertex_lies_on_the_scan(scan, registration):
+    v = registration.face.vertices
+    assert registration.face.n_vertices == 4560 and registration.face.n_triangles == 8960
+    closest, _, _ = TriangleSet(scan.vertices, scan.triangles).closest(v)
+    size = float(np.ptp(scan.vertices, axis=0).max())
+    assert np.linalg.norm(closest - v, axis=1).max() < 1e-6 * size
+    assert registration.fallbacks == sum(registration.projection.fallbacks)
+    assert registration.fallbacks < 0.05 * len(v)
+    assert any("closest point" in line for line in registration.report)
+
+
+def test_landmarks_texture_and_openings(scan, registration):
+    face = registration.face
+    for n in ("2.1", "3.7", "9.3", "8.3"):
+        assert np.allclose(face.landmark_position(n), scan.landmark_position(n), atol=1e-6)
+    assert face.texture is scan.texture or np.array_equal(face.texture, scan.texture)
+    assert face.uv.min() >= 0 and face.uv.max() <= 1
+    # The mouth stays open: the inner lip loop is a boundary of the canonical mesh.
+    from core.subdivision import boundary_edges
+
+    b = boundary_edges(face.triangles)
+    tpl = registration.projection.dense.template
+    mouth = [tpl.index(n) for n in tpl.mouth]
+    on_boundary = np.isin(mouth, b.ravel())
+    assert on_boundary.all()
+
+
+def test_same_vertex_meaning_across_scans(scan, registration):
+    """Registering the same scan twice gives the same canonical face; vertex i is the same point."""
+    again = register_scan(scan, scan.landmarks, template="mpeg4_80")
+    assert np.allclose(again.face.vertices, registration.face.vertices)
+
+
+def test_carry_back_rest_and_jaw(scan, registration):
+    from core.rig import FaceRig
+
+    carry = registration.carry_back()
+    assert np.allclose(carry.apply(registration.face.vertices), scan.vertices, atol=1e-9)
+    rig = FaceRig(registration.face)
+    rig.set_fap(3, 400)                              # open_jaw
+    canon = rig.vertices()
+    chin = registration.face.landmark_position("2.10")
+    chin_moved = registration.face.landmark_position("2.10", canon)
+    assert chin_moved[1] < chin[1] - 3.0            # the jaw opens on the canonical face
+    moved = carry.apply(canon)
+    disp = np.linalg.norm(moved - scan.vertices, axis=1)
+    near_chin = np.linalg.norm(scan.vertices - scan.landmark_position("2.10"), axis=1) < 5
+    forehead = np.linalg.norm(scan.vertices - scan.landmark_position("11.1"), axis=1) < 10
+    assert disp[near_chin].mean() > 3.0 and disp[forehead].max() < 1e-6
+
+
+def test_missing_landmarks_are_a_clear_error(scan):
+    with pytest.raises(CorrespondenceError, match="missing"):
+        dense_correspondence(scan, {"9.3": scan.landmark_position("9.3")}, template="a48")

@@ -1,0 +1,101 @@
+"""Structural landmark matching (thesis A §3.2): known answers and bad inputs."""
+
+import numpy as np
+import pytest
+
+from core.face import Face, SurfacePoint
+from core.registration.matching import MatchingError, MatchParams, Side, greedy_match, match_order
+from core.registration.pipeline import ScanInputError, detect_landmarks
+from core.registration.templates import get_template, template_positions
+
+
+@pytest.fixture(scope="module")
+def model():
+    from core.registration.pipeline import default_model
+
+    return default_model()
+
+
+@pytest.fixture(scope="module")
+def scan(model):
+    """The model itself, re-meshed by the virtual scanner (different vertices and triangles)."""
+    from core.registration.virtual_scanner import scan_face
+
+    return scan_face(model, n_target=30_000, rng=np.random.default_rng(3)).face
+
+
+@pytest.fixture(scope="module")
+def detection(scan):
+    return detect_landmarks(scan, template="a48")
+
+
+def scale_of(face):
+    return float(np.linalg.norm(face.landmark_position("3.7") - face.landmark_position("3.12")))
+
+
+def test_remeshed_model_gives_the_exact_landmarks(scan, detection):
+    gt = template_positions(scan, "a48")
+    err = np.array([np.linalg.norm(detection.positions[n] - gt[n]) for n in gt])
+    assert len(err) == 48
+    assert err.max() < 0.05 * scale_of(scan), dict(zip(gt, err.round(1)))   # < ~4.5 mm everywhere
+    assert err.mean() < 1.5
+    # Landmarks are surface points of the scan at the reported positions.
+    for n, p in detection.landmarks.items():
+        on_surface = np.array(p.barycentric) @ scan.vertices[scan.triangles[p.triangle]]
+        assert np.allclose(on_surface, detection.positions[n], atol=1e-6)
+    assert all(0.0 <= c <= 1.0 for c in detection.confidence.values())
+    assert np.median(list(detection.confidence.values())) > 0.5
+
+
+def test_fixed_landmarks_are_kept(scan, detection):
+    name = "8.3"
+    moved = scan.surface_point(detection.positions[name] + np.array([0.0, 4.0, 0.0]))
+    d = detect_landmarks(scan, template="a48", fixed={name: moved})
+    assert d.landmarks[name] == moved
+    assert d.sources[name] == "fixed" and d.confidence[name] == 1.0
+
+
+def test_no_texture_falls_back_to_geometry(scan):
+    bare = Face(scan.vertices, scan.triangles, landmarks=scan.landmarks)
+    d = detect_landmarks(bare, template="a48")
+    assert any("no texture" in line for line in d.report)
+    assert len(d.landmarks) == 48
+    gt = template_positions(scan, "a48")
+    err = np.array([np.linalg.norm(d.positions[n] - gt[n]) for n in gt])
+    assert np.median(err) < 0.1 * scale_of(scan)   # geometry alone still finds most points
+
+
+def test_tiny_mesh_is_refused():
+    v = np.random.default_rng(0).random((30, 3)) * 100
+    with pytest.raises(ScanInputError, match="vertices"):
+        detect_landmarks(Face(v, [[0, 1, 2], [2, 3, 4]]))
+
+
+def test_metres_are_detected(scan):
+    metres = Face(scan.vertices / 1000.0, scan.triangles)
+    with pytest.raises(ScanInputError, match="metres.*1000"):
+        detect_landmarks(metres)
+
+
+def test_bad_params_are_refused():
+    with pytest.raises(MatchingError, match="lam"):
+        MatchParams(lam=1.5)
+
+
+def test_greedy_recovers_a_permutation():
+    """Candidates = the model's points shuffled and jittered: Algorithm 1 finds each point."""
+    tpl = get_template("a48")
+    from core.registration.pipeline import default_model
+
+    pts = np.array(list(template_positions(default_model(), "a48").values()))
+    rng = np.random.default_rng(0)
+    perm = rng.permutation(len(pts))
+    colour = rng.random((len(pts), 3))
+    model = Side(pts, colour, colour)
+    cand = Side(pts[perm] + rng.normal(0, 0.3, pts.shape), colour[perm], colour[perm])
+    order = match_order(tpl, pts, [tpl.index("9.3")])
+    assert sorted(order) == list(range(48)) and order[0] == tpl.index("9.3")
+    for propagate in (False, True):
+        gd, chosen, margin, _ = greedy_match(tpl, model, cand, MatchParams(lam=0.5, propagate=propagate), 91.0, order=order)
+        assert np.array_equal(perm[chosen], np.arange(48))
+        assert (margin > 0).all()
