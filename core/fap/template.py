@@ -108,7 +108,7 @@ def skin_triangles(face: Face) -> np.ndarray:
 
 # ------------------------------------------------------------------ placement
 def base_positions(template: BaseTemplate, face: Face) -> np.ndarray:
-    """(80, 3) mm: the template's points on ``face`` (feature points from its landmarks)."""
+    """(P, 3) mm: the template's points on ``face`` (feature points from its landmarks, extras snapped)."""
     missing = [p for p in template.feature_points if p not in face.landmark_names]
     if missing:
         raise TemplateError(
@@ -119,10 +119,10 @@ def base_positions(template: BaseTemplate, face: Face) -> np.ndarray:
     pos = {p: face.landmark_position(p) for p in template.feature_points}
     for name, weights in template.extras.items():  # extras only refer to earlier points
         pos[name] = sum(w * pos[k] for k, w in weights.items())
-    skin = _Surface(face, skin_triangles(face))
     extras = list(template.extras)
-    snapped, _ = skin.closest(np.array([pos[e] for e in extras]))
-    pos.update(zip(extras, snapped))
+    if extras:  # templates made only of feature points (e.g. a48) have nothing to snap
+        snapped, _ = _Surface(face, skin_triangles(face)).closest(np.array([pos[e] for e in extras]))
+        pos.update(zip(extras, snapped))
     return np.array([pos[p] for p in template.points])
 
 
