@@ -38,7 +38,6 @@ from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
     QDockWidget,
-    QDoubleSpinBox,
     QFrame,
     QGridLayout,
     QGroupBox,
@@ -53,6 +52,8 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
+
+from app.widgets import ScrollFriendlySlider, ScrollFriendlySpinBox
 
 from core.fap import tables
 
@@ -134,24 +135,6 @@ def _nice_step(span: float) -> float:
 
 
 # ------------------------------------------------------------------ one FAP
-class _ScrollFriendlySlider(QSlider):
-    """A slider that lets the mouse wheel scroll the dock unless it has keyboard focus."""
-
-    def wheelEvent(self, event) -> None:  # noqa: N802 - Qt override
-        if self.hasFocus():
-            super().wheelEvent(event)
-        else:
-            event.ignore()  # goes to the scroll area
-
-
-class _ScrollFriendlySpinBox(QDoubleSpinBox):
-    def wheelEvent(self, event) -> None:  # noqa: N802 - Qt override
-        if self.hasFocus():
-            super().wheelEvent(event)
-        else:
-            event.ignore()
-
-
 class FapRow(QWidget):
     """Name, slider, spin box and reset button of one FAP (values are in the rig)."""
 
@@ -168,7 +151,7 @@ class FapRow(QWidget):
 
         self.label = QLabel(row_label(spec), self)
         self.label.setObjectName(f"fapLabel{spec.number}")
-        self.slider = _ScrollFriendlySlider(Qt.Orientation.Horizontal, self)
+        self.slider = ScrollFriendlySlider(Qt.Orientation.Horizontal, self)
         self.slider.setObjectName(f"fapSlider{spec.number}")
         self.slider.setFocusPolicy(Qt.FocusPolicy.StrongFocus)  # no focus (and no value change) by wheel
         self.slider.setRange(lo, hi)
@@ -179,7 +162,7 @@ class FapRow(QWidget):
         self.slider.setMinimumWidth(110)
         self.slider.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
 
-        self.spin = _ScrollFriendlySpinBox(self)
+        self.spin = ScrollFriendlySpinBox(self)
         self.spin.setObjectName(f"fapSpin{spec.number}")
         self.spin.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
         self.spin.setKeyboardTracking(False)  # typed numbers go to the rig on Enter / focus out

@@ -55,7 +55,6 @@ from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
     QDockWidget,
-    QDoubleSpinBox,
     QFileDialog,
     QFrame,
     QGridLayout,
@@ -72,6 +71,8 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
+
+from app.widgets import ScrollFriendlySlider, ScrollFriendlySpinBox
 
 if TYPE_CHECKING:  # pragma: no cover
     from core.muscles import MuscleLayer
@@ -128,25 +129,6 @@ def _face_signature(face) -> tuple:
     return names, marks, v.shape, float(v.sum())
 
 
-# ------------------------------------------------------------------ scroll-friendly inputs
-class _ScrollFriendlySlider(QSlider):
-    """A slider that lets the mouse wheel scroll the dock unless it has keyboard focus."""
-
-    def wheelEvent(self, event) -> None:  # noqa: N802 - Qt override
-        if self.hasFocus():
-            super().wheelEvent(event)
-        else:
-            event.ignore()
-
-
-class _ScrollFriendlySpinBox(QDoubleSpinBox):
-    def wheelEvent(self, event) -> None:  # noqa: N802 - Qt override
-        if self.hasFocus():
-            super().wheelEvent(event)
-        else:
-            event.ignore()
-
-
 # ------------------------------------------------------------------ one control
 class ControlRow(QObject):
     """Slider, spin box and reset button of one control (a muscle side, the orbicularis, the jaw).
@@ -166,7 +148,7 @@ class ControlRow(QObject):
         self.side_label = QLabel(side_text, parent)
         self.side_label.setObjectName(f"muscleSide_{tag}")
         self.side_label.setStyleSheet("QLabel { color: #6b7280; }")
-        self.slider = _ScrollFriendlySlider(Qt.Orientation.Horizontal, parent)
+        self.slider = ScrollFriendlySlider(Qt.Orientation.Horizontal, parent)
         self.slider.setObjectName(f"muscleSlider_{tag}")
         self.slider.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
         self.slider.setRange(round(self.minimum * SLIDER_SCALE), round(self.maximum * SLIDER_SCALE))
@@ -175,7 +157,7 @@ class ControlRow(QObject):
         self.slider.setTracking(True)
         self.slider.setMinimumWidth(100)
         self.slider.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
-        self.spin = _ScrollFriendlySpinBox(parent)
+        self.spin = ScrollFriendlySpinBox(parent)
         self.spin.setObjectName(f"muscleSpin_{tag}")
         self.spin.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
         self.spin.setKeyboardTracking(False)
