@@ -39,6 +39,15 @@ the evaluation showed they are needed to reach the accuracy goals):
   opening); lower-lip points are searched below their upper-lip partner, pulled to where the jaw
   (chin points) went; where the scan ends inside the patch (outline) the NCC is not trusted and
   the structural prediction is used;
+* ``mouth_opening``: an open mouth seen from the front is an occluding edge. Along the column of
+  each inner-lip point (placed at the model's horizontal fraction between the ends of the
+  opening, measured on the row through its middle) the frontal depth steps back just below the
+  upper lip and forward again just above the lower lip (or the scan has a hole there): the upper
+  inner-lip points go to the last row above the opening, the lower ones to the first row below,
+  so the order upper outer > upper inner > opening > lower inner > lower outer holds. Outer-lip
+  points on the wrong side of the opening and chin points (2.10, 2.1, 2.11, 2.12) found less than
+  half their model distance below the lower lip are searched again on the right side. A closed
+  mouth (no step, or an opening under 1.5 mm) leaves the patch-search result;
 * no texture: geometry candidates (farthest-point samples) and appearance from HK and shape
   only; the caller reports it.
 
@@ -85,6 +94,7 @@ class MatchParams:
     seeds : match the Colombo seeds first.
     refine : patch refinement on the scan surface; refine_radius × face scale; patch_mm side.
     pixel_mm : frontal raster pixel size.
+    mouth_opening : put inner-lip points on the edges of a visible mouth opening (depth steps).
     """
 
     lam: float = 0.0     # sweep on 3 synthetic people (evaluate_landmarks): best over all tests at 0.0
@@ -103,6 +113,7 @@ class MatchParams:
     pixel_mm: float = 0.75
     pull: float = 0.15
     sigma: float = 0.2
+    mouth_opening: bool = True
 
     def __post_init__(self):
         for name in ("lam", "lam_a", "lam_s", "position_weight", "pull"):
@@ -134,6 +145,7 @@ class FrontalRaster:
     triangle: np.ndarray
     bary: np.ndarray
     channels: np.ndarray
+    depth: np.ndarray | None = None    # (H, W) float, model-frame z of the surface, mm (NaN uncovered)
 
     def to_pixel(self, xyz) -> np.ndarray:
         """(k, 2) float (col, row) of model-frame points (k, 3)."""
@@ -218,8 +230,11 @@ def frontal_raster(face: Face, rays, to_model: np.ndarray, grid: Grid, *, textur
         if ch.shape[1] == 5:
             ch[:, :3] *= 0.5
     ch[~ok] = 0.0
+    depth = np.full(len(x), np.nan)
+    if hit.any():
+        depth[hit] = pos[hit] @ R[2] + t[2]
     return FrontalRaster(grid.x0, grid.y0, grid.pixel, tri.reshape(H, W), bary.reshape(H, W, 3),
-                         ch.reshape(H, W, -1))
+                         ch.reshape(H, W, -1), depth.reshape(H, W))
 
 
 # ------------------------------------------------------------------ model / input features
@@ -534,10 +549,160 @@ def refine_matches(template: LandmarkTemplate, greedy: np.ndarray, model_points:
             # No reliable patch (outline at the scan's edge): the structural prediction.
             out[k], peak[k] = search.nearest_covered(pred), 0.0
     _lower_lip_pass(template, search, out, peak, model_px, r, scale / params.pixel_mm, skip)
+    if params.mouth_opening:
+        _mouth_opening_pass(template, scan_raster, out, peak, model_px, scale, skip, search)
     return out, peak
 
 
+OPENING_STEP_MM = 3.0     # a depth step this large between neighbouring pixel rows is an occluding edge
+OPENING_MIN_MM = 1.5      # a mouth opening narrower than this is treated as closed
+HOLE_MM = 3.0             # uncovered rows this tall between two lip rows: an unscanned opening
+
+
+def _mouth_opening_pass(template, raster: FrontalRaster, out, peak, model_px, scale, skip, search=None):
+    """Inner-lip points put on the edges of the mouth opening, when the scan shows one.
+
+    Seen from the front an open mouth is an occluding edge: along a vertical line through the mouth
+    the surface steps back by several mm (lip -> teeth or mouth cavity) or ends (a hole) just below
+    the upper lip, and steps forward again just above the lower lip. The patch search alone
+    confuses the lips (the lower-lip patch also fits the upper lip); the depth profile does not.
+
+    - columns: each inner-lip point keeps the model's horizontal fraction between the two mouth
+      corners (the corners are found reliably; the patch search drifts along the lip);
+    - rows: the column is scanned downwards from the philtrum (half-way between the bottom of the
+      nose 9.15 and the model's upper lip, shifted with the nose) -- the first step back is the
+      upper lip's inner edge -- and upwards from the chin (``JAW_POINTS``) -- the first step back
+      seen from below is the lower lip's inner edge. The order upper outer > upper inner >
+      opening > lower inner > lower outer follows by construction; outer-lip points found on the
+      wrong side of the opening are searched again (patch search) on their own side.
+
+    With no step in a column, or an opening narrower than ``OPENING_MIN_MM`` (closed mouth), the
+    points keep their patch-search estimates."""
+    depth = raster.depth
+    if depth is None:
+        return
+    base = template.base
+    names = template.detected
+    if not all(n in names for n in base.mouth) or NOSE_BOTTOM not in names:
+        return
+    ok = lambda i: bool(np.all(np.isfinite(out[i])))   # noqa: E731
+    loop = [template.index(n) for n in base.mouth]
+    c0, c1 = loop[0], loop[len(loop) // 2]                  # the two corners
+    jaw = [template.index(n) for n in JAW_POINTS if n in names and ok(template.index(n))]
+    nose = template.index(NOSE_BOTTOM)
+    if not (ok(c0) and ok(c1) and ok(nose) and jaw):
+        return
+    upper_set = {template.index(n) for n in base.upper_lip_points if n in names}
+    upper_in = [i for i in loop if i not in (c0, c1) and i in upper_set]
+    lower_in = [i for i in loop if i not in (c0, c1) and i not in upper_set]
+    upper_out = [i for i in upper_set if i not in loop]
+    lower_out = [template.index(n) for n in base.lower_lip_points if n in names and template.index(n) not in loop]
+    px = raster.pixel
+    Hh, W = depth.shape
+    mid_model = np.mean([model_px[i, 1] for i in upper_in])
+    top = int(round(out[nose, 1] + 0.5 * (mid_model - model_px[nose, 1])))
+    bottom = int(round(np.median([out[i, 1] for i in jaw])))   # the chin, below the lower lip
+    top, bottom = max(top, 0), min(bottom, Hh - 1)
+    if bottom - top < 4:
+        return
+    span_model = model_px[c1, 0] - model_px[c0, 0]
+    if abs(span_model) < 1:
+        return
+    def opening_edges(c):
+        """(last row above, first row below) the opening in column c (absolute rows), or None."""
+        if not 0 <= c < W:
+            return None
+        zcol = depth[top:bottom + 1, c]
+        rows = np.nonzero(np.isfinite(zcol))[0]
+        if len(rows) < 2:
+            return None
+        z = zcol[rows]
+        a, b = rows[:-1], rows[1:]               # consecutive covered rows (a above b)
+        hole = (b - a - 1) * px >= HOLE_MM       # a hole in the scan (open mouth not scanned)
+        back_down = a[(z[1:] < z[:-1] - OPENING_STEP_MM) | hole]   # last rows before a step back
+        back_up = b[(z[:-1] < z[1:] - OPENING_STEP_MM) | hole]     # first rows after a step forward
+        if not len(back_down) or not len(back_up):
+            return None
+        r_up, r_lo = int(back_down[0]), int(back_up[-1])
+        if (r_lo - r_up - 1) * px < OPENING_MIN_MM:
+            return None
+        return top + r_up, top + r_lo
+
+    # The opening's horizontal extent (through its middle) stands for the corners when found: the
+    # corner points sit on the outer lip contour and drift outwards when the mouth rounds.
+    ends = (out[c0, 0], out[c1, 0])
+    c_mid = int(round((out[c0, 0] + out[c1, 0]) / 2))
+    mid = opening_edges(c_mid)
+    if mid is not None:
+        row = (mid[0] + mid[1]) // 2
+        cols = np.nonzero(np.isfinite(depth[row]))[0]
+        z = depth[row, cols]
+        fwd_right = cols[1:][(z[1:] > z[:-1] + OPENING_STEP_MM) & (cols[1:] > c_mid)]   # lip in front, right
+        fwd_left = cols[:-1][(z[:-1] > z[1:] + OPENING_STEP_MM) & (cols[:-1] < c_mid)]
+        if len(fwd_right) and len(fwd_left):
+            lo_c, hi_c = int(fwd_left[-1]), int(fwd_right[0])
+            width = abs(out[c1, 0] - out[c0, 0])
+            if 0.3 * width <= hi_c - lo_c <= 1.2 * width:
+                ends = (lo_c, hi_c) if out[c0, 0] < out[c1, 0] else (hi_c, lo_c)
+    edges = {}
+    for k in upper_in + lower_in:
+        if skip[k]:
+            continue
+        frac = (model_px[k, 0] - model_px[c0, 0]) / span_model
+        c = int(round(ends[0] + frac * (ends[1] - ends[0])))
+        found = opening_edges(c)
+        if found is None:
+            continue
+        r_up, r_lo = found
+        edges[k] = (c, r_up, r_lo)
+        out[k] = (float(c), float(r_up if k in upper_in else r_lo))
+        peak[k] = max(peak[k], 0.5)
+    if search is None or not edges:
+        return
+    # The jaw below the lower lip: a chin point found less than half its model distance below the
+    # lower lip's inner edge (the patch search latched onto the lip) is searched again lower down.
+    if mid is not None:
+        lower_mid = min(lower_in, key=lambda i: abs(model_px[i, 0] - model_px[c0, 0] - span_model / 2))
+        for k in [template.index(n) for n in JAW_POINTS if n in names]:
+            if skip[k] or not ok(k):
+                continue
+            gap = model_px[k, 1] - model_px[lower_mid, 1]
+            if gap <= 0 or out[k, 1] >= mid[1] + 0.5 * gap:
+                continue
+            lo_row, hi_row = mid[1] + 0.5 * gap, mid[1] + 1.2 * gap
+            best, val = search.search(k, (out[k, 0], (lo_row + hi_row) / 2), max(2, int(round(0.05 * scale / px))),
+                                      int(np.ceil((hi_row - lo_row) / 2)), pull_px=(out[k, 0], (lo_row + hi_row) / 2))
+            if best is not None and lo_row <= best[1] <= hi_row:
+                out[k], peak[k] = best, val
+            else:
+                out[k] = search.nearest_covered((out[k, 0], (lo_row + hi_row) / 2))
+    # Outer-lip points on the wrong side of the opening: search again on their own side.
+    r = max(2, int(round(0.05 * scale / px)))
+    for group, side in ((upper_out, "upper"), (lower_out, "lower")):
+        for k in group:
+            if skip[k] or not ok(k):
+                continue
+            near = min(edges, key=lambda i: abs(edges[i][0] - out[k, 0]))
+            c, r_up, r_lo = edges[near]
+            gap = abs(model_px[k, 1] - model_px[near, 1])           # the lip's height on the model
+            if side == "upper" and out[k, 1] >= r_up:
+                lo_row, hi_row, pred = top, r_up - 1, r_up - gap
+            elif side == "lower" and out[k, 1] <= r_lo:
+                lo_row, hi_row, pred = r_lo + 1, bottom, r_lo + gap
+            else:
+                continue
+            if hi_row - lo_row < 2:
+                continue
+            best, val = search.search(k, (out[k, 0], (lo_row + hi_row) / 2), r, int(np.ceil((hi_row - lo_row) / 2)),
+                                      pull_px=(out[k, 0], pred))
+            if best is not None and lo_row <= best[1] <= hi_row:
+                out[k], peak[k] = best, val
+            else:
+                out[k] = (out[k, 0], float(np.clip(pred, lo_row, hi_row)))
+
+
 JAW_POINTS = ("2.10", "2.1", "2.11", "2.12")
+NOSE_BOTTOM = "9.15"
 
 
 def _lower_lip_pass(template, search, out, peak, model_px, r, scale_px, skip):
@@ -642,6 +807,7 @@ class InputFeatures:
     seeds: dict
     textured: bool
     report: list
+    timings: dict = field(default_factory=dict)   # "candidates_s", "hk_s", "seeds_s"
 
 
 def input_features(scan: Face, to_model: np.ndarray, params: MatchParams) -> InputFeatures:
@@ -652,6 +818,7 @@ def input_features(scan: Face, to_model: np.ndarray, params: MatchParams) -> Inp
 
     report = []
     textured = True
+    t0 = time.perf_counter()
     try:
         cand = texture_candidates(scan, count=params.candidates, quality=params.quality,
                                   min_distance_px=params.min_distance_px)
@@ -664,7 +831,9 @@ def input_features(scan: Face, to_model: np.ndarray, params: MatchParams) -> Inp
         report.append("the scan has no texture: matching uses geometry candidates and curvature/shape "
                       "appearance only (expect lower accuracy; check the landmarks)")
         cand = geometry_candidates(scan, count=params.candidates)
+    t1 = time.perf_counter()
     hk = hk_maps(scan, smoothing_mm=HK_SMOOTHING_MM)
+    t2 = time.perf_counter()
     seeds = {}
     if params.seeds:
         try:
@@ -674,8 +843,9 @@ def input_features(scan: Face, to_model: np.ndarray, params: MatchParams) -> Inp
     pts = apply_transform(cand.points, to_model)
     hkc = sample_vertex_values(scan, hk.colours / 255.0, cand.triangle, cand.bary)
     colour = cand.colour if textured else np.full((len(pts), 3), 0.5)
+    t3 = time.perf_counter()
     return InputFeatures(Side(pts, colour, hkc), np.asarray(cand.triangle), np.asarray(cand.bary), seeds,
-                         textured, report)
+                         textured, report, {"candidates_s": t1 - t0, "hk_s": t2 - t1, "seeds_s": t3 - t2})
 
 
 def _concat_candidates(a, b):
@@ -710,6 +880,8 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
     report += feats.report
     params_used = params if feats.textured else _geometry_params(params)
     timings["features_s"] = time.perf_counter() - t0
+    if features is None:
+        timings.update(feats.timings)
 
     preset: dict[int, np.ndarray] = {}
     fixed = fixed or {}

@@ -10,9 +10,13 @@ hand-marked landmarks) is not public; this module makes an equivalent one with g
 - **Scan.** ``scan_face`` with ``SCAN_SETTINGS`` (0.1 mm depth noise, 2 deg / 3 mm pose jitter, no
   holes -- the thesis's meshes were already hole-filled), random stream
   ``default_rng([seed, person, pose index, 1])``. Deterministic per (person, pose, seed).
-- **Ground truth.** The scan keeps the source landmarks the scanner can see: those whose
-  transferred position is within ``VISIBLE_MM`` (2 mm: noise + resampling) of the truth. Teeth
-  feature points behind closed lips are dropped, so the landmark set can differ between poses.
+- **Ground truth.** The scan carries *every* source landmark, each bound to the scan point closest
+  to the posed source landmark (the scanner's projection of it). A landmark is **visible** when
+  that point is within ``VISIBLE_MM`` (2 mm: noise + resampling) of the truth; hidden ones (inner
+  lip points inside a closed mouth, teeth behind the lips) sit on the nearest surface the scanner
+  saw, up to a few mm away. :func:`synthetic_case` returns the visibility flags; the evaluation
+  scores only visible landmarks of an input, while a *model* scan uses all of them (a user marking
+  the model would put a hidden inner-lip point on the lip seam, which is what the projection is).
 - **Cache.** One compressed NPZ per scan (no pickle; ``np.load(allow_pickle=False)``) under
   ``cache_dir`` or ``~/.cache/mimica/synthetic/<VERSION>/``. Vertices are stored as float32
   (1e-5 mm steps); a freshly generated scan goes through the same rounding, so cached and fresh
@@ -29,13 +33,14 @@ import io
 import json
 import os
 from pathlib import Path
+from dataclasses import dataclass
 from typing import Iterator, Sequence
 
 import numpy as np
 
 from ..face import Face, FaceMetadata, SurfacePoint
 
-VERSION = "v1"
+VERSION = "v2"   # v2: all landmarks stored, with a visibility flag
 SCAN_SETTINGS = dict(n_target=50_000, noise_mm=0.1, holes=0, pose_jitter_deg=2.0, pose_jitter_mm=3.0)
 VISIBLE_MM = 2.0
 
@@ -83,7 +88,30 @@ def _cache_path(cache_dir, person: int, pose: str, seed: int) -> Path:
     return root / f"p{person:03d}_{pose}_s{seed}.npz"
 
 
+@dataclass(frozen=True)
+class SyntheticScan:
+    """A synthetic scan and its ground truth.
+
+    face : Face carrying every source landmark (projected onto the scan).
+    visible : frozenset of landmark names the scanner saw (projection within ``VISIBLE_MM``).
+    error_mm : name -> distance (mm) of the projected landmark from the posed source landmark.
+    """
+
+    face: Face
+    visible: frozenset
+    error_mm: dict
+
+    @property
+    def hidden(self) -> tuple[str, ...]:
+        return tuple(n for n in self.face.landmark_names if n not in self.visible)
+
+
 def synthetic_scan(person: int, pose: str, *, cache_dir=None, seed: int = 0) -> Face:
+    """The Face of :func:`synthetic_case` (all landmarks, visible or not)."""
+    return synthetic_case(person, pose, cache_dir=cache_dir, seed=seed).face
+
+
+def synthetic_case(person: int, pose: str, *, cache_dir=None, seed: int = 0) -> SyntheticScan:
     """The virtual scan of ``person`` in ``pose`` (generated once, then read from the cache).
 
     Parameters
@@ -95,7 +123,7 @@ def synthetic_scan(person: int, pose: str, *, cache_dir=None, seed: int = 0) -> 
 
     Returns
     -------
-    Face with uv, 640x480 texture and the visible ground-truth landmarks.
+    SyntheticScan: the Face (uv, 640x480 texture, all ground-truth landmarks) and visibility.
     """
     names = poses()
     if pose not in names:
@@ -147,10 +175,11 @@ def _generate(person: int, pose: str, seed: int) -> dict[str, np.ndarray]:
     result = scan_face(rig.face, vertices=verts, rng=np.random.default_rng([seed, person, index, 1]),
                        **SCAN_SETTINGS)
     scan = result.face
-    names = [n for n in scan.landmark_names if result.landmark_error_mm[n] <= VISIBLE_MM]
+    names = list(scan.landmark_names)
+    visible = [result.landmark_error_mm[n] <= VISIBLE_MM for n in names]
     lms = scan.landmarks
     meta = dict(person=person, pose=pose, seed=seed, version=VERSION, settings=SCAN_SETTINGS,
-                dropped=[n for n in scan.landmark_names if n not in names])
+                hidden=[n for n, ok in zip(names, visible) if not ok])
     return dict(
         vertices=scan.vertices.astype(np.float32),
         triangles=scan.triangles.astype(np.int32),
@@ -160,12 +189,13 @@ def _generate(person: int, pose: str, seed: int) -> dict[str, np.ndarray]:
         landmark_triangles=np.array([lms[n].triangle for n in names], dtype=np.int64),
         landmark_bary=np.array([lms[n].barycentric for n in names], dtype=np.float64).reshape(-1, 3),
         landmark_error_mm=np.array([result.landmark_error_mm[n] for n in names], dtype=np.float64),
+        landmark_visible=np.array(visible, dtype=bool),
         transform=result.transform,
         meta=np.array(json.dumps(meta)),
     )
 
 
-def _load(path: Path) -> Face:
+def _load(path: Path) -> SyntheticScan:
     with np.load(path, allow_pickle=False) as data:
         payload = {k: data[k] for k in data.files}
     meta = json.loads(str(payload["meta"]))
@@ -174,18 +204,22 @@ def _load(path: Path) -> Face:
     return _from_payload(payload, str(path))
 
 
-def _from_payload(payload: dict, source: str) -> Face:
+def _from_payload(payload: dict, source: str) -> SyntheticScan:
     meta = json.loads(str(payload["meta"]))
     landmarks = {}
     for name, t, b in zip(payload["landmark_names"], payload["landmark_triangles"], payload["landmark_bary"]):
         b = np.asarray(b, np.float64)
         landmarks[str(name)] = SurfacePoint(int(t), tuple(b / b.sum()))
     notes = [f"Synthetic protocol scan: person {meta['person']}, pose {meta['pose']}, seed {meta['seed']}."]
-    if meta.get("dropped"):
-        notes.append(f"Landmarks not visible to the scanner (dropped): {', '.join(meta['dropped'])}")
-    return Face(
+    if meta.get("hidden"):
+        notes.append(f"Landmarks not visible to the scanner (projected onto the nearest scanned surface): "
+                     f"{', '.join(meta['hidden'])}")
+    face = Face(
         payload["vertices"].astype(np.float64), payload["triangles"].astype(np.int64),
         uv=payload["uv"].astype(np.float64), texture=payload["texture"], landmarks=landmarks,
         metadata=FaceMetadata(source=source, units="mm", notes=notes,
                               name=f"person {meta['person']} {meta['pose']}"),
     )
+    names = [str(n) for n in payload["landmark_names"]]
+    visible = frozenset(n for n, ok in zip(names, payload["landmark_visible"]) if ok)
+    return SyntheticScan(face, visible, dict(zip(names, map(float, payload["landmark_error_mm"]))))

@@ -134,3 +134,18 @@ def test_uv_raster_covers_the_image_once(checker_face):
     # the first and last vertex uv: texels inside that square are all covered.
     assert r.covered[3:-3, 3:-3].all()
     np.testing.assert_allclose(r.bary[r.covered].sum(axis=1), 1.0)
+
+
+def test_blended_fit_sites_and_numpy_path_agree_on_a_sphere(monkeypatch):
+    """Fitting on a voxel subsample of sites and blending, or without numba, keeps the sphere."""
+    import core.registration.curvature as curvature
+
+    face = height_field(SPHERE)
+    sites = hk_maps(face, smoothing_mm=1.0, site_spacing=1.0)
+    assert sites.H[CENTRE] == pytest.approx(-1 / R, rel=5e-3)
+    assert sites.K[CENTRE] == pytest.approx(1 / R ** 2, rel=1e-2)
+    monkeypatch.setattr(curvature, "_numba_fit", None)
+    plain = hk_maps(face, smoothing_mm=1.0)
+    assert plain.H[CENTRE] == pytest.approx(-1 / R, rel=2e-3)
+    with pytest.raises(CurvatureError, match="site_spacing"):
+        hk_maps(face, smoothing_mm=1.0, site_spacing=-1)

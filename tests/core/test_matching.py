@@ -99,3 +99,36 @@ def test_greedy_recovers_a_permutation():
         gd, chosen, margin, _ = greedy_match(tpl, model, cand, MatchParams(lam=0.5, propagate=propagate), 91.0, order=order)
         assert np.array_equal(perm[chosen], np.arange(48))
         assert (margin > 0).all()
+
+
+def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
+    """A depth raster with a rectangular opening (rows 35-50, cols 25-55, 20 mm deep): the upper
+    inner-lip points land on row 34, the lower ones on row 51, spread between the opening's ends;
+    a closed mouth (no opening) leaves them alone."""
+    from core.registration.matching import FrontalRaster, _mouth_opening_pass
+
+    tpl = get_template("a48")
+    names = tpl.detected
+    P = len(names)
+    model_px = np.full((P, 2), 40.0)
+    loop = list(tpl.base.mouth)                   # corner, upper chain, corner, lower chain
+    half = len(loop) // 2
+    for j, n in enumerate(loop):
+        t = j / half if j <= half else (len(loop) - j) / half
+        model_px[names.index(n)] = (20 + 40 * t, 30.0)
+    model_px[names.index("9.15")] = (40, 10)
+    for n in ("2.10", "2.1", "2.11", "2.12"):
+        model_px[names.index(n)] = (40, 70)
+    depth = np.zeros((90, 80))
+    out = model_px.copy()
+    skip = np.zeros(P, bool)
+    closed = out.copy()
+    raster = FrontalRaster(0.0, 0.0, 0.75, np.zeros((90, 80), int), np.zeros((90, 80, 3)), np.zeros((90, 80, 1)), depth)
+    _mouth_opening_pass(tpl, raster, closed, np.zeros(P), model_px, 90.0, skip)
+    np.testing.assert_array_equal(closed, model_px)
+    depth[35:51, 25:56] = -20.0
+    _mouth_opening_pass(tpl, raster, out, np.zeros(P), model_px, 90.0, skip)
+    upper = [names.index(n) for n in loop[1:half]]
+    lower = [names.index(n) for n in loop[half + 1:]]
+    assert np.all(out[upper, 1] == 34) and np.all(out[lower, 1] == 51)
+    assert np.all((out[upper + lower, 0] > 24) & (out[upper + lower, 0] < 56))

@@ -138,7 +138,7 @@ def test_pinhole_camera_and_bad_inputs(ball):
 
 # ---------------------------------------------------------------- synthetic database
 def test_synthetic_scan_is_cached_and_deterministic(tmp_path):
-    from core.registration.synthetic import SyntheticError, synthetic_scan
+    from core.registration.synthetic import SyntheticError, synthetic_case, synthetic_scan
 
     first = synthetic_scan(0, "neutral", cache_dir=tmp_path)
     files = list(tmp_path.glob("*.npz"))
@@ -148,6 +148,10 @@ def test_synthetic_scan_is_cached_and_deterministic(tmp_path):
     np.testing.assert_array_equal(first.triangles, again.triangles)
     assert first.landmarks == again.landmarks
     assert 40_000 <= first.n_vertices <= 60_000 and first.texture.shape == (480, 640, 3)
-    assert "9.3" in first.landmark_names and not HIDDEN & set(first.landmark_names)
+    # Every landmark is carried (projected onto the scan); the hidden ones are flagged as such.
+    case = synthetic_case(0, "neutral", cache_dir=tmp_path)
+    assert set(case.face.landmark_names) == set(first.landmark_names)
+    assert "9.3" in case.visible and HIDDEN <= set(first.landmark_names) and not HIDDEN & case.visible
+    assert all(case.error_mm[n] > 2.0 for n in case.hidden) and case.error_mm["9.3"] < 2.0
     with pytest.raises(SyntheticError, match="unknown pose"):
         synthetic_scan(0, "boredom", cache_dir=tmp_path)
