@@ -305,7 +305,7 @@ class MainWindow(QMainWindow):
     load_finished = Signal(bool)  # True on success
 
     def __init__(self, face=None, *, path=None, settings: QSettings | None = None,
-                 load_default: bool = True, parent: QWidget | None = None):
+                 load_default: bool = True, tools: bool = True, parent: QWidget | None = None):
         super().__init__(parent)
         from pyvistaqt import QtInteractor
 
@@ -363,7 +363,9 @@ class MainWindow(QMainWindow):
         self._create_docks()
         self._create_menus()
         self._create_status_bar()
-        self._attach_tools()
+        self._jobs: list[_BackgroundJob] = []
+        if tools:  # tests of one dock attach it alone (tools=False)
+            self._attach_tools()
         self._restore_window_state()
 
         if face is not None:
@@ -417,9 +419,10 @@ class MainWindow(QMainWindow):
         return action
 
     def _create_actions(self) -> None:
-        self.open_action = self._action("&Open face…", self.open_face_dialog, QKeySequence.StandardKey.Open,
+        # Ctrl+O / Ctrl+S belong to projects (the timeline's File actions); faces are imported with Ctrl+I.
+        self.open_action = self._action("&Open face…", self.open_face_dialog, "Ctrl+I",
                                         tip="Open a face mesh (OBJ, PLY, STL, glTF)")
-        self.save_action = self._action("&Save face as…", self.save_face_dialog, QKeySequence.StandardKey.Save,
+        self.save_action = self._action("&Save face as…", self.save_face_dialog,
                                         tip="Save the current face as OBJ, PLY or GLB")
         self.screenshot_action = self._action("&Export screenshot…", self.export_screenshot_dialog,
                                               tip="Save an image of the 3-D view")
@@ -824,6 +827,31 @@ class MainWindow(QMainWindow):
         self._overlay_dirty = True
         self._schedule_tick()
 
+    @property
+    def muscle_layer(self):
+        """The muscle layer of the current face (built by the muscle dock in the background), or None."""
+        override = getattr(self, "_muscle_layer_override", None)
+        return override if override is not None else getattr(getattr(self, "muscle_dock", None), "layer", None)
+
+    @muscle_layer.setter
+    def muscle_layer(self, layer) -> None:  # e.g. a stand-in layer in tests
+        self._muscle_layer_override = layer
+
+    def play_demo(self) -> None:
+        """Open the built-in showcase (``mimica demo``) on the timeline and play it in a loop."""
+        import tempfile
+
+        from app.demo import demo_project
+        from core.project import save_project
+
+        _face, project = demo_project()
+        path = Path(tempfile.mkdtemp(prefix="mimica-demo-")) / "demo.mimica"
+        save_project(path, project)
+        if self.timeline.project.open_project(path, ask=False):
+            self.timeline.loop = True
+            self.timeline.play()
+            self.statusBar().showMessage("Playing the Mimica demo (Space pauses).", 8000)
+
     # ------------------------------------------------------------ tools (landmarks, muscles, timeline)
     def _attach_tools(self) -> None:
         """Docks that live in their own modules attach themselves (menus and signals included)."""
@@ -833,9 +861,11 @@ class MainWindow(QMainWindow):
 
         self.landmark_editor = attach_landmark_editor(self)
         self.muscle_dock = attach_muscle_dock(self)  # after the landmark editor: it uses window.undo_stack
+        from app.timeline_dock import attach_timeline
+
+        attach_timeline(self)  # sets self.timeline; reuses the undo stack and Edit menu
         self.landmark_dock.detect_requested.connect(self.detect_landmarks)
         self.landmark_dock.build_requested.connect(self.build_correspondence)
-        self._jobs: list[_BackgroundJob] = []
 
     def _run_job(self, work: Callable[[], object], done: Callable[[object], None], title: str,
                  message: str) -> None:
@@ -1182,8 +1212,11 @@ class MainWindow(QMainWindow):
 
 
 # ------------------------------------------------------------------ entry
-def run_gui(face_path: str | None = None, argv: list[str] | None = None) -> int:
-    """Create the application and window, run the event loop; returns the exit status."""
+def run_gui(face_path: str | None = None, argv: list[str] | None = None, *, demo: bool = False) -> int:
+    """Create the application and window, run the event loop; returns the exit status.
+
+    With ``demo``, the showcase plays as soon as the default face is ready.
+    """
     app = QApplication.instance() or QApplication(argv if argv is not None else sys.argv[:1])
     app.setOrganizationName(APP_NAME)
     app.setApplicationName(APP_NAME)
@@ -1191,6 +1224,13 @@ def run_gui(face_path: str | None = None, argv: list[str] | None = None) -> int:
     hook = install_excepthook()
     window = MainWindow(path=face_path) if face_path else MainWindow()
     hook.parent = window
+    if demo:
+        def start_demo(ok: bool) -> None:
+            window.load_finished.disconnect(start_demo)
+            if ok:
+                QTimer.singleShot(1500, window.play_demo)  # let the muscle model build first
+
+        window.load_finished.connect(start_demo)
     window.show()
     # Ctrl+C in the terminal: the Python handler only runs when the
     # interpreter gets control, so wake it periodically.

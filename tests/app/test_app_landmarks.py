@@ -26,7 +26,7 @@ def shared_window(qapp, tmp_path_factory):
     from app_helpers import make_synthetic_face
 
     settings = QSettings(str(tmp_path_factory.mktemp("landmarks") / "s.ini"), QSettings.Format.IniFormat)
-    win = MainWindow(make_synthetic_face(), settings=settings, load_default=False)
+    win = MainWindow(make_synthetic_face(), settings=settings, load_default=False, tools=False)
     win.show()
     QTest.qWaitForWindowExposed(win)
     attach_landmark_editor(win)

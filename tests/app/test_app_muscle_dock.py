@@ -54,7 +54,7 @@ def built(qapp, default_face, deformer, tmp_path_factory):
     from core.rig import FaceRig
 
     settings = QSettings(str(tmp_path_factory.mktemp("muscles") / "m.ini"), QSettings.Format.IniFormat)
-    win = MainWindow(settings=settings, load_default=False)
+    win = MainWindow(settings=settings, load_default=False, tools=False)
     win.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
     if getattr(win, "undo_stack", None) is None:
         win.undo_stack = make_undo_stack(win)
@@ -113,14 +113,14 @@ def test_built_off_thread_tabified_with_the_fap_dock_and_in_the_view_menu(built,
 def test_no_face_and_no_rig_disable_the_dock_with_the_reason(window, qtbot):
     from app.main_window import MainWindow
 
-    empty = MainWindow(settings=window.settings, load_default=False)
+    empty = MainWindow(settings=window.settings, load_default=False, tools=False)
     qtbot.addWidget(empty)
     d = attach_muscle_dock(empty)
     assert d.layer is None and d.message_label.text() == NO_FACE_MESSAGE and not d.apply_button.isEnabled()
     empty.close()
 
     # The synthetic face has too few feature points for a rig.
-    d2 = attach_muscle_dock(window)
+    d2 = window.muscle_dock   # the full window attaches its own muscle dock
     assert window.rig is None
     assert d2.layer is None and not d2.apply_button.isEnabled() and not d2.is_building
     assert "not available" in d2.message_label.text() and window.rig_message.splitlines()[0] in d2.message_label.text()

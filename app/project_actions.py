@@ -1,0 +1,645 @@
+"""project_actions.py
+----
+File ▸ New / Open… / Save / Save As… for Mimica projects (``.mimica``, :mod:`core.project`), the
+window title, autosave and crash recovery.
+
+* A project is the face (the built-in default face is stored by name; a face from a file by its
+  path; a face that exists only in memory is written beside the project by ``core.project.embed_face``),
+  its landmarks, the rig's values, the timeline, the speech clips and the view: camera
+  (position, focal point, up, view angle), display mode, landmarks shown, FAP-dock overlays, and the
+  timeline's cursor / loop / speed / "show all" / folded groups.
+* Opening restores all of it. When the project's face is the face already shown (same built-in
+  face or same file, same landmarks) the face and its rig are kept (no rebuild); otherwise the face
+  is loaded and its rig built on a worker thread (seconds for a 50k-vertex face), then shown. The rig
+  values are applied *after* the cursor is placed, so values the user set by hand on tracked
+  parameters come back exactly as saved. A corrupt file, a file from a newer Mimica or a missing
+  face file shows ``core.project``'s message in a warning and leaves the open project untouched.
+* Modified = the undo stack is not at its clean index, or something not on the stack changed (a
+  different face, a recovered autosave). The title is ``<project>[*] — <face> — Mimica``.
+* Autosave every 3 minutes (when modified since the last one) through ``core.project.write_autosave``:
+  beside a saved project, or ``<state dir>/untitled-<pid>-<n>.mimica.autosave`` for an untitled one.
+  Saving deletes the autosave. After opening a project whose autosave is newer, and at start-up for
+  untitled autosaves left by a Mimica process that is no longer running, a question offers to
+  recover it (Yes = recover, Discard = delete it; anything else keeps it for later).
+* Choice: closing the window never blocks on a question. Unsaved work is written to the autosave
+  on close and offered at the next start (``ask_on_close = True`` asks Save / Discard / Cancel
+  instead). New and Open do ask before dropping unsaved changes.
+* The state dir defaults to ``autosave/`` beside the window's settings file (so isolated settings,
+  e.g. in tests, isolate autosaves too); pass ``state_dir`` to choose another.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import os
+import threading
+import traceback
+from pathlib import Path
+
+import shiboken6
+from PySide6.QtCore import QEvent, QObject, QSettings, Qt, QTimer, Signal
+from PySide6.QtGui import QAction, QKeySequence
+from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox
+
+from app.timeline_controller import rig_state
+from core import project as cp
+from core.timeline import Timeline
+
+AUTOSAVE_MS = 3 * 60 * 1000
+PROJECT_FILTER = "Mimica project (*.mimica);;All files (*)"
+_UNTITLED = itertools.count(1)
+
+
+def default_state_dir(window) -> Path:
+    settings = getattr(window, "settings", None)
+    if isinstance(settings, QSettings) and settings.fileName():
+        return Path(settings.fileName()).resolve().parent / "autosave"
+    return cp.default_state_dir()
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except OSError:
+        return False
+    return True
+
+
+def _owner_pid(path: Path) -> int | None:
+    """The pid in ``untitled-<pid>-<n>.mimica.autosave`` (None for other names)."""
+    parts = path.name.split("-")
+    if len(parts) >= 3 and parts[0] == "untitled" and parts[1].isdigit():
+        return int(parts[1])
+    return None
+
+
+class _Relay(QObject):
+    opened = Signal(int, object)  # generation, (face, rig, rig message, notes)
+    failed = Signal(int, str)
+
+
+class ProjectActions(QObject):
+    """The project side of a MainWindow with a :class:`~app.timeline_controller.TimelineController`.
+
+    Attributes: ``path`` (Path or None = untitled), ``new_action``, ``open_action``, ``save_action``,
+    ``save_as_action``, ``autosave_timer``, ``ask_on_close``.
+    """
+
+    project_opened = Signal(object)  # Path or None
+
+    def __init__(self, window, controller, *, state_dir=None, autosave_ms: int = AUTOSAVE_MS):
+        super().__init__(window)
+        self.window = window
+        self.c = controller
+        self.stack = controller.undo_stack
+        self.path: Path | None = None
+        self.state_dir = Path(state_dir) if state_dir is not None else default_state_dir(window)
+        self.untitled_id = f"untitled-{os.getpid()}-{next(_UNTITLED)}"
+        self.ask_on_close = False
+        self._dirty = False
+        self._autosaved = None  # (stack index, dirty) at the last autosave
+        self._face_ref: tuple | None = None  # (id(face), FaceRef) of a face loaded from / embedded for a project
+        self._applying_face = False
+        self._generation = 0
+        self._relay = _Relay(self)
+        self._relay.opened.connect(self._on_face_opened)
+        self._relay.failed.connect(self._on_face_failed)
+        self._pending: tuple | None = None
+        self._closed = False
+        self._had_face = getattr(window, "face", None) is not None
+
+        self._create_actions()
+        self.stack.cleanChanged.connect(self._on_stack_changed)
+        self.stack.indexChanged.connect(self._on_stack_changed)
+        window.face_changed.connect(self._on_face_changed)
+        self.autosave_timer = QTimer(self)
+        self.autosave_timer.setInterval(int(autosave_ms))
+        self.autosave_timer.timeout.connect(self.autosave_if_needed)
+        self.autosave_timer.start()
+        window.installEventFilter(self)
+        self.update_title()
+
+    # ------------------------------------------------------------ actions / menu
+    def _create_actions(self) -> None:
+        w = self.window
+
+        def action(text, slot, shortcut, tip):
+            act = QAction(text, w)
+            if shortcut is not None:
+                act.setShortcut(QKeySequence(shortcut))
+                act.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
+            act.setStatusTip(tip)
+            act.triggered.connect(lambda _c=False: slot())
+            w.addAction(act)
+            return act
+
+        # The project takes the usual document shortcuts (the window gives faces Ctrl+I).
+        self.new_action = action("&New project", self.new_project, QKeySequence.StandardKey.New,
+                                 "Start an empty project (keeps the face)")
+        self.open_action = action("&Open project…", self.open_dialog, QKeySequence.StandardKey.Open,
+                                  "Open a Mimica project (.mimica)")
+        self.save_action = action("&Save project", self.save, QKeySequence.StandardKey.Save,
+                                  "Save the project (face reference, landmarks, rig, timeline, view)")
+        self.save_as_action = action("Save project &as…", self.save_as_dialog, "Ctrl+Shift+S",
+                                     "Save the project under a new name")
+        file_menu = None
+        for act in w.menuBar().actions():
+            if act.menu() is not None and act.text().replace("&", "") == "File":
+                file_menu = act.menu()
+                break
+        if file_menu is None:
+            file_menu = w.menuBar().addMenu("&File")
+        first = file_menu.actions()[0] if file_menu.actions() else None
+        for act in (self.new_action, self.open_action, self.save_action, self.save_as_action):
+            file_menu.insertAction(first, act)
+        if first is not None:
+            file_menu.insertSeparator(first)
+
+    # ------------------------------------------------------------ state
+    @property
+    def is_modified(self) -> bool:
+        return self._dirty or not self.stack.isClean()
+
+    @property
+    def name(self) -> str:
+        return self.path.name.removesuffix(cp.SUFFIX) if self.path is not None else "Untitled"
+
+    def _on_stack_changed(self, *_args) -> None:
+        self.update_title()
+
+    def update_title(self) -> None:
+        w = self.window
+        if self._closed or not shiboken6.isValid(w):
+            return  # the stack emits while the window is being destroyed
+        face = getattr(w, "face", None)
+        face_name = f" — {face.metadata.name}" if face is not None else ""
+        w.setWindowTitle(f"{self.name}[*]{face_name} — Mimica")
+        w.setWindowModified(self.is_modified)
+
+    def _on_face_changed(self, _face=None) -> None:
+        # The first face of a session (the start-up load) is not an edit; replacing it is.
+        if not self._applying_face and self._had_face:
+            self._dirty = True
+        self._had_face = getattr(self.window, "face", None) is not None
+        self.update_title()
+
+    def _mark_clean(self) -> None:
+        self.stack.setClean()
+        self._dirty = False
+        self.update_title()
+
+    # ------------------------------------------------------------ project <-> window
+    def _face_ref_for(self, target: Path):
+        """How to reference the shown face from a project written at ``target``."""
+        face = self.window.face
+        if getattr(face.metadata, "source", None) == "built-in":
+            return cp.FaceRef.default_face()
+        if self._face_ref is not None and self._face_ref[0] == id(face) and Path(self._face_ref[1].path).is_file():
+            return self._face_ref[1]
+        source = getattr(self.window, "face_path", None)
+        if source and Path(source).is_file():
+            ref = cp.FaceRef.for_file(source)
+        else:
+            ref = cp.embed_face(face, target)
+        self._face_ref = (id(face), ref)
+        return ref
+
+    def _muscles(self):
+        """({(name, side): force}, jaw degrees) of the window's muscle layer (empty without one)."""
+        from app.timeline_controller import muscle_controls
+
+        return muscle_controls(getattr(self.window, "muscle_layer", None))
+
+    def current_project(self, target: Path | None = None) -> cp.Project:
+        """The open project as a :class:`core.project.Project` (``target``: where it will be written)."""
+        w = self.window
+        if w.face is None:
+            raise cp.ProjectError("there is no face to save yet; wait until it is loaded")
+        target = Path(target) if target is not None else (self.path or cp.autosave_path(
+            None, untitled_id=self.untitled_id, state_dir=self.state_dir))
+        forces, jaw = self._muscles()
+        return cp.Project.from_state(w.face, self._face_ref_for(target), w.rig, self.c.timeline, muscles=forces,
+                                     jaw=jaw, speech=self.c.speech, view=self.view_state())
+
+    def view_state(self) -> dict:
+        """Camera, display mode, overlays and timeline UI state (plain JSON types)."""
+        w, c = self.window, self.c
+        view: dict = {}
+        plotter = getattr(w, "plotter", None)
+        if plotter is not None:
+            with contextlib.suppress(Exception):
+                pos, focal, up = plotter.camera_position
+                view["camera"] = {"position": [float(v) for v in pos], "focal_point": [float(v) for v in focal],
+                                  "up": [float(v) for v in up], "view_angle": float(plotter.camera.view_angle)}
+        mode = getattr(w, "view_mode", None)
+        if isinstance(mode, str):
+            view["display_mode"] = mode
+        act = getattr(w, "landmarks_action", None)
+        if act is not None:
+            view["landmarks_visible"] = bool(act.isChecked())
+        dock = getattr(w, "fap_dock", None)
+        if dock is not None:
+            view["overlays"] = {"heat_map": bool(dock.heat_check.isChecked()),
+                                "influence": bool(dock.influence_check.isChecked())}
+        tdock = getattr(c, "dock", None)
+        view["timeline"] = {"time": float(c.current_time), "loop": bool(c.loop), "speed": float(c.speed),
+                            "auto_key": bool(c.auto_key)}
+        if tdock is not None:
+            view["timeline"]["show_all"] = bool(tdock.view.show_all)
+            view["timeline"]["collapsed"] = sorted(tdock.view.collapsed)
+        return view
+
+    def apply_view(self, view: dict) -> None:
+        """Restore :meth:`view_state` output; missing or odd entries are skipped (the view is decoration)."""
+        w, c = self.window, self.c
+        try:
+            mode = view.get("display_mode")
+            if isinstance(mode, str) and hasattr(w, "set_view_mode"):
+                with contextlib.suppress(ValueError):
+                    w.set_view_mode(mode)
+            if "landmarks_visible" in view and hasattr(w, "set_landmarks_visible"):
+                w.set_landmarks_visible(bool(view["landmarks_visible"]))
+            overlays = view.get("overlays")
+            dock = getattr(w, "fap_dock", None)
+            if isinstance(overlays, dict) and dock is not None:
+                dock.heat_check.setChecked(bool(overlays.get("heat_map", False)))
+                dock.influence_check.setChecked(bool(overlays.get("influence", False)))
+            tview = view.get("timeline")
+            if isinstance(tview, dict):
+                c.loop = bool(tview.get("loop", False))
+                speed = tview.get("speed", 1.0)
+                with contextlib.suppress(ValueError, TypeError):
+                    c.set_speed(float(speed))
+                tdock = getattr(c, "dock", None)
+                if tdock is not None:
+                    tdock.view.collapsed = {str(g) for g in tview.get("collapsed", []) if isinstance(g, str)}
+                    tdock.show_all_check.setChecked(bool(tview.get("show_all", False)))
+                    tdock.view.rebuild_rows()
+                    tdock.sync()
+            camera = view.get("camera")
+            plotter = getattr(w, "plotter", None)
+            if isinstance(camera, dict) and plotter is not None:
+                pos, focal, up = camera["position"], camera["focal_point"], camera["up"]
+                if all(isinstance(v, list) and len(v) == 3 for v in (pos, focal, up)):
+                    plotter.camera_position = [tuple(map(float, pos)), tuple(map(float, focal)),
+                                               tuple(map(float, up))]
+                    if isinstance(camera.get("view_angle"), (int, float)):
+                        plotter.camera.view_angle = float(camera["view_angle"])
+                    if plotter.isVisible():
+                        plotter.render()
+        except Exception:  # noqa: BLE001 - a bad view entry must not stop the project from opening
+            traceback.print_exc()
+
+    # ------------------------------------------------------------ new / open
+    def new_project(self) -> bool:
+        """Empty timeline, neutral rig, untitled (the face stays)."""
+        if not self._maybe_save("starting a new project"):
+            return False
+        self._discard_own_autosave()
+        rig = self.window.rig
+        if rig is not None:
+            with self.c._not_recorded():  # noqa: SLF001 - the controller's own guard
+                rig.reset_faps()
+                rig.set_expression(None)
+                rig.set_viseme(None)
+        self.c._set_speech([])  # noqa: SLF001
+        self.c.set_timeline(Timeline())
+        self.path = None
+        self.untitled_id = f"untitled-{os.getpid()}-{next(_UNTITLED)}"
+        self.stack.clear()
+        self._mark_clean()
+        self._autosaved = None
+        self.project_opened.emit(None)
+        return True
+
+    def open_dialog(self) -> bool:
+        start = str(self.window.settings.value("projectDirectory", str(Path.home()))) \
+            if hasattr(self.window, "settings") else str(Path.home())
+        path, _ = QFileDialog.getOpenFileName(self.window, "Open project", start, PROJECT_FILTER)
+        if not path:
+            return False
+        return self.open_project(path)
+
+    def open_project(self, path, *, ask: bool = True) -> bool:
+        """Open ``path``. Errors -> a warning with core.project's message; the open project stays.
+
+        Returns True when the project is open (False when refused, cancelled, or still loading its face
+        in the background — ``project_opened`` is emitted when done).
+        """
+        path = Path(path)
+        if ask and not self._maybe_save(f"opening {path.name}"):
+            return False
+        try:
+            project = cp.load_project(path)
+        except cp.ProjectError as exc:
+            self._warn(f"Could not open {path.name}", str(exc))
+            return False
+        if hasattr(self.window, "settings"):
+            self.window.settings.setValue("projectDirectory", str(path.resolve().parent))
+        return self._apply_project(project, path, offer_recovery=True)
+
+    def _same_face(self, project: cp.Project) -> bool:
+        face = self.window.face
+        if face is None or self.window.rig is None:
+            return False
+        ref = project.face
+        if ref.builtin is not None:
+            same = getattr(face.metadata, "source", None) == "built-in"
+        else:
+            known = self._face_ref[1] if self._face_ref is not None and self._face_ref[0] == id(face) else None
+            shown = getattr(self.window, "face_path", None)
+            same = ((known is not None and known.path is not None and Path(known.path) == Path(ref.path)
+                     and known.sha256 == ref.sha256)
+                    or (shown is not None and Path(shown).is_file() and Path(shown).resolve() == Path(ref.path)
+                        and (ref.sha256 is None or cp.file_sha256(shown) == ref.sha256)))
+        if not same:
+            return False
+        return project.landmarks is None or dict(project.landmarks) == dict(face.landmarks)
+
+    def _apply_project(self, project: cp.Project, path: Path | None, *, offer_recovery: bool = False,
+                       dirty: bool = False) -> bool:
+        if self._same_face(project):
+            self._finish_open(project, path, [], dirty=dirty, offer_recovery=offer_recovery)
+            return True
+        # Another face: load it and build its rig off the GUI thread, then finish on it.
+        self._generation += 1
+        generation = self._generation
+        self._pending = (project, path, dirty, offer_recovery)
+        status = getattr(self.window, "statusBar", None)
+        if status is not None:
+            self.window.statusBar().showMessage("Opening the project: loading its face and preparing the rig…")
+        relay = self._relay
+
+        def work():
+            notes: list[str] = []
+            try:
+                face = cp.open_face(project, notes)
+                from app.main_window import build_rig
+
+                rig, message = build_rig(face)
+            except cp.ProjectError as exc:
+                relay.failed.emit(generation, str(exc))
+                return
+            except Exception as exc:  # noqa: BLE001 - becomes a message box
+                traceback.print_exc()
+                relay.failed.emit(generation, f"{type(exc).__name__}: {exc}")
+                return
+            relay.opened.emit(generation, (face, rig, message, notes))
+
+        threading.Thread(target=work, name="mimica-open-project", daemon=True).start()
+        return False
+
+    def _on_face_opened(self, generation: int, result) -> None:
+        if generation != self._generation or self._pending is None:
+            return
+        project, path, dirty, offer = self._pending
+        self._pending = None
+        face, rig, message, notes = result
+        self._applying_face = True
+        try:
+            self.window.set_face(face, path=str(project.face.path) if project.face.path is not None else None,
+                                 rig=rig, rig_message=message)
+        finally:
+            self._applying_face = False
+        if project.face.path is not None:
+            self._face_ref = (id(face), project.face)
+        self._finish_open(project, path, notes, dirty=dirty, offer_recovery=offer)
+
+    def _on_face_failed(self, generation: int, message: str) -> None:
+        if generation != self._generation:
+            return
+        name = self._pending[1].name if self._pending is not None and self._pending[1] is not None else "the project"
+        self._pending = None
+        self._warn(f"Could not open {name}", message)
+
+    def _finish_open(self, project: cp.Project, path: Path | None, notes: list[str], *, dirty: bool,
+                     offer_recovery: bool) -> None:
+        c, w = self.c, self.window
+        time = 0.0
+        tview = project.view.get("timeline") if isinstance(project.view, dict) else None
+        if isinstance(tview, dict) and isinstance(tview.get("time"), (int, float)):
+            time = float(tview["time"])
+        c._set_speech(list(project.speech))  # noqa: SLF001
+        c.set_timeline(project.timeline, time=time)
+        rig = w.rig
+        if rig is not None:
+            layer = getattr(w, "muscle_layer", None)
+            with c._not_recorded():  # noqa: SLF001
+                try:
+                    project.rig.apply(rig, muscles=layer if hasattr(layer, "set_forces") else None)
+                except ValueError as exc:
+                    notes.append(f"Some rig values could not be restored: {exc}")
+            c._rig_state = rig_state(rig)  # noqa: SLF001
+        self.apply_view(project.view)
+        if isinstance(tview, dict) and bool(tview.get("auto_key", False)) != c.auto_key:
+            c.set_auto_key(bool(tview.get("auto_key", False)))
+        self.path = Path(path) if path is not None else None
+        self.stack.clear()
+        self._mark_clean()
+        self._dirty = dirty
+        self._autosaved = None
+        self.update_title()
+        status = getattr(w, "statusBar", None)
+        if status is not None:
+            shown = self.path.name if self.path is not None else "the recovered project"
+            w.statusBar().showMessage(f"Opened {shown}" + (" — " + " ".join(notes) if notes else ""), 10000)
+        if notes:
+            QMessageBox.information(w, "Notes on opening the project", "\n".join(f"• {n}" for n in notes))
+        self.project_opened.emit(self.path)
+        if offer_recovery and self.path is not None:
+            self.offer_recovery(self.path)
+
+    # ------------------------------------------------------------ save
+    def save(self) -> bool:
+        if self.path is None:
+            return self.save_as_dialog()
+        return self.save_project(self.path)
+
+    def save_as_dialog(self) -> bool:
+        w = self.window
+        folder = str(w.settings.value("projectDirectory", str(Path.home()))) if hasattr(w, "settings") \
+            else str(Path.home())
+        name = self.path.name if self.path is not None else (
+            f"{w.face.metadata.name}{cp.SUFFIX}" if w.face is not None else f"untitled{cp.SUFFIX}")
+        path, _ = QFileDialog.getSaveFileName(w, "Save project as", str(Path(folder) / name), PROJECT_FILTER)
+        if not path:
+            return False
+        if not path.endswith(cp.SUFFIX):
+            path += cp.SUFFIX
+        return self.save_project(path)
+
+    def save_project(self, path) -> bool:
+        """Write the project to ``path``; errors -> a warning. Returns success."""
+        path = Path(path)
+        try:
+            QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
+            try:
+                cp.save_project(path, self.current_project(path))
+            finally:
+                QApplication.restoreOverrideCursor()
+        except cp.ProjectError as exc:
+            self._warn(f"Could not save {path.name}", str(exc))
+            return False
+        old_untitled = self.path is None
+        if self.path is not None and self.path != path:
+            cp.discard_autosave(self.path)
+        self.path = path
+        cp.discard_autosave(path)
+        if old_untitled:
+            self._discard_own_autosave(untitled_only=True)
+        if hasattr(self.window, "settings"):
+            self.window.settings.setValue("projectDirectory", str(path.resolve().parent))
+        self._mark_clean()
+        self._autosaved = None
+        status = getattr(self.window, "statusBar", None)
+        if status is not None:
+            self.window.statusBar().showMessage(f"Saved {path}", 5000)
+        return True
+
+    # ------------------------------------------------------------ autosave / recovery
+    def autosave_path(self) -> Path:
+        return cp.autosave_path(self.path, untitled_id=self.untitled_id, state_dir=self.state_dir)
+
+    def autosave_now(self) -> Path | None:
+        """Write the autosave now (whatever the modified state); None if there is nothing to save."""
+        if self.window.face is None:
+            return None
+        try:
+            target = self.autosave_path()
+            target.parent.mkdir(parents=True, exist_ok=True)
+            written = cp.write_autosave(self.current_project(target), self.path, untitled_id=self.untitled_id,
+                                        state_dir=self.state_dir)
+        except Exception as exc:  # noqa: BLE001 - an autosave must never take the session down
+            if not isinstance(exc, (cp.ProjectError, OSError)):
+                traceback.print_exc()
+            status = getattr(self.window, "statusBar", None)
+            if status is not None:
+                self.window.statusBar().showMessage(f"Autosave failed: {exc}", 10000)
+            return None
+        self._autosaved = (self.stack.index(), self._dirty)
+        return written
+
+    def autosave_if_needed(self) -> Path | None:
+        if not self.is_modified or self._autosaved == (self.stack.index(), self._dirty):
+            return None
+        return self.autosave_now()
+
+    def _discard_own_autosave(self, *, untitled_only: bool = False) -> None:
+        cp.discard_autosave(None, untitled_id=self.untitled_id, state_dir=self.state_dir)
+        if not untitled_only and self.path is not None:
+            cp.discard_autosave(self.path)
+
+    def offer_recovery(self, path: Path) -> bool:
+        """Ask about ``path``'s autosave when it is newer than the file; True when it was recovered."""
+        found = cp.find_autosave(path)
+        if found is None:
+            return False
+        return self._ask_recover(found, original=path)
+
+    def _ask_recover(self, autosave: Path, *, original: Path | None) -> bool:
+        import datetime
+
+        when = datetime.datetime.fromtimestamp(autosave.stat().st_mtime).strftime("%Y-%m-%d %H:%M")
+        what = f"“{original.name}”" if original is not None else "an untitled project"
+        answer = QMessageBox.question(
+            self.window, "Recover unsaved work?",
+            f"Mimica found unsaved changes to {what}, autosaved {when}.\n\n"
+            "Recover them? (Yes opens the autosaved version; Discard deletes it.)",
+            QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Discard, QMessageBox.StandardButton.Yes)
+        if answer == QMessageBox.StandardButton.Discard:
+            with contextlib.suppress(OSError):
+                autosave.unlink()
+            return False
+        if answer != QMessageBox.StandardButton.Yes:
+            return False
+        try:
+            project = cp.load_project(autosave)
+        except cp.ProjectError as exc:
+            self._warn("Could not recover the autosave", str(exc))
+            return False
+        if original is None:
+            with contextlib.suppress(OSError):
+                autosave.unlink()  # its content lives on in this session's autosave
+        self._apply_project(project, original, dirty=True)
+        return True
+
+    def startup_candidates(self) -> list[Path]:
+        """Untitled autosaves left by Mimica processes that are not running any more (newest first)."""
+        out = []
+        for p in cp.untitled_autosaves(self.state_dir):
+            pid = _owner_pid(p)
+            if pid is not None and _pid_alive(pid):
+                continue
+            out.append(p)
+        return out
+
+    def check_startup_recovery(self) -> bool:
+        found = self.startup_candidates()
+        if not found:
+            return False
+        return self._ask_recover(found[0], original=None)
+
+    def check_startup_recovery_when_ready(self) -> None:
+        """Offer recovery once the event loop runs and no face is loading (never during a load)."""
+        QTimer.singleShot(0, self, self._recovery_when_idle)
+
+    def _recovery_when_idle(self) -> None:
+        w = self.window
+        if self._closed:
+            return
+        if getattr(w, "is_loading", False):
+            def once(_ok):
+                with contextlib.suppress(RuntimeError, TypeError):
+                    w.load_finished.disconnect(once)
+                QTimer.singleShot(0, self, self._recovery_when_idle)
+
+            w.load_finished.connect(once)
+            return
+        self.check_startup_recovery()
+
+    # ------------------------------------------------------------ asking / closing
+    def _maybe_save(self, doing: str) -> bool:
+        """True when it is fine to drop the open project (saved, discarded, or unmodified)."""
+        if not self.is_modified:
+            return True
+        answer = QMessageBox.question(
+            self.window, "Unsaved changes", f"Save the changes to {self.name} before {doing}?",
+            QMessageBox.StandardButton.Save | QMessageBox.StandardButton.Discard | QMessageBox.StandardButton.Cancel,
+            QMessageBox.StandardButton.Save)
+        if answer == QMessageBox.StandardButton.Save:
+            return self.save()
+        if answer == QMessageBox.StandardButton.Discard:
+            self._discard_own_autosave()
+            return True
+        return False
+
+    def eventFilter(self, watched, event) -> bool:  # noqa: N802 - Qt override
+        if watched is self.window and event.type() == QEvent.Type.Close:
+            if self.ask_on_close and self.is_modified and not self._maybe_save("closing"):
+                event.ignore()
+                return True
+            self.autosave_timer.stop()
+            self.c.pause()
+            self._closed = True
+            if self.is_modified:
+                self.autosave_now()  # offered at the next start
+            else:
+                self._discard_own_autosave(untitled_only=True)
+        return False
+
+    def _warn(self, title: str, message: str) -> None:
+        status = getattr(self.window, "statusBar", None)
+        if status is not None:
+            first = message.splitlines()[0] if message else title
+            self.window.statusBar().showMessage(first[:140], 8000)
+        QMessageBox.warning(self.window, title, message)
+
+
+__all__ = ["ProjectActions", "AUTOSAVE_MS", "PROJECT_FILTER", "default_state_dir"]

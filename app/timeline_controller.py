@@ -1,0 +1,936 @@
+"""timeline_controller.py
+----
+Ties a :class:`core.timeline.Timeline` to the window's rig, a playback clock and the undo stack.
+No widgets here: :mod:`app.timeline_dock` draws it, :mod:`app.project_actions` saves it.
+
+* **Posing.** :meth:`TimelineController.seek` evaluates the timeline at t and applies it to the rig
+  (``core.timeline.apply_to_rig``; the muscle layer through ``MuscleSimulationCache`` when the window
+  has ``muscle_layer``). Everything one time step changes reaches the rig with ``rig.changed``
+  blocked and is announced by one ``rig.touch()``, so the viewport redraws once per step. FAP tracks
+  the rig cannot animate (a face without eyeballs has no gaze) are skipped, not an error.
+  Posing is never recorded as an undo step (the window's ``UndoableRigEdits`` is suspended).
+* **Edits.** Every change of the timeline (keys, interpolation, settings, lip-sync) is a
+  :class:`TimelineEditCommand` on the window's one ``QUndoStack``; it holds the ``core.timeline.Edit``
+  (whole tracks before/after) and undoes with ``edit.inverse()``. After an edit the rig is posed
+  again for the tracks that edit touched (other tracks keep what the user did to the rig).
+* **Set key** (button, K) keys the *selected controls* at the cursor, with the rig's current values:
+  the tracks selected in the timeline when any are, otherwise every parameter that already has a
+  track or is away from neutral in the rig (FAP != 0, an active expression / viseme preset, a muscle
+  force or jaw angle != 0 when the muscle layer exposes ``forces`` / ``jaw``). Keying tracked
+  parameters too makes a slider returned to 0 get a 0 key instead of silently holding its old key.
+* **Auto-key**: while it is on and nothing plays, every user change of the rig (FAP dock sliders,
+  presets) keys the parameters that changed at the cursor. The rig change and its keys are one undo
+  step (merged per gesture, so a slider drag is one step); the window's rig recorder is paused
+  meanwhile so the change is not recorded twice.
+* **Playback** keeps wall-clock time: a ``QTimer`` ticks about once per frame, the time shown is
+  ``start + elapsed × speed`` from a ``QElapsedTimer``, snapped to the frame grid; frames that are
+  late are dropped, never slowed down. ``fps_measured`` reports the frames actually shown per
+  second. Speeds 0.25×–4×.
+* **Speech.** Lip-sync clips (:class:`core.project.SpeechClip`) live here with the timeline; their
+  audio is mixed into one WAV aligned with timeline time 0 (:meth:`TimelineController.audio_path`),
+  which is what video export wants. Audio is not played back in the app: this PySide6 build has no
+  QtMultimedia.
+
+Choices: the cursor always sits on a frame (seeking snaps); keys set from the UI land on the cursor,
+so on frames. The key selection is ``{parameter key: set of key times}``; it survives edits for the
+keys that still exist.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import hashlib
+import math
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+import numpy as np
+from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer, Signal
+from PySide6.QtGui import QUndoCommand
+
+from core import timeline as tl
+from core.fap import tables
+from core.timeline import Edit, Timeline, TimelineError, Track
+
+SPEEDS = (0.25, 0.5, 1.0, 1.5, 2.0, 4.0)
+MIN_TICK_MS = 5
+FPS_WINDOW_S = 1.0  # achieved fps = frames shown during the last second
+
+
+# ------------------------------------------------------------------ parameters
+def parameter_label(key: str) -> str:
+    """Short readable name of a canonical parameter key, e.g. "3 open jaw", "joy", "1 p b m"."""
+    kind, _, rest = key.partition(":")
+    if kind == "fap":
+        try:
+            from app.fap_dock import row_label
+
+            return row_label(tables.fap_spec(int(rest)))
+        except Exception:  # noqa: BLE001 - a label is decoration
+            return key
+    if kind == "expression":
+        return rest
+    if kind == "viseme":
+        vid = int(rest)
+        phon = tables.viseme_phonemes()[vid].replace(",", " ")
+        return f"{vid} {phon}".strip()
+    if kind == "muscle":
+        name, _, side = rest.partition(":")
+        label = name.replace("_", " ")
+        return f"{label} ({side[0].upper()})" if side else label
+    if key == "jaw":
+        return "jaw angle (°)"
+    return key
+
+
+def parameter_range(key: str, track: Track | None = None) -> tuple[float, float]:
+    """(low, high) to scale a parameter's curve in its lane."""
+    kind, _, rest = key.partition(":")
+    if kind == "fap":
+        spec = tables.fap_spec(int(rest))
+        return float(spec.minimum), float(spec.maximum)
+    if kind in ("expression", "viseme"):
+        return 0.0, 1.0
+    if kind == "muscle":
+        try:
+            from core.muscles.muscles import spec_by_name
+
+            spec = spec_by_name()[rest.split(":")[0]]
+            return float(spec.minimum), float(spec.maximum)
+        except Exception:  # noqa: BLE001 - fall back to the track's own span
+            pass
+    if kind == "jaw":
+        try:
+            from core.muscles.muscles import jaw_range
+
+            return jaw_range()
+        except Exception:  # noqa: BLE001
+            pass
+    if track is not None and len(track):
+        lo, hi = float(track.values.min()), float(track.values.max())
+        return (min(lo, 0.0), hi if hi > lo else lo + 1.0)
+    return 0.0, 1.0
+
+
+def muscle_keys() -> tuple[str, ...]:
+    """``muscle:<name>[:<side>]`` for the muscle layer's 19 controls, then ``jaw`` (empty if unavailable)."""
+    try:
+        from core.muscles.muscles import control_keys
+
+        keys = tuple(f"muscle:{n}:{s}" if s else f"muscle:{n}" for n, s in control_keys())
+    except Exception:  # noqa: BLE001 - the muscle layer is optional
+        return ()
+    return keys + ("jaw",)
+
+
+# ------------------------------------------------------------------ rig state
+def rig_state(rig) -> tuple:
+    """(68 FAP values, expressions, visemes): what the FAP dock can change (as ``UndoableRigEdits.state_of``)."""
+    return (tuple(float(v) for v in rig.fap_values()), tuple(rig.expressions), tuple(rig.visemes))
+
+
+def _restore_mix(rig, kind: str, mix: tuple) -> None:
+    single = getattr(rig, f"set_{kind}")
+    attribute = f"_{kind}s"
+    if tuple(getattr(rig, attribute)) == tuple(mix):
+        return
+    if len(mix) == 1:
+        single(None if mix[0][0] == 0 else mix[0][0], mix[0][1])
+        return
+    # A blend no public setter reproduces exactly (FAP 2/1 blends): restore it as stored.
+    rig._set_presets(attribute, tuple(mix))  # noqa: SLF001 - FaceRig has no restore_state yet
+
+
+def apply_rig_state(rig, state: tuple) -> None:
+    """Put a :func:`rig_state` back (only what differs; FAPs the rig cannot animate stay 0)."""
+    values, expressions, visemes = state
+    current = rig.fap_values()
+    changed = {n + 1: v for n, v in enumerate(values) if current[n] != v}
+    if changed:
+        rig.set_faps(changed)
+    _restore_mix(rig, "expression", expressions)
+    _restore_mix(rig, "viseme", visemes)
+
+
+# ------------------------------------------------------------------ undo
+_MERGE_IDS: dict = {}  # merge key -> QUndoCommand.id() (an int; app.undo uses 1000 + n)
+
+
+def _describe_change(rows: Mapping[str, Any]) -> str:
+    keys = list(rows)
+    return parameter_label(keys[0]) if len(keys) == 1 else f"{len(keys)} parameters"
+
+
+def _merge_edits(first: Edit, second: Edit, label: str) -> Edit:
+    """One edit doing ``first`` then ``second`` (same before/after key sets, as ``Edit`` requires)."""
+    keys = list(dict.fromkeys([*first.after, *second.after]))
+    before = {k: first.before[k] if k in first.before else second.before[k] for k in keys}
+    after = {k: second.after[k] if k in second.after else first.after[k] for k in keys}
+    sb = first.settings_before if first.settings_before is not None else second.settings_before
+    sa = second.settings_after if second.settings_after is not None else first.settings_after
+    return Edit(label, before, after, sb, sa)
+
+
+class TimelineEditCommand(QUndoCommand):
+    """One undo step of the timeline: an applied ``Edit``, optionally with extra state around it.
+
+    rig_before / rig_after : :func:`rig_state` tuples restored after the edit is undone / redone
+    (auto-key: the slider change and its keys are one step). extra_undo / extra_redo : callables run
+    after the timeline part (e.g. the speech clip list of a lip-sync edit). merge_key : commands with
+    the same key in the same user gesture merge (a slider drag with auto-key = one step).
+    """
+
+    def __init__(self, controller: "TimelineController", edit: Edit, text: str | None = None, *,
+                 applied: bool = True, rig_before: tuple | None = None, rig_after: tuple | None = None,
+                 extra_undo: Callable[[], None] | None = None, extra_redo: Callable[[], None] | None = None,
+                 merge_key=None):
+        super().__init__(text or edit.label)
+        self.controller = controller
+        self.timeline = controller.timeline
+        self.edit = edit
+        self.rig_before, self.rig_after = rig_before, rig_after
+        self.extra_undo, self.extra_redo = extra_undo, extra_redo
+        self.merge_key = merge_key
+        from app.undo import gestures
+
+        self._merge_id = -1 if merge_key is None else _MERGE_IDS.setdefault(merge_key, 500_000 + len(_MERGE_IDS))
+        self.gesture = gestures().number
+        self._skip = bool(applied)
+
+    def id(self) -> int:  # noqa: A003 - Qt API
+        return self._merge_id
+
+    def redo(self) -> None:
+        if self._skip:
+            self._skip = False
+            return
+        self.controller._run_command(self.timeline, self.edit, self.rig_after, self.extra_redo)
+
+    def undo(self) -> None:
+        self.controller._run_command(self.timeline, self.edit.inverse(), self.rig_before, self.extra_undo)
+
+    def mergeWith(self, other: QUndoCommand) -> bool:  # noqa: N802 - Qt API
+        if (not isinstance(other, TimelineEditCommand) or other.merge_key != self.merge_key
+                or other.gesture != self.gesture or other.timeline is not self.timeline):
+            return False
+        self.edit = _merge_edits(self.edit, other.edit, self.edit.label)
+        if other.rig_after is not None:
+            self.rig_after = other.rig_after
+        if self.rig_before is None:
+            self.rig_before = other.rig_before
+        return True
+
+
+# ------------------------------------------------------------------ controller
+def muscle_controls(layer) -> tuple[dict, float]:
+    """({(name, side): force}, jaw degrees) of a muscle layer (``core.muscles.MuscleLayer``: ``forces()``
+    and ``jaw_deg``); empty for None."""
+    if layer is None:
+        return {}, 0.0
+    forces = layer.forces
+    forces = forces() if callable(forces) else forces
+    return dict(forces), float(getattr(layer, "jaw_deg", getattr(layer, "jaw", 0.0)) or 0.0)
+
+
+class TimelineController(QObject):
+    """The timeline of the window's project, its cursor and playback.
+
+    Parameters
+    ----------
+    window : MainWindow (or any object with ``rig``, ``face_changed`` and optionally ``muscle_layer``,
+        ``rig_edits``, ``statusBar()``)
+    undo_stack : QUndoStack
+    timeline : Timeline, optional (a 10 s, 30 fps one by default)
+
+    Signals
+    -------
+    time_changed(float)      the cursor moved (s, on a frame)
+    playing_changed(bool)
+    edited(object)           the timeline changed (the ``core.timeline.Edit``)
+    timeline_replaced()      a different Timeline object (new / opened project)
+    selection_changed()      key or track selection changed
+    fps_measured(float)      frames shown per second during playback
+    message(str)             a one-line notice for the status bar
+    """
+
+    time_changed = Signal(float)
+    playing_changed = Signal(bool)
+    edited = Signal(object)
+    timeline_replaced = Signal()
+    selection_changed = Signal()
+    fps_measured = Signal(float)
+    message = Signal(str)
+    auto_key_changed = Signal(bool)
+    speech_changed = Signal()
+    rig_values_changed = Signal()  # the user changed the rig (not the timeline posing it)
+
+    def __init__(self, window, undo_stack, timeline: Timeline | None = None, parent: QObject | None = None):
+        super().__init__(parent if parent is not None else window)
+        self.window = window
+        self.undo_stack = undo_stack
+        self.timeline: Timeline = timeline if timeline is not None else Timeline()
+        self.timeline.changed.connect(self._on_timeline_changed)
+        self.current_time = 0.0
+        self.selected_keys: dict[str, set[float]] = {}
+        self.selected_tracks: set[str] = set()
+        self.clipboard: tl.Clipboard | None = None
+        self.speech: list = []  # core.project.SpeechClip
+        self._auto_key = False
+        self._auto_key_paused_recorder = None
+        self._applying = 0
+        self._rig = None
+        self._rig_state: tuple | None = None
+        self._simulation = None
+        self._sim_layer = None
+        self._audio_cache: tuple | None = None
+        # playback
+        self.loop = False
+        self._speed = 1.0
+        self.playing = False
+        self._timer = QTimer(self)
+        self._timer.setTimerType(Qt.TimerType.PreciseTimer)
+        self._timer.timeout.connect(self._tick)
+        self._clock = QElapsedTimer()
+        self._origin = 0.0
+        self._shown_frame: int | None = None
+        self._frame_stamps: collections.deque = collections.deque()
+        self.achieved_fps = 0.0
+        self.frames_shown = 0
+        face_changed = getattr(window, "face_changed", None)
+        if face_changed is not None:
+            face_changed.connect(self._on_face_changed)
+        self.set_rig(getattr(window, "rig", None))
+
+    # ------------------------------------------------------------ wiring
+    @property
+    def rig(self):
+        return self._rig
+
+    def set_rig(self, rig) -> None:
+        """Follow ``rig`` (the window's, after a face change) and pose it at the cursor."""
+        if self._rig is not None:
+            with contextlib.suppress(ValueError, RuntimeError, TypeError):
+                self._rig.changed.disconnect(self._on_rig_changed)
+        self._rig = rig
+        self._rig_state = None if rig is None else rig_state(rig)
+        self._drop_simulation()
+        if rig is not None:
+            rig.changed.connect(self._on_rig_changed)
+            self.apply_time(self.current_time)
+
+    def _on_face_changed(self, _face=None) -> None:
+        self.set_rig(getattr(self.window, "rig", None))
+
+    def set_timeline(self, timeline: Timeline, *, time: float = 0.0) -> None:
+        """Replace the timeline (new / opened project): stops playback, clears selections."""
+        self.stop(rewind=False)
+        with contextlib.suppress(ValueError, RuntimeError, TypeError):
+            self.timeline.changed.disconnect(self._on_timeline_changed)
+        self._drop_simulation()
+        self.timeline = timeline
+        timeline.changed.connect(self._on_timeline_changed)
+        self.selected_keys.clear()
+        self.selected_tracks.clear()
+        self._audio_cache = None
+        self.timeline_replaced.emit()
+        self.selection_changed.emit()
+        self.seek(time)
+
+    def _rig_recorder(self):
+        """The window's UndoableRigEdits (None if it has none)."""
+        rec = getattr(self.window, "rig_edits", None)
+        if rec is not None:
+            return rec
+        try:
+            from app.undo import UndoableRigEdits
+
+            found = self.window.findChildren(UndoableRigEdits)
+        except Exception:  # noqa: BLE001 - not a QObject window (tests with stand-ins)
+            return None
+        return found[0] if found else None
+
+    @contextlib.contextmanager
+    def _not_recorded(self):
+        """Rig changes inside are the timeline's doing: no undo step, no auto-key."""
+        rec = self._rig_recorder()
+        self._applying += 1
+        if rec is not None:
+            rec.pause()
+        try:
+            yield
+        finally:
+            if rec is not None:
+                rec.resume()
+            self._applying -= 1
+
+    # ------------------------------------------------------------ muscle layer
+    def _muscle_layer(self):
+        return getattr(self.window, "muscle_layer", None)
+
+    def _drop_simulation(self) -> None:
+        if self._simulation is not None:
+            with contextlib.suppress(Exception):
+                self._simulation.close()
+        self._simulation = None
+        self._sim_layer = None
+
+    def _simulation_for(self):
+        layer = self._muscle_layer()
+        if layer is None:
+            self._drop_simulation()
+            return None
+        if layer is not self._sim_layer:
+            self._drop_simulation()
+            self._simulation = tl.MuscleSimulationCache(self.timeline, layer)
+            self._sim_layer = layer
+        return self._simulation
+
+    # ------------------------------------------------------------ posing
+    def _animatable_values(self, values: Mapping[str, float]) -> dict[str, float]:
+        rig = self._rig
+        animated = set(rig.animated_faps) if rig is not None else set()
+        out = {}
+        for k, v in values.items():
+            if k.startswith("fap:") and int(k[4:]) not in animated:
+                continue
+            if tl.is_simulated(k):
+                continue
+            out[k] = v
+        return out
+
+    def apply_time(self, t: float, keys: Iterable[str] | None = None) -> None:
+        """Pose the rig at time ``t`` from the timeline (all tracks, or the given parameter keys).
+
+        Expression / viseme tracks are always applied as a set (the strongest one wins on a rig
+        without preset mixes). One ``rig.changed`` at most.
+        """
+        rig = self._rig
+        if rig is None:
+            return
+        values = self.timeline.evaluate(t)
+        if keys is not None:
+            wanted = set(keys)
+            kinds = {k.split(":")[0] for k in wanted} & {"expression", "viseme"}
+            values = {k: v for k, v in values.items() if k in wanted or k.split(":")[0] in kinds}
+        values = self._animatable_values(values)
+        before = rig_state(rig)
+        moved = False
+        with self._not_recorded():
+            try:
+                with rig.changed.blocked():
+                    tl.apply_to_rig(rig, values)
+                    sim_keys = [k for k in self.timeline.tracks if tl.is_simulated(k)]
+                    if sim_keys and (keys is None or any(tl.is_simulated(k) for k in keys)):
+                        sim = self._simulation_for()
+                        if sim is not None:
+                            sim.seek(t)
+                            moved = True
+            except ValueError as exc:
+                self.message.emit(f"Could not pose the face at {t:.2f} s: {exc}")
+            if moved or rig_state(rig) != before:
+                rig.touch()
+        self._rig_state = rig_state(rig)
+
+    def seek(self, t: float, *, snap: bool = True) -> float:
+        """Move the cursor to ``t`` (s; snapped to the nearest frame, clamped) and pose the rig there."""
+        tl_ = self.timeline
+        t = min(max(float(t), 0.0), tl_.duration)
+        if snap:
+            t = tl_.frame_of(t) / tl_.fps
+        self.current_time = t
+        self._shown_frame = tl_.frame_of(t)
+        if self.playing:
+            self._origin, _ = t, self._clock.restart()
+        self.apply_time(t)
+        self.time_changed.emit(t)
+        return t
+
+    def step(self, frames: int) -> None:
+        """Move the cursor by whole frames."""
+        self.seek(self.current_time + frames / self.timeline.fps)
+
+    # ------------------------------------------------------------ playback
+    @property
+    def speed(self) -> float:
+        return self._speed
+
+    def set_speed(self, speed: float) -> None:
+        speed = float(speed)
+        if not (math.isfinite(speed) and 0.25 <= speed <= 4.0):
+            raise ValueError(f"playback speed must be between 0.25× and 4×, got {speed!r}")
+        if self.playing:
+            self._origin = self.current_time
+            self._clock.restart()
+        self._speed = speed
+
+    def play(self) -> None:
+        """Play from the cursor (from 0 when at the end without loop)."""
+        if self.playing or self._rig is None:
+            return
+        tl_ = self.timeline
+        if self.current_time >= tl_.duration - 0.5 / tl_.fps and not self.loop:
+            self.seek(0.0)
+        self._origin = self.current_time
+        self._shown_frame = tl_.frame_of(self.current_time)
+        self._frame_stamps.clear()
+        self.frames_shown = 0
+        self._clock.start()
+        self._timer.setInterval(max(MIN_TICK_MS, int(1000.0 / tl_.fps)))
+        self._timer.start()
+        self.playing = True
+        self.playing_changed.emit(True)
+
+    def pause(self) -> None:
+        if not self.playing:
+            return
+        self._timer.stop()
+        self.playing = False
+        self.playing_changed.emit(False)
+
+    def stop(self, *, rewind: bool = True) -> None:
+        """Pause and go back to 0."""
+        self.pause()
+        if rewind and self.current_time != 0.0:
+            self.seek(0.0)
+
+    def toggle_play(self) -> None:
+        if self.playing:
+            self.pause()
+        else:
+            self.play()
+
+    def _tick(self) -> None:
+        if not self.playing:
+            return
+        tl_ = self.timeline
+        t = self._origin + self._clock.nsecsElapsed() * 1e-9 * self._speed
+        end = (tl_.n_frames - 1) / tl_.fps
+        finished = False
+        if t > end:
+            if self.loop and end > 0:
+                t = math.fmod(t, end + 1.0 / tl_.fps)
+                self._origin = t
+                self._clock.restart()
+            else:
+                t, finished = end, True
+        frame = tl_.frame_of(t)
+        if frame != self._shown_frame:
+            self._shown_frame = frame
+            self.current_time = frame / tl_.fps
+            self.apply_time(self.current_time)
+            self.time_changed.emit(self.current_time)
+            self._count_frame()
+        if finished:
+            self.pause()
+
+    def _count_frame(self) -> None:
+        now = time.perf_counter()
+        stamps = self._frame_stamps
+        stamps.append(now)
+        self.frames_shown += 1
+        while stamps and now - stamps[0] > FPS_WINDOW_S:
+            stamps.popleft()
+        if len(stamps) >= 2 and stamps[-1] > stamps[0]:
+            self.achieved_fps = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+            self.fps_measured.emit(self.achieved_fps)
+
+    # ------------------------------------------------------------ edits
+    def _run_command(self, timeline: Timeline, edit: Edit, rig_after: tuple | None,
+                     extra: Callable[[], None] | None) -> None:
+        """Undo/redo body: apply the edit to the timeline it was made on, then the extra state."""
+        try:
+            timeline.apply_edit(edit)
+        except TimelineError as exc:  # a timeline replaced since (should not happen: the stack is cleared)
+            self.message.emit(str(exc))
+            return
+        if extra is not None:
+            extra()
+        if rig_after is not None and self._rig is not None and timeline is self.timeline:
+            with self._not_recorded():
+                apply_rig_state(self._rig, rig_after)
+            self._rig_state = rig_state(self._rig)
+
+    def push(self, make_edit: Callable[[], Edit], text: str | None = None, **command_kw) -> Edit | None:
+        """Run a ``core.timeline`` edit and put it on the undo stack; a refused edit -> ``message``."""
+        try:
+            edit = make_edit()
+        except TimelineError as exc:
+            self.message.emit(str(exc))
+            return None
+        if edit.is_empty:
+            return edit
+        self.undo_stack.push(TimelineEditCommand(self, edit, text, **command_kw))
+        return edit
+
+    def _on_timeline_changed(self, edit: Edit) -> None:
+        self._prune_selection()
+        if edit.settings_after is not None and self.current_time > self.timeline.duration:
+            self.current_time = self.timeline.duration
+        if edit.settings_after is not None:
+            self.current_time = self.timeline.frame_of(self.current_time) / self.timeline.fps
+            self.apply_time(self.current_time)
+            self.time_changed.emit(self.current_time)
+        elif edit.keys:
+            self.apply_time(self.current_time, edit.keys)
+        self.edited.emit(edit)
+
+    def _prune_selection(self) -> None:
+        tracks = self.timeline.tracks
+        changed = False
+        for key in list(self.selected_keys):
+            track = tracks.get(key)
+            keep = {t for t in self.selected_keys[key] if track is not None and track.index_at(t) is not None}
+            if keep != self.selected_keys[key]:
+                changed = True
+            if keep:
+                self.selected_keys[key] = keep
+            else:
+                del self.selected_keys[key]
+        if changed:
+            self.selection_changed.emit()
+
+    # ------------------------------------------------------------ values of the rig
+    def rig_value(self, key: str) -> float | None:
+        """The rig's (or muscle layer's) current value of a parameter; None when unknown."""
+        rig = self._rig
+        kind, _, rest = key.partition(":")
+        if kind == "fap":
+            return None if rig is None else rig.fap_value(int(rest))
+        if kind == "expression":
+            if rig is None:
+                return None
+            eid = tables.expression_id(rest)
+            return float(sum(w for i, w in rig.expressions if i == eid))
+        if kind == "viseme":
+            if rig is None:
+                return None
+            vid = int(rest)
+            return float(sum(w for i, w in rig.visemes if i == vid))
+        layer = self._muscle_layer()
+        if layer is None:
+            return None
+        forces, jaw = muscle_controls(layer)
+        if kind == "muscle":
+            return float(forces.get(tl.muscle_target(key), 0.0))
+        if key == "jaw":
+            return jaw
+        return None
+
+    def non_neutral_parameters(self) -> list[str]:
+        """Parameters away from neutral in the rig (and the muscle layer when it exposes its values)."""
+        rig = self._rig
+        out: list[str] = []
+        if rig is not None:
+            values = rig.fap_values()
+            for n in np.flatnonzero(values):
+                with contextlib.suppress(TimelineError):
+                    out.append(tl.canonical_key(f"fap:{n + 1}"))
+            names = tables.expression_names()
+            out += [f"expression:{names[i]}" for i, w in rig.expressions if i != 0 and w > 0]
+            out += [f"viseme:{i}" for i, w in rig.visemes if i != 0 and w > 0]
+        forces, jaw = muscle_controls(self._muscle_layer())
+        for (name, side), f in forces.items():
+            if f != 0:
+                out.append(f"muscle:{name}:{side}" if side else f"muscle:{name}")
+        if jaw:
+            out.append("jaw")
+        return list(dict.fromkeys(out))
+
+    def keyable_controls(self) -> list[str]:
+        """The "selected controls" Set key keys (see the module docstring)."""
+        if self.selected_tracks:
+            return sorted(self.selected_tracks, key=_sort_key)
+        keys = set(self.timeline.tracks) | set(self.non_neutral_parameters())
+        return sorted(keys, key=_sort_key)
+
+    def set_key(self, keys: Iterable[str] | None = None, t: float | None = None) -> Edit | None:
+        """Key ``keys`` (default: :meth:`keyable_controls`) at ``t`` (default: the cursor) with the rig's values."""
+        keys = self.keyable_controls() if keys is None else list(keys)
+        t = self.current_time if t is None else float(t)
+        rows = {}
+        skipped = []
+        for key in keys:
+            value = self.rig_value(key)
+            if value is None:
+                skipped.append(key)
+            else:
+                rows[key] = [(t, value, None)]
+        if not rows:
+            self.message.emit("Nothing to key: move a slider (or pick a preset), or select tracks in the timeline."
+                              if not skipped else f"Cannot read the current value of {', '.join(skipped)}.")
+            return None
+        edit = self.push(lambda: self.timeline.add_keys(rows, label="set key"),
+                         f"set key at {t:.2f} s ({len(rows)} track{'s' if len(rows) != 1 else ''})")
+        if edit is not None:
+            self.message.emit(f"Keyed {len(rows)} parameter{'s' if len(rows) != 1 else ''} at {t:.2f} s.")
+        return edit
+
+    # ------------------------------------------------------------ auto-key
+    @property
+    def auto_key(self) -> bool:
+        return self._auto_key
+
+    def set_auto_key(self, on: bool) -> None:
+        on = bool(on)
+        if on == self._auto_key:
+            return
+        self._auto_key = on
+        rec = self._rig_recorder()
+        if on and rec is not None:
+            rec.pause()
+            self._auto_key_paused_recorder = rec
+        elif not on and self._auto_key_paused_recorder is not None:
+            self._auto_key_paused_recorder.resume()
+            self._auto_key_paused_recorder = None
+        if self._rig is not None:
+            self._rig_state = rig_state(self._rig)
+        self.auto_key_changed.emit(on)
+
+    def _on_rig_changed(self) -> None:
+        rig = self._rig
+        if rig is None or self._applying:
+            return
+        new = rig_state(rig)
+        old, self._rig_state = self._rig_state, new
+        self.rig_values_changed.emit()
+        if not self._auto_key or self.playing or old is None or new == old:
+            return
+        t = self.current_time
+        rows = {}
+        for n, (a, b) in enumerate(zip(old[0], new[0])):
+            if a != b:
+                rows[f"fap:{n + 1}"] = [(t, b, None)]
+        names = tables.expression_names()
+        for what, i_old, i_new, name_of in (("expression", old[1], new[1], lambda i: names[i]),
+                                            ("viseme", old[2], new[2], str)):
+            if i_old == i_new:
+                continue
+            weights = {i: 0.0 for i, _ in i_old if i != 0}
+            weights.update({i: w for i, w in i_new if i != 0})
+            for i, w in weights.items():
+                rows[f"{what}:{name_of(i)}"] = [(t, w, None)]
+        if not rows:
+            return
+        try:
+            edit = self.timeline.add_keys(rows, label="auto-key")
+        except TimelineError as exc:
+            self.message.emit(f"Auto-key: {exc}")
+            return
+        what = _describe_change(rows)
+        self.undo_stack.push(TimelineEditCommand(self, edit, f"{what} (auto-key)", rig_before=old, rig_after=new,
+                                                 merge_key=("auto-key", id(self.timeline), frozenset(rows))))
+
+    # ------------------------------------------------------------ key selection operations
+    def selection(self) -> dict[str, tuple[float, ...]]:
+        return {k: tuple(sorted(v)) for k, v in self.selected_keys.items() if v}
+
+    def set_selection(self, selection: Mapping[str, Iterable[float]]) -> None:
+        new = {k: set(map(float, v)) for k, v in selection.items() if v}
+        if new != self.selected_keys:
+            self.selected_keys = new
+            self.selection_changed.emit()
+
+    def select_all_keys(self) -> None:
+        self.set_selection({k: tr.times.tolist() for k, tr in self.timeline.tracks.items()})
+
+    def set_selected_tracks(self, keys: Iterable[str]) -> None:
+        keys = set(keys)
+        if keys != self.selected_tracks:
+            self.selected_tracks = keys
+            self.selection_changed.emit()
+
+    def delete_selected(self) -> Edit | None:
+        sel = self.selection()
+        if not sel:
+            self.message.emit("No keys selected: click keys in the timeline (Shift adds, drag a box for many).")
+            return None
+        n = sum(len(v) for v in sel.values())
+        edit = self.push(lambda: self.timeline.delete_keys(sel), f"delete {n} key{'s' if n != 1 else ''}")
+        if edit is not None:
+            self.set_selection({})
+        return edit
+
+    def copy_selected(self) -> bool:
+        sel = self.selection()
+        if not sel:
+            self.message.emit("No keys selected to copy.")
+            return False
+        self.clipboard = self.timeline.copy_keys(sel)
+        n = sum(len(v) for v in sel.values())
+        self.message.emit(f"Copied {n} key{'s' if n != 1 else ''}.")
+        return True
+
+    def paste(self, at: float | None = None) -> Edit | None:
+        """Paste the copied keys with the earliest at ``at`` (default: the cursor); the pasted keys get selected."""
+        clip = self.clipboard
+        if clip is None or not clip.keys:
+            self.message.emit("Nothing to paste: copy keys first (Ctrl+C).")
+            return None
+        at = self.current_time if at is None else float(at)
+        edit = self.push(lambda: self.timeline.paste_keys(clip, at), "paste keys")
+        if edit is not None:
+            self.set_selection({k: [at + key.time for key in keys] for k, keys in clip.keys.items()})
+        return edit
+
+    def move_selected(self, dt: float) -> Edit | None:
+        """Shift the selected keys by ``dt`` s (keys keep their values); the selection follows."""
+        sel = self.selection()
+        if not sel or dt == 0:
+            return None
+        edit = self.push(lambda: self.timeline.move_keys(sel, dt), "move keys")
+        if edit is not None:
+            self.set_selection({k: [t + dt for t in v] for k, v in sel.items()})
+        return edit
+
+    def set_interpolation(self, interpolation: str, selection: Mapping | None = None) -> Edit | None:
+        sel = self.selection() if selection is None else selection
+        if not sel:
+            self.message.emit("No keys selected.")
+            return None
+        return self.push(lambda: self.timeline.set_interpolation(sel, interpolation),
+                         f"interpolation {interpolation}")
+
+    # ------------------------------------------------------------ settings
+    def set_settings(self, duration: float | None = None, fps: int | None = None) -> Edit | None:
+        text = "timeline duration" if fps is None else "frame rate" if duration is None else "timeline settings"
+        return self.push(lambda: self.timeline.set_settings(duration, fps), text)
+
+    # ------------------------------------------------------------ lip-sync
+    def add_lipsync(self, result, text: str, lang: str, *, rate_wpm: int = 175) -> Edit | None:
+        """Add a ``core.lipsync.LipSyncResult``'s tracks as one undoable edit (with its speech clip).
+
+        Keys of existing tracks inside the clip's time span are replaced, keys outside it are kept;
+        the duration grows to fit the clip (rounded up to a whole second).
+        """
+        from core.project import SpeechClip
+
+        tl_ = self.timeline
+        tracks = dict(result.tracks)
+        if not tracks:
+            self.message.emit("The lip-sync produced no tracks (empty text?).")
+            return None
+        lo = min(float(tr.times[0]) for tr in tracks.values() if len(tr))
+        hi = max(max(float(tr.times[-1]) for tr in tracks.values() if len(tr)), float(result.end_s))
+        after: dict[str, Track | None] = {}
+        for key, new in tracks.items():
+            old = tl_.tracks.get(key)
+            if old is not None and len(old):
+                keep = (old.times < lo - tl.TIME_TOLERANCE) | (old.times > hi + tl.TIME_TOLERANCE)
+                merged = new.with_keys(np.concatenate([old.times[keep], new.times]),
+                                       np.concatenate([old.values[keep], new.values]),
+                                       np.concatenate([old.codes[keep], new.codes]))
+                after[key] = merged
+            else:
+                after[key] = new
+        before = {k: tl_.tracks.get(k) for k in after}
+        settings_before = settings_after = None
+        if hi > tl_.duration + tl.TIME_TOLERANCE:
+            settings_before = (tl_.duration, tl_.fps)
+            settings_after = (float(math.ceil(hi + 0.5)), tl_.fps)
+        edit = Edit("lip-sync", before, after, settings_before, settings_after)
+        clip = SpeechClip(text=text, lang=lang, start_s=float(result.start_s), rate_wpm=int(rate_wpm))
+        speech_before = list(self.speech)
+        speech_after = [*self.speech, clip]
+
+        def set_speech(value):
+            return lambda: self._set_speech(value)
+
+        try:
+            tl_.apply_edit(edit)
+        except TimelineError as exc:
+            self.message.emit(str(exc))
+            return None
+        self._set_speech(speech_after)
+        self.undo_stack.push(TimelineEditCommand(
+            self, edit, f"lip-sync “{_shorten(text)}”", extra_undo=set_speech(speech_before),
+            extra_redo=set_speech(speech_after)))
+        return edit
+
+    def _set_speech(self, clips: list) -> None:
+        self.speech = list(clips)
+        self._audio_cache = None
+        self.speech_changed.emit()
+
+    def audio_path(self) -> Path | None:
+        """A WAV with every speech clip at its start time, time 0 = timeline 0 (None without speech).
+
+        Regenerated from the clips' text (core.lipsync caches the syntheses), written once per clip set.
+        """
+        if not self.speech:
+            return None
+        signature = tuple((c.text, c.lang, c.start_s, c.rate_wpm) for c in self.speech)
+        if self._audio_cache is not None and self._audio_cache[0] == signature and self._audio_cache[1].is_file():
+            return self._audio_cache[1]
+        import wave
+
+        from core import lipsync
+
+        pieces = []
+        rate = None
+        for clip in self.speech:
+            path, sr = lipsync.speech_audio(clip.text, clip.lang, rate_wpm=clip.rate_wpm)
+            with wave.open(str(path), "rb") as w:
+                samples = np.frombuffer(w.readframes(w.getnframes()), "<i2")
+            rate = rate or sr
+            if sr != rate:
+                continue  # eSpeak uses one rate; a different one would need resampling
+            pieces.append((int(round(clip.start_s * rate)), samples))
+        n = max(start + len(s) for start, s in pieces)
+        mix = np.zeros(n, np.int32)
+        for start, s in pieces:
+            mix[start:start + len(s)] += s
+        mix = np.clip(mix, -32768, 32767).astype("<i2")
+        digest = hashlib.sha256(repr(signature).encode()).hexdigest()[:16]
+        target = lipsync.write_wav(lipsync.speech_cache_dir() / f"timeline-{digest}.wav", mix, rate)
+        self._audio_cache = (signature, target)
+        return target
+
+    # ------------------------------------------------------------ export
+    def frame_vertices(self, t: float) -> np.ndarray:
+        """(n, 3) mm: the face at time ``t`` (poses the rig; call :meth:`seek` afterwards to go back)."""
+        self.apply_time(float(t))
+        return np.array(self._rig.vertices(), copy=True)
+
+    def export_video(self, *, still: bool = False):
+        """File ▸ Export video… for the timeline (``app.export_dialog.run_export_dialog``)."""
+        from app.export_dialog import run_export_dialog
+
+        if self._rig is None:
+            self.message.emit("This face has no rig: nothing to export.")
+            return None
+        self.pause()
+        try:
+            audio = self.audio_path()
+        except Exception as exc:  # noqa: BLE001 - export without sound rather than not at all
+            traceback.print_exc()
+            self.message.emit(f"The speech audio could not be prepared ({exc}); exporting without sound.")
+            audio = None
+        job = run_export_dialog(self.window, self.window.face, self.frame_vertices, self.timeline.duration,
+                                self.timeline.fps, audio, still=still, current_time_s=self.current_time)
+        if job is None:
+            return None
+        back = self.current_time
+        for name in ("finished", "failed", "cancelled"):
+            sig = getattr(job, name, None)
+            if sig is not None:
+                sig.connect(lambda *_a: self.seek(back))
+        return job
+
+
+def _sort_key(key: str):
+    kind, _, rest = key.partition(":")
+    order = {"fap": 0, "expression": 1, "viseme": 2, "muscle": 3, "jaw": 4}.get(kind, 5)
+    num = int(rest) if rest.isdigit() else 0
+    return order, num, rest
+
+
+def _shorten(text: str, n: int = 24) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= n else text[: n - 1] + "…"
+
+
+__all__ = ["TimelineController", "TimelineEditCommand", "SPEEDS", "parameter_label", "parameter_range",
+           "muscle_keys", "rig_state", "apply_rig_state"]
