@@ -39,7 +39,7 @@ from scipy.sparse.csgraph import dijkstra
 from ..face import Face
 from ..surface_query import TriangleSet
 from . import tables
-from .template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template
+from .template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
 N_FAPS = tables.N_FAPS
 LID_PAIRS = ((19, 21), (20, 22))  # (upper, lower) per eye
@@ -217,7 +217,7 @@ class FapDeformer:
         for idx in face.parts.values():
             in_part[idx] = True
         skin = np.nonzero(~in_part)[0]
-        side = self._mouth_side(skin)
+        side = mouth_side(face, skin)
         base_tri_of = self._dense_triangle_base_points()
         upper_pts = {t.index(p) for p in t.upper_lip_points}
         lower_pts = {t.index(p) for p in t.lower_lip_points}
@@ -252,31 +252,6 @@ class FapDeformer:
         support = self.dense.base_coords > 1e-12
         tri_support = support[self.dense.triangles].any(axis=1)  # (M, 80)
         return [set(np.nonzero(row)[0]) for row in tri_support]
-
-    def _mouth_side(self, skin: np.ndarray) -> np.ndarray:
-        """(len(skin),) +1 upper lip side, -1 lower lip side, 0 elsewhere (between the mouth corners)."""
-        face = self.face
-        up = [face.landmark_position(p) for p in ("2.5", "2.7", "2.2", "2.6", "2.4")]
-        lo = [face.landmark_position(p) for p in ("2.5", "2.9", "2.3", "2.8", "2.4")]
-        line = (np.array(up) + np.array(lo)) / 2
-        order = np.argsort(line[:, 0])
-        x, y = face.vertices[skin, 0], face.vertices[skin, 1]
-        corner_x = max(abs(face.landmark_position("8.3")[0]), abs(face.landmark_position("8.4")[0]))
-        y_line = np.interp(x, line[order, 0], line[order, 1])
-        near = (np.abs(x) < corner_x + 2.0) & (np.abs(y - y_line) < 30.0)
-        side = np.where(y > y_line, 1, -1)
-        # Vertices on the mouth opening's rim (a seam of duplicated vertices on a closed mouth):
-        # the side their own triangles lie on.
-        from ..subdivision import boundary_edges
-
-        rim = np.zeros(face.n_vertices, bool)
-        rim[boundary_edges(face.triangles).ravel()] = True
-        on = near & rim[skin] & (np.abs(y - y_line) < 3.0)
-        if on.any():
-            adj = face.adjacency[skin[on]]
-            mean_y = (adj @ face.vertices[:, 1]) / np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1)
-            side[on] = np.where(mean_y > y[on], 1, -1)
-        return np.where(near, side, 0)
 
     def _lower_teeth_rows(self) -> scipy.sparse.csr_matrix:
         """The lower teeth follow the jaw FAPs (3 open_jaw, 14 thrust_jaw, 15 shift_jaw) rigidly."""

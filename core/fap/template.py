@@ -126,6 +126,37 @@ def base_positions(template: BaseTemplate, face: Face) -> np.ndarray:
     return np.array([pos[p] for p in template.points])
 
 
+def mouth_side(face: Face, skin: np.ndarray) -> np.ndarray:
+    """(len(skin),) +1 upper-lip side, -1 lower-lip side, 0 elsewhere (between the mouth corners).
+
+    Skin vertices on the mouth opening's rim (a seam of duplicated vertices on a closed mouth) take
+    the side their own triangles lie on. All 0 when the face lacks the lip feature points.
+    Deformers bind each side only to its own lip, so the jaw never drags the upper lip.
+    """
+    from ..subdivision import boundary_edges
+
+    need = ("2.5", "2.7", "2.2", "2.6", "2.4", "2.9", "2.3", "2.8", "8.3", "8.4")
+    if any(p not in face.landmark_names for p in need):
+        return np.zeros(len(skin), np.int64)
+    up = np.array([face.landmark_position(p) for p in ("2.5", "2.7", "2.2", "2.6", "2.4")])
+    lo = np.array([face.landmark_position(p) for p in ("2.5", "2.9", "2.3", "2.8", "2.4")])
+    line = (up + lo) / 2
+    order = np.argsort(line[:, 0])
+    x, y = face.vertices[skin, 0], face.vertices[skin, 1]
+    corner_x = max(abs(face.landmark_position("8.3")[0]), abs(face.landmark_position("8.4")[0]))
+    y_line = np.interp(x, line[order, 0], line[order, 1])
+    near = (np.abs(x) < corner_x + 2.0) & (np.abs(y - y_line) < 30.0)
+    side = np.where(y > y_line, 1, -1)
+    rim = np.zeros(face.n_vertices, bool)
+    rim[boundary_edges(face.triangles).ravel()] = True
+    on = near & rim[skin] & (np.abs(y - y_line) < 3.0)
+    if on.any():
+        adj = face.adjacency[skin[on]]
+        mean_y = (adj @ face.vertices[:, 1]) / np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1)
+        side[on] = np.where(mean_y > y[on], 1, -1)
+    return np.where(near, side, 0)
+
+
 @dataclass
 class DenseTemplate:
     """The template densified on one face.

@@ -69,7 +69,7 @@ import resources
 
 from ..face import Face, vertex_normals
 from ..fap import tables
-from ..fap.template import DenseTemplate, densify
+from ..fap.template import DenseTemplate, densify, mouth_side
 from ..surface_query import TriangleSet
 
 OUTSIDE_FADE_MM = 6.0  # face skin beyond the template outline follows it, fading over this distance
@@ -414,7 +414,7 @@ class TissueModel:
         for idx in face.parts.values():
             in_part[idx] = True
         skin = np.nonzero(~in_part)[0]
-        side = _mouth_side(face, skin)
+        side = mouth_side(face, skin)
         lip_t = self.lip[self.triangles]
         tri_upper = (lip_t > 0).any(axis=1)
         tri_lower = (lip_t < 0).any(axis=1)
@@ -461,32 +461,6 @@ def _rotations(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
 def rotation(axis, angle: float) -> np.ndarray:
     """(3, 3) rotation by ``angle`` rad about unit ``axis``."""
     return _rotations(np.asarray(axis, float), np.array([float(angle)]))[0]
-
-
-def _mouth_side(face: Face, skin: np.ndarray) -> np.ndarray:
-    """(len(skin),) +1 upper-lip side, -1 lower-lip side, 0 elsewhere (as ``FapDeformer._mouth_side``)."""
-    from ..subdivision import boundary_edges
-
-    need = ("2.5", "2.7", "2.2", "2.6", "2.4", "2.9", "2.3", "2.8", "8.3", "8.4")
-    if any(p not in face.landmark_names for p in need):
-        return np.zeros(len(skin), np.int64)
-    up = np.array([face.landmark_position(p) for p in ("2.5", "2.7", "2.2", "2.6", "2.4")])
-    lo = np.array([face.landmark_position(p) for p in ("2.5", "2.9", "2.3", "2.8", "2.4")])
-    line = (up + lo) / 2
-    order = np.argsort(line[:, 0])
-    x, y = face.vertices[skin, 0], face.vertices[skin, 1]
-    corner_x = max(abs(face.landmark_position("8.3")[0]), abs(face.landmark_position("8.4")[0]))
-    y_line = np.interp(x, line[order, 0], line[order, 1])
-    near = (np.abs(x) < corner_x + 2.0) & (np.abs(y - y_line) < 30.0)
-    side = np.where(y > y_line, 1, -1)
-    rim = np.zeros(face.n_vertices, bool)
-    rim[boundary_edges(face.triangles).ravel()] = True
-    on = near & rim[skin] & (np.abs(y - y_line) < 3.0)
-    if on.any():
-        adj = face.adjacency[skin[on]]
-        mean_y = (adj @ face.vertices[:, 1]) / np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1)
-        side[on] = np.where(mean_y > y[on], 1, -1)
-    return np.where(near, side, 0)
 
 
 def dense_template(face: Face, level: int = 3) -> DenseTemplate:

@@ -96,3 +96,19 @@ def window(qtbot, synthetic_face, settings, error_boxes):
     qtbot.wait(50)
     yield win
     win.close()
+
+
+# The default face and its FAP deformer (~4 s) for the modules that animate it; one per module,
+# since tests may edit the face's landmarks in place.
+@pytest.fixture(scope="module")
+def default_face():
+    from core.default_face import load_default_face
+
+    return load_default_face()
+
+
+@pytest.fixture(scope="module")
+def deformer(default_face):
+    from core.fap.fat import FapDeformer
+
+    return FapDeformer(default_face)

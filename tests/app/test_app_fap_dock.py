@@ -19,20 +19,6 @@ TICK_TIMEOUT_MS = 5000
 
 
 # ------------------------------------------------------------------ fixtures
-@pytest.fixture(scope="module")
-def default_face():
-    from core.default_face import load_default_face
-
-    return load_default_face()
-
-
-@pytest.fixture(scope="module")
-def deformer(default_face):
-    from core.fap.fat import FapDeformer
-
-    return FapDeformer(default_face)
-
-
 @pytest.fixture
 def rig(default_face, deformer):
     from core.rig import FaceRig

@@ -33,20 +33,6 @@ def _process_until(predicate, timeout_s: float) -> bool:
 
 # ------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
-def default_face():
-    from core.default_face import load_default_face
-
-    return load_default_face()
-
-
-@pytest.fixture(scope="module")
-def deformer(default_face):
-    from core.fap.fat import FapDeformer
-
-    return FapDeformer(default_face)
-
-
-@pytest.fixture(scope="module")
 def built(qapp, default_face, deformer, tmp_path_factory):
     """(window, what the dock showed right after attach) with the muscle layer built."""
     from app.main_window import MainWindow

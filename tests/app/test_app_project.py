@@ -22,20 +22,6 @@ from core import project as cp
 
 # ------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
-def default_face():
-    from core.default_face import load_default_face
-
-    return load_default_face()
-
-
-@pytest.fixture(scope="module")
-def deformer(default_face):
-    from core.fap.fat import FapDeformer
-
-    return FapDeformer(default_face)
-
-
-@pytest.fixture(scope="module")
 def shared(qapp, default_face, deformer, tmp_path_factory):
     from PySide6.QtCore import QSettings
 

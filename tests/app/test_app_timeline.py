@@ -20,20 +20,6 @@ TICK_TIMEOUT_MS = 5000
 
 # ------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
-def default_face():
-    from core.default_face import load_default_face
-
-    return load_default_face()
-
-
-@pytest.fixture(scope="module")
-def deformer(default_face):
-    from core.fap.fat import FapDeformer
-
-    return FapDeformer(default_face)
-
-
-@pytest.fixture(scope="module")
 def shared(qapp, default_face, deformer, tmp_path_factory):
     """One window with the timeline for the whole module (building the default face's window takes
     seconds); every test starts from :func:`reset_timeline_window`."""
