@@ -864,6 +864,10 @@ class MainWindow(QMainWindow):
         from app.timeline_dock import attach_timeline
 
         attach_timeline(self)  # sets self.timeline; reuses the undo stack and Edit menu
+        # The timeline supersedes the simple .fap player (View ▸ FAP player brings it back) and
+        # starts tall enough to show a few tracks.
+        self.fap_player_dock.hide()
+        self.resizeDocks([self.timeline.dock], [260], Qt.Orientation.Vertical)
         self.landmark_dock.detect_requested.connect(self.detect_landmarks)
         self.landmark_dock.build_requested.connect(self.build_correspondence)
 
