@@ -799,6 +799,45 @@ class TimelineController(QObject):
         return self.push(lambda: self.timeline.set_settings(duration, fps), text)
 
     # ------------------------------------------------------------ lip-sync
+    def import_animation(self, path) -> Edit | None:
+        """Add a .fap or thesis B DPC file's animation as FAP (and preset) tracks from the cursor, one
+        undoable edit (``core.animation_import``; a DPC file plays at the timeline's fps). Errors and
+        notes go to ``message``."""
+        from pathlib import Path
+
+        from core.animation_import import tracks_from_dpc, tracks_from_fap
+        from core.dpc_file import read_dpc
+        from core.fap_file import read_fap
+
+        path = Path(path)
+        start = float(self.current_time)
+        try:
+            if path.suffix.lower() == ".fap":
+                tracks, notes = tracks_from_fap(read_fap(path), start_s=start)
+            else:
+                if self._rig is None:
+                    self.message.emit("This face has no rig: a DPC file needs its FAP units.")
+                    return None
+                tracks, notes = tracks_from_dpc(read_dpc(path), self._rig.fapu, fps=self.timeline.fps,
+                                                start_s=start)
+        except (ValueError, OSError) as exc:
+            self.message.emit(str(exc))
+            return None
+        if not tracks:
+            self.message.emit(f"'{path.name}' holds nothing Mimica can animate. " + " ".join(notes))
+            return None
+        tl_ = self.timeline
+        end = max(float(tr.times[-1]) for tr in tracks.values())
+        settings = None
+        if end > tl_.duration + tl.TIME_TOLERANCE:
+            settings = ((tl_.duration, tl_.fps), (float(math.ceil(end + 0.5)), tl_.fps))
+        edit = Edit(f"import {path.name}", {k: tl_.tracks.get(k) for k in tracks}, dict(tracks),
+                    settings[0] if settings else None, settings[1] if settings else None)
+        done = self.push(lambda: tl_.apply_edit(edit), f"import {path.name}")
+        if done is not None:
+            self.message.emit(f"Imported {len(tracks)} tracks from '{path.name}'. " + " ".join(notes))
+        return done
+
     def add_lipsync(self, result, text: str, lang: str, *, rate_wpm: int = 175) -> Edit | None:
         """Add a ``core.lipsync.LipSyncResult``'s tracks as one undoable edit (with its speech clip).
 

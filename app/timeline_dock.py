@@ -1226,12 +1226,14 @@ def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, auto
                               "Make viseme (and blink) tracks from typed text, spoken by eSpeak NG")
     tools.addAction(acts["lipsync"])
     file_menu = _menu(window, "&File")
+    acts["import_animation"] = _action(window, "&Import animation (.fap, .dpc)…", lambda: _import_dialog(c), None,
+                                       "Add a .fap or DPC control-point animation as tracks at the cursor")
     acts["export_video"] = _action(window, "Export &video…", c.export_video, "Ctrl+E",
                                    "Render the timeline to MP4 (with speech), GIF, AVI or PNG images")
     acts["export_still"] = _action(window, "Export s&till…", lambda: c.export_video(still=True), None,
                                    "Render the face at the timeline's current time to PNG or JPEG")
     anchor = getattr(window, "screenshot_action", None)
-    for name in ("export_video", "export_still"):
+    for name in ("import_animation", "export_video", "export_still"):
         if anchor is not None and anchor in file_menu.actions():
             file_menu.insertAction(anchor, acts[name])
         else:
@@ -1246,6 +1248,15 @@ def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, auto
     if check_recovery:
         project.check_startup_recovery_when_ready()
     return controller
+
+
+def _import_dialog(controller: TimelineController) -> None:
+    from PySide6.QtWidgets import QFileDialog
+
+    path, _ = QFileDialog.getOpenFileName(controller.window, "Import animation", "",
+                                          "Animations (*.fap *.dpc *.txt);;All files (*)")
+    if path:
+        controller.import_animation(path)
 
 
 def open_lipsync_dialog(controller: TimelineController):

@@ -519,3 +519,22 @@ def test_keyed_animation_exports_to_mp4_with_the_frames_it_plays(qtbot, win, c, 
     assert len(frames) == 10
     # the mouth opens over the second: the last frame differs from the first (and the first is not blank)
     assert frames[0].std() > 10 and np.abs(frames[-1] - frames[0]).mean() > 0.5
+
+
+def test_import_fap_file_adds_tracks_at_the_cursor_as_one_undo_step(win, c, tmp_path):
+    path = tmp_path / "jaw.fap"
+    lines = ["2.1 jaw 10 3"]
+    for k in range(3):
+        lines += [" ".join("1" if f == 3 else "0" for f in range(1, 69)), f"{k} {300 * k}"]
+    path.write_text("\n".join(lines) + "\n")
+    c.seek(2.0)
+    assert c.import_animation(path) is not None
+    track = c.timeline.track("fap:3")
+    assert track.times.tolist() == pytest.approx([2.0, 2.1, 2.2]) and track.values.tolist() == [0, 300, 600]
+    win.undo_stack.undo()
+    assert "fap:3" not in c.timeline.tracks
+    messages = []
+    c.message.connect(messages.append)
+    bad = tmp_path / "bad.fap"
+    bad.write_text("2.1 x 25 1\nnot a mask\n")
+    assert c.import_animation(bad) is None and messages and "line" in messages[-1]
