@@ -63,7 +63,10 @@ from pathlib import Path
 
 import numpy as np
 
+
 from core.mesh_io import write_atomic, write_reporting_errors
+
+from .text_files import read_text_file
 
 __all__ = [
     "DpcFileError", "DpcSequence", "ControlPoint", "control_points", "parse_dpc", "read_dpc", "format_dpc",
@@ -72,7 +75,6 @@ __all__ = [
 
 _TABLE = "dpc/control_points.csv"
 _MAGIC = "mimica-dpc"
-_BINARY = re.compile(rb"[\x00-\x08\x0e-\x1f]")
 _NAME = re.compile(r"^[^\s#]+$")
 
 
@@ -258,32 +260,9 @@ def read_dpc(path, *, names=None, n_points: int | None = None, fps: float | None
         Missing, unreadable or binary file, or any error of :func:`parse_dpc`.
     """
     path = Path(path)
-    if not path.exists():
-        raise DpcFileError(f"The DPC file '{path}' does not exist. Check the name and folder.")
-    if path.is_dir():
-        raise DpcFileError(f"'{path}' is a folder, not a DPC file. Choose a .dpc file inside it.")
-    try:
-        data = path.read_bytes()
-    except PermissionError:
-        raise DpcFileError(f"Mimica is not allowed to read '{path}'. Check the file's permissions.") from None
-    except OSError as exc:
-        raise DpcFileError(f"'{path.name}' could not be read: {exc.strerror or exc}.") from None
-    notes = []
-    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
-        try:
-            text = data.decode("utf-16")
-        except UnicodeDecodeError:
-            raise DpcFileError(f"'{path.name}' starts like UTF-16 text but is not valid UTF-16. "
-                               "Save it again as UTF-8 text in a text editor.") from None
-        notes.append("The file is UTF-16 text; it was read, but other programs may need UTF-8 or ASCII.")
-    elif _BINARY.search(data):
-        raise DpcFileError(f"'{path.name}' is not a text file (it contains binary data). A DPC file is text: "
-                           "a frame count, then one line 'dx dy dz' per control point and frame.")
-    else:
-        try:
-            text = data.decode("utf-8-sig")
-        except UnicodeDecodeError:
-            text = data.decode("latin-1")
+    text, notes = read_text_file(path, "DPC", DpcFileError,
+                                 "A DPC file is text: a frame count, then one line 'dx dy dz' per control point "
+                                 "and frame.")
     seq = parse_dpc(text, source=path.name, names=names, n_points=n_points, fps=fps)
     seq.notes[:0] = notes
     return seq

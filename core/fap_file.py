@@ -34,7 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
+
 from core.mesh_io import write_atomic, write_reporting_errors
+
+from .text_files import read_text_file
 
 __all__ = [
     "N_FAPS", "VISEME_FIELDS", "EXPRESSION_FIELDS", "FapFileError", "FapSequence",
@@ -52,7 +55,6 @@ EXPRESSION_FIELDS = (
     ("expression_intensity2", 0, 63), ("init_face", 0, 1), ("expression_def", 0, 1),
 )
 _HEADER = "'<version> <name> <fps> <num_frames>'"
-_BINARY = re.compile(rb"[\x00-\x08\x0e-\x1f]")
 
 
 class FapFileError(ValueError):
@@ -208,37 +210,10 @@ def read_fap(path) -> FapSequence:
         Missing, unreadable or binary file, or any error of :func:`parse_fap`.
     """
     path = Path(path)
-    if not path.exists():
-        raise FapFileError(f"The FAP file '{path}' does not exist. Check the name and folder.")
-    if path.is_dir():
-        raise FapFileError(f"'{path}' is a folder, not a .fap file. Choose a .fap file inside it.")
-    try:
-        data = path.read_bytes()
-    except PermissionError:
-        raise FapFileError(f"Mimica is not allowed to read '{path}'. Check the file's permissions.") from None
-    except OSError as exc:
-        raise FapFileError(f"'{path.name}' could not be read: {exc.strerror or exc}.") from None
-    notes = []
-    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
-        try:
-            text = data.decode("utf-16")
-        except UnicodeDecodeError:
-            raise FapFileError(
-                f"'{path.name}' starts like UTF-16 text but is not valid UTF-16. "
-                "Save it again as UTF-8 text in a text editor."
-            ) from None
-        notes.append("The file is UTF-16 text; it was read, but other players may need UTF-8 or ASCII.")
-    elif _BINARY.search(data):
-        raise FapFileError(
-            f"'{path.name}' is not a text file (it contains binary data). Mimica reads the textual .fap format "
-            f"(a header line {_HEADER}, then a mask line and a value line per frame); a binary MPEG-4 FBA "
-            "stream must be converted to a text .fap file first."
-        )
-    else:
-        try:
-            text = data.decode("utf-8-sig")
-        except UnicodeDecodeError:
-            text = data.decode("latin-1")
+    text, notes = read_text_file(
+        path, "FAP", FapFileError,
+        f"Mimica reads the textual .fap format (a header line {_HEADER}, then a mask line and a value line "
+        "per frame); a binary MPEG-4 FBA stream must be converted to a text .fap file first.")
     seq = parse_fap(text, source=path.name)
     seq.notes[:0] = notes
     return seq
