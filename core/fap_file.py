@@ -34,7 +34,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 from core.mesh_io import write_atomic, write_reporting_errors
 
 from .text_files import read_text_file
