@@ -28,7 +28,6 @@ FAP 2 as 6) without comment lines, because Greta's reader does not skip them.
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
