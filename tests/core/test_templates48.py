@@ -22,14 +22,10 @@ def face():
 
 @pytest.fixture(scope="module")
 def scan(face):
-    """A re-meshed, partial copy of the default face (no parts, different triangles): every other
-    grid row of vertices dropped is too crude, so use the virtual scanner when it exists."""
-    try:
-        from core.registration.virtual_scanner import scan_face
+    """A re-meshed, partial copy of the default face (no parts, different triangles): a virtual scan."""
+    from core.registration.virtual_scanner import scan_face
 
-        return scan_face(face, n_target=20_000, rng=np.random.default_rng(1)).face
-    except NotImplementedError:  # pragma: no cover - scanner not available yet
-        pytest.skip("virtual scanner not implemented")
+    return scan_face(face, n_target=20_000, rng=np.random.default_rng(1)).face
 
 
 def test_a48_topology_is_the_thesis_annulus():
