@@ -33,6 +33,8 @@ import traceback
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from PySide6.QtCore import QObject, QRunnable, QSettings, Qt, QThreadPool, QTimer, Signal, Slot
 from PySide6.QtGui import QAction, QActionGroup, QKeySequence
 from PySide6.QtWidgets import (
@@ -522,6 +524,14 @@ class MainWindow(QMainWindow):
             "Rebuild animation from landmarks", self.rebuild_animation,
             tip="Rebuild the FAP and muscle rigs from the current (corrected) landmarks")
         self.tools_menu.addAction(self.rebuild_animation_action)
+        self.scale_face_action = self._action(
+            "&Scale face…", self.scale_face_dialog,
+            tip="Scale the face (e.g. when its file's units were guessed wrong); the rig is rebuilt")
+        self.load_texture_action = self._action(
+            "Load &texture image…", self.load_texture_dialog,
+            tip="Map an image onto the face through its texture coordinates (e.g. a scan's separate JPEG)")
+        self.tools_menu.addAction(self.scale_face_action)
+        self.tools_menu.addAction(self.load_texture_action)
 
         help_menu = bar.addMenu("&Help")
         help_menu.addAction(self.about_action)
@@ -943,6 +953,59 @@ class MainWindow(QMainWindow):
 
         self._fallback_to_default = False
         self._start_load("", loader, "Building the canonical face from the landmarks…")
+
+    def replace_face(self, face, message: str) -> None:
+        """Show an edited copy of the current face; its rig is rebuilt in the background."""
+        self._fallback_to_default = False
+        self._start_load(self.face_path or "", lambda progress: face, message)
+
+    def scale_face(self, factor: float) -> None:
+        """Scale the current face by ``factor`` (ValueError with a message for a bad factor)."""
+        if self.face is None:
+            return
+        face = self.face.scaled(factor)
+        face.metadata.notes.append(f"Scaled by {factor:g} in Mimica.")
+        self.replace_face(face, f"Scaling the face by {factor:g}…")
+
+    def scale_face_dialog(self) -> None:
+        from PySide6.QtWidgets import QInputDialog
+
+        if self.face is None:
+            return
+        width = float(self.face.bounds[1, 0] - self.face.bounds[0, 0])
+        factor, ok = QInputDialog.getDouble(
+            self, "Scale face",
+            f"The face is {width:.0f} mm wide (an adult face is about 140 mm across the cheeks).\n"
+            "Scale factor (10 turns centimetres into millimetres):", 1.0, 0.001, 1000.0, 4)
+        if ok and factor != 1.0:
+            try:
+                self.scale_face(factor)
+            except ValueError as exc:
+                self.show_error("Cannot scale the face", str(exc))
+
+    def load_texture(self, path) -> None:
+        """Map the image at ``path`` onto the current face (errors in a message box)."""
+        from PIL import Image, UnidentifiedImageError
+
+        if self.face is None:
+            return
+        try:
+            with Image.open(path) as image:
+                texture = np.asarray(image.convert("RGB"))
+            face = self.face.with_texture(texture)
+        except (OSError, UnidentifiedImageError) as exc:
+            self.show_error("Cannot load the texture", f"'{Path(path).name}' is not an image Mimica can read: {exc}")
+            return
+        except ValueError as exc:
+            self.show_error("Cannot load the texture", str(exc))
+            return
+        self.replace_face(face, f"Applying the texture {Path(path).name}…")
+
+    def load_texture_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Load texture image", "",
+                                              "Images (*.png *.jpg *.jpeg *.bmp *.tif *.tiff);;All files (*)")
+        if path:
+            self.load_texture(path)
 
     def rebuild_animation(self) -> None:
         """Rebuild the animation rig (FAPs, muscles) from the current, corrected landmarks."""

@@ -402,6 +402,22 @@ class Face:
             _topology=self._topology,
         )
 
+    def with_texture(self, texture) -> "Face":
+        """The same face with another (H, W, 3) uint8 texture image; needs texture coordinates."""
+        if self._uv is None:
+            raise ValueError("this face has no texture coordinates (uv), so an image cannot be mapped onto it")
+        return Face(
+            self._vertices, self._triangles, uv=self._uv, texture=texture, vertex_colors=self._vertex_colors,
+            landmarks=self._landmarks, metadata=self.metadata, parts=self._parts, _topology=self._topology,
+        )
+
+    def scaled(self, factor: float) -> "Face":
+        """The face scaled by ``factor`` about the origin (e.g. to fix units); landmarks follow."""
+        factor = float(factor)
+        if not (np.isfinite(factor) and factor > 0):
+            raise ValueError(f"a scale factor must be a positive number, got {factor}")
+        return self.with_vertices(self._vertices * factor)
+
     def without_texture(self) -> "Face":
         return Face(
             self._vertices, self._triangles, uv=self._uv, vertex_colors=self._vertex_colors,

@@ -389,3 +389,21 @@ def test_qt_binding_keeps_none_alive():
     for _ in range(1000):
         probe.setAlpha(1)
     assert sys.getrefcount(None) >= before - 10
+
+
+def test_scale_face_and_load_texture_replace_the_face(qtbot, window, synthetic_face, tmp_path, error_boxes):
+    from PIL import Image
+
+    width = synthetic_face.bounds[1, 0] - synthetic_face.bounds[0, 0]
+    with qtbot.waitSignal(window.load_finished, timeout=30000):
+        window.scale_face(2.0)
+    assert window.face.bounds[1, 0] - window.face.bounds[0, 0] == pytest.approx(2 * width)
+    image = tmp_path / "red.png"
+    Image.new("RGB", (16, 8), (255, 0, 0)).save(image)
+    with qtbot.waitSignal(window.load_finished, timeout=30000):
+        window.load_texture(image)
+    assert window.face.texture.shape == (8, 16, 3) and (window.face.texture[..., 0] == 255).all()
+    (tmp_path / "bad.png").write_text("not an image")
+    window.load_texture(tmp_path / "bad.png")
+    assert error_boxes and "not an image" in error_boxes[-1][1]
+    assert window.face.texture.shape == (8, 16, 3)   # nothing lost

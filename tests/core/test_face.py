@@ -92,3 +92,18 @@ def test_vertex_normals_known_answers():
     tri = np.array([[0, 1, 2], [1, 3, 2]])
     n = vertex_normals(plane, tri)
     assert np.allclose(n[:4], [0, 0, 1]) and np.allclose(n[4], 0)  # unused vertex: zero, not NaN
+
+
+def test_scaled_and_retextured_copies_keep_landmarks(grid_face):
+    face = grid_face
+    big = face.scaled(10.0)
+    assert np.allclose(big.vertices, face.vertices * 10.0) and big.landmarks == face.landmarks
+    for name in face.landmark_names:
+        assert np.allclose(big.landmark_position(name), 10.0 * face.landmark_position(name))
+    with pytest.raises(ValueError, match="positive"):
+        face.scaled(0.0)
+    image = np.full((8, 8, 3), 200, np.uint8)
+    retextured = face.with_texture(image)   # the grid face has uv
+    assert np.array_equal(retextured.texture, image) and retextured.landmarks == face.landmarks
+    with pytest.raises(ValueError, match="texture coordinates"):
+        Face(face.vertices, face.triangles).with_texture(image)
