@@ -47,7 +47,24 @@ the evaluation showed they are needed to reach the accuracy goals):
   so the order upper outer > upper inner > opening > lower inner > lower outer holds. Outer-lip
   points on the wrong side of the opening and chin points (2.10, 2.1, 2.11, 2.12) found less than
   half their model distance below the lower lip are searched again on the right side. A closed
-  mouth (no step, or an opening under 1.5 mm) leaves the patch-search result;
+  mouth (no step, or an opening under 1.5 mm) leaves the patch-search result, except that a lower
+  inner-lip point found on the lower outer lip (pressed lips) goes back to the seam, at the
+  model's offset below the upper outer lip;
+* ``lid_depth``: a doubtful upper-lid point (confidence < ``LID_RECHECK``; brows lowered onto the
+  lid, as in anger, fit the lid patch) goes to the foot of the lid's depth fall onto the eyeball,
+  searched in its column above the lower-lid point;
+* ``steep_prediction``: where the model's surface turns sideways away from the frontal view
+  (normal z < ``STEEP_NZ`` and |x| >= |y|: temples, jaw-angle and face-border points, outer brow
+  ends; not the mouth and eye points, textured contours that curl away from the view) the frontal
+  raster is
+  foreshortened and nearly textureless, so the patch search lands a few mm off laterally, which on
+  a steep side is 10-20 mm along the surface (across people). These points are re-predicted from
+  the confident non-steep, non-outline matches (confidence > ``ANCHOR_CONFIDENCE``; the same
+  graph-distance Gaussian propagation as ``propagate``) and put on the scan: outline points at the
+  closest scan point (the prediction's depth is trusted: the face border is where the side turns
+  away), the others (brow ends) at the scan surface seen at the prediction's frontal pixel
+  (measured on 3 synthetic people: closest point is better for the outline, the frontal ray for
+  the brows). Their source is "prediction" and their evidence 0;
 * no texture: geometry candidates (farthest-point samples) and appearance from HK and shape
   only; the caller reports it.
 
@@ -95,6 +112,8 @@ class MatchParams:
     refine : patch refinement on the scan surface; refine_radius × face scale; patch_mm side.
     pixel_mm : frontal raster pixel size.
     mouth_opening : put inner-lip points on the edges of a visible mouth opening (depth steps).
+    steep_prediction : points on steep sides follow the confident matches (see the module docstring).
+    lid_depth : a doubtful upper-lid point goes to the foot of the lid's depth fall (module docstring).
     """
 
     lam: float = 0.0     # sweep on 3 synthetic people (evaluate_landmarks): best over all tests at 0.0
@@ -114,6 +133,8 @@ class MatchParams:
     pull: float = 0.15
     sigma: float = 0.2
     mouth_opening: bool = True
+    steep_prediction: bool = True
+    lid_depth: bool = True
 
     def __post_init__(self):
         for name in ("lam", "lam_a", "lam_s", "position_weight", "pull"):
@@ -551,7 +572,42 @@ def refine_matches(template: LandmarkTemplate, greedy: np.ndarray, model_points:
     _lower_lip_pass(template, search, out, peak, model_px, r, scale / params.pixel_mm, skip)
     if params.mouth_opening:
         _mouth_opening_pass(template, scan_raster, out, peak, model_px, scale, skip, search)
+        _lip_order_pass(template, search, out, peak, model_px, skip)
     return out, peak
+
+
+def _lip_order_pass(template, search, out, peak, model_px, skip):
+    """A lower inner-lip point found on (or below) the lower outer lip goes back above it.
+
+    On a pressed, closed mouth there is no opening and the lower-lip patch fits the lower outer
+    lip's edge as well; the inner point then collapses onto the outer one. The inner point is kept
+    at least half the model's inner-to-outer lip height above the outer point, at the model's
+    offset below the upper outer lip (the lips touch: it is the seam)."""
+    base = template.base
+    names = template.detected
+    loop = [template.index(n) for n in base.mouth if n in names]
+    if len(loop) < 4:
+        return
+    corners = {loop[0], loop[len(loop) // 2]}
+    upper = {template.index(n) for n in base.upper_lip_points if n in names}
+    lower = {template.index(n) for n in base.lower_lip_points if n in names}
+    lower_in = [i for i in loop if i not in corners and i not in upper]
+    upper_out = [i for i in upper if i not in loop and np.all(np.isfinite(out[i]))]
+    lower_out = [i for i in lower if i not in loop and np.all(np.isfinite(out[i]))]
+    if not upper_out or not lower_out:
+        return
+    for k in lower_in:
+        if skip[k] or not np.all(np.isfinite(out[k])):
+            continue
+        o = min(lower_out, key=lambda i: abs(model_px[i, 0] - model_px[k, 0]))
+        u = min(upper_out, key=lambda i: abs(model_px[i, 0] - model_px[k, 0]))
+        gap = model_px[o, 1] - model_px[k, 1]        # rows grow downwards
+        if gap <= 1 or out[k, 1] <= out[o, 1] - 0.5 * gap:
+            continue
+        row = min(out[u, 1] + (model_px[k, 1] - model_px[u, 1]), out[o, 1] - 0.5 * gap)
+        hit = search.nearest_covered((out[k, 0], row))
+        if np.all(np.isfinite(hit)):
+            out[k], peak[k] = hit, 0.0
 
 
 OPENING_STEP_MM = 3.0     # a depth step this large between neighbouring pixel rows is an occluding edge
@@ -775,6 +831,7 @@ class ModelContext:
     grid: Grid
     raster: FrontalRaster
     surface: list            # per detected point: SurfacePoint on the model
+    normals: np.ndarray | None = None   # (P, 3) unit model surface normals at the points
 
 
 def model_context(model: Face, template: LandmarkTemplate, params: MatchParams) -> ModelContext:
@@ -794,7 +851,9 @@ def model_context(model: Face, template: LandmarkTemplate, params: MatchParams) 
     rays = SurfaceRays(model.vertices, model.triangles)
     raster = frontal_raster(model, rays, np.eye(4), grid)
     surface = [SurfacePoint(int(t), tuple(b)) for t, b in zip(tri, bary)]
-    return ModelContext(model, template, side, scale, grid, raster, surface)
+    nrm = (bary[:, :, None] * model.vertex_normals[model.triangles[tri]]).sum(axis=1)
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+    return ModelContext(model, template, side, scale, grid, raster, surface, nrm)
 
 
 @dataclass
@@ -949,21 +1008,142 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
         tri[need], bary[need] = t, b
         positions[need] = apply_transform(pos, to_model)
     # Confidence: appearance evidence x structural consistency (leave-one-out prediction).
-    loo = np.zeros((P, 3))
-    sigma = params.sigma * ctx.scale
     gdist = graph_distances(tpl, ctx.side.points)
-    for i in range(P):
-        m = np.ones(P, bool)
-        m[i] = False
-        loo[i] = _propagated(ctx.side.points, positions, m, sigma, gdist)[i]
-    consistency = np.exp(-(np.linalg.norm(positions - loo, axis=1) / (0.1 * ctx.scale)) ** 2)
-    evidence = np.clip(peak, 0, 1) if params_used.refine else np.clip(margin / 0.1, 0, 1)
-    confidence = 0.5 * evidence + 0.5 * consistency
+    confidence = _confidence(ctx, positions, peak, margin, params_used, gdist)
+    if params_used.lid_depth and params_used.refine and scan_raster is not None and scan_raster.depth is not None:
+        if _upper_lid_pass(tpl, ctx, scan_raster, positions, confidence, fixed, tri, bary, source, peak):
+            positions = _positions_from(scan, tri, bary, to_model, positions)
+            confidence = _confidence(ctx, positions, peak, margin, params_used, gdist)
+    if params_used.steep_prediction and params_used.refine:
+        steep = steep_points(ctx) & np.array([n not in fixed for n in names])
+        outline = np.array([n in tpl.base.outline for n in names])
+        anchor = (confidence > ANCHOR_CONFIDENCE) & ~steep & ~outline & np.array([s in ("refined", "seed", "fixed") for s in source])
+        if steep.any() and anchor.sum() >= 3:
+            pred = _propagated(ctx.side.points, positions, anchor, params.sigma * ctx.scale, gdist)
+            for i in np.nonzero(steep)[0]:
+                source[i] = "prediction"
+                peak[i] = 0.0
+                hit = None if outline[i] else _raster_hit(scan_raster, pred[i])
+                if hit is None:
+                    pos, t, b = rays.closest(apply_transform(pred[i][None], inv))
+                    tri[i], bary[i], positions[i] = t[0], b[0], apply_transform(pos, to_model)[0]
+                else:
+                    tri[i], bary[i] = hit
+                    positions[i] = apply_transform((bary[i] @ scan.vertices[scan.triangles[tri[i]]])[None], to_model)[0]
+            confidence = _confidence(ctx, positions, peak, margin, params_used, gdist)
     for i in preset:
         if names[i] in fixed:
             confidence[i] = 1.0
     timings["match_s"] = time.perf_counter() - t0
     return MatchResult(names, positions, tri, bary, confidence, source, gd, timings)
+
+
+STEEP_NZ = 0.65          # model normal z below this (> ~50 deg from the view): steep in the frontal raster
+ANCHOR_CONFIDENCE = 0.6  # matches above this confidence anchor the prediction of the steep points
+
+
+def steep_points(ctx: ModelContext) -> np.ndarray:
+    """(P,) bool: points whose model surface normal turns sideways away from the frontal view
+    (z < STEEP_NZ, |x| >= |y|), except the mouth and eye points: those are textured features (lip and lid contours curl away
+    from the view) that the patch search and the opening passes place. The lips are the mouth
+    loop, the lip points and every point within 0.1 x scale of the mouth loop (outer lip corners)."""
+    base = ctx.template.base
+    names = ctx.template.detected
+    features = set(base.mouth) | base.upper_lip_points | base.lower_lip_points
+    for loop in base.eye_margins.values():
+        features |= set(loop)
+    loop = [names.index(n) for n in base.mouth if n in names]
+    if loop:
+        d = np.linalg.norm(ctx.side.points[:, None, :] - ctx.side.points[None, loop, :], axis=2).min(axis=1)
+        features |= {n for n, di in zip(names, d) if di < 0.1 * ctx.scale}
+    if ctx.normals is None:
+        return np.zeros(len(names), bool)
+    sideways = np.abs(ctx.normals[:, 0]) >= np.abs(ctx.normals[:, 1])   # not the chin's or nose's underside
+    return (ctx.normals[:, 2] < STEEP_NZ) & sideways & np.array([n not in features for n in names])
+
+
+def _raster_hit(raster: FrontalRaster | None, p: np.ndarray):
+    """(triangle, bary) of the scan surface seen at the frontal pixel of ``p`` (3,), or None."""
+    if raster is None:
+        return None
+    c, r = np.round(raster.to_pixel(p)[0]).astype(int)
+    if not (0 <= r < raster.triangle.shape[0] and 0 <= c < raster.triangle.shape[1]) or raster.triangle[r, c] < 0:
+        return None
+    return int(raster.triangle[r, c]), raster.bary[r, c]
+
+
+LID_RECHECK = 0.5     # upper-lid matches below this confidence are checked against the depth profile
+LID_FALL_MM = 0.5     # the lid's fall onto the eyeball is at least this steep (mm of depth per pixel row)
+
+
+def _upper_lid_pass(tpl, ctx: ModelContext, raster: FrontalRaster, positions, confidence, fixed, tri, bary,
+                    source, peak) -> bool:
+    """Doubtful upper-lid points (confidence < LID_RECHECK) go to the foot of the lid's fall onto
+    the eyeball, in the column at the model's horizontal offset from the lower-lid partner and
+    within twice the model's lid gap above it: the steepest downward depth fall there (unscanned rows
+    under an overhanging lid bridged linearly), followed down while it keeps falling (> 0.3 mm a row). Updates tri / bary / source / peak in place (the
+    positions are recomputed by the caller); True if any point moved."""
+    names = tpl.detected
+    moved = False
+    for loop in tpl.base.eye_margins.values():
+        if len(loop) != 4 or loop[1] not in names or loop[3] not in names:
+            continue
+        i, j = names.index(loop[1]), names.index(loop[3])
+        if confidence[i] >= LID_RECHECK or loop[1] in fixed:
+            continue
+        mu, ml = raster.to_pixel(ctx.side.points[[i, j]])
+        pl = raster.to_pixel(positions[j])[0]
+        gap = ml[1] - mu[1]
+        col = int(round(pl[0] + mu[0] - ml[0]))
+        top, bottom = int(round(pl[1] - 2 * gap)), int(round(pl[1] - 1))
+        H, W = raster.depth.shape
+        if gap < 2 or not (0 <= top and bottom < H and 0 <= col < W):
+            continue
+        d = raster.depth[top:bottom + 1, col].astype(float)
+        ok = np.isfinite(d)
+        if ok.sum() < 0.5 * len(d):
+            continue
+        # A few unscanned rows where the lid overhangs the eyeball: bridge them (the fall spans them).
+        d = np.interp(np.arange(len(d)), np.nonzero(ok)[0], d[ok])
+        g = np.diff(d)          # depth change going down one row (the viewer is at +z)
+        s = int(np.argmin(g))
+        if g[s] > -LID_FALL_MM:
+            continue
+        e = s
+        while e + 1 < len(g) and g[e + 1] < -0.3:
+            e += 1
+        row = top + e + 1
+        if raster.triangle[row, col] < 0:
+            continue
+        tri[i], bary[i] = raster.triangle[row, col], raster.bary[row, col]
+        source[i], peak[i] = "refined", 0.5
+        moved = True
+    return moved
+
+
+def _positions_from(scan: Face, tri, bary, to_model, positions) -> np.ndarray:
+    """(P, 3) model-frame positions of the surface points (tri, bary) on ``scan`` (``positions`` where tri < 0)."""
+    from .icp import apply_transform
+
+    out = positions.copy()
+    ok = tri >= 0
+    p = np.einsum("pk,pkd->pd", bary[ok], scan.vertices[scan.triangles[tri[ok]]])
+    out[ok] = apply_transform(p, to_model)
+    return out
+
+
+def _confidence(ctx: ModelContext, positions, peak, margin, params: MatchParams, gdist) -> np.ndarray:
+    """(P,) the mean of the appearance evidence and the leave-one-out structural consistency."""
+    P = len(positions)
+    loo = np.zeros((P, 3))
+    sigma = params.sigma * ctx.scale
+    for i in range(P):
+        m = np.ones(P, bool)
+        m[i] = False
+        loo[i] = _propagated(ctx.side.points, positions, m, sigma, gdist)[i]
+    consistency = np.exp(-(np.linalg.norm(positions - loo, axis=1) / (0.1 * ctx.scale)) ** 2)
+    evidence = np.clip(peak, 0, 1) if params.refine else np.clip(margin / 0.1, 0, 1)
+    return 0.5 * evidence + 0.5 * consistency
 
 
 def _geometry_params(params: MatchParams) -> MatchParams:

@@ -132,3 +132,35 @@ def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
     lower = [names.index(n) for n in loop[half + 1:]]
     assert np.all(out[upper, 1] == 34) and np.all(out[lower, 1] == 51)
     assert np.all((out[upper + lower, 0] > 24) & (out[upper + lower, 0] < 56))
+
+
+def test_steep_points_are_the_lateral_sides(model):
+    from core.registration.matching import steep_points
+    from core.registration.pipeline import get_model_context
+
+    ctx = get_model_context(model, "a48", MatchParams())
+    steep = {n for n, s in zip(ctx.template.detected, steep_points(ctx)) if s}
+    assert {"10.7", "10.8", "2.13", "2.14", "4.5", "4.6"} <= steep
+    assert not steep & {"11.1", "9.3", "3.11", "3.8", "8.3", "8.4", "2.2", "9.12"}
+
+
+def test_lower_inner_lip_collapsed_on_the_outer_lip_goes_back_to_the_seam(model):
+    from core.registration.matching import _lip_order_pass
+
+    tpl = get_template("a48")
+    pos = template_positions(model, "a48")
+    model_px = np.array([[pos[n][0], -pos[n][1]] for n in tpl.detected]) / 0.75   # (col, row), rows grow down
+    out = model_px.copy()
+    i23, i82, i81, i29 = (tpl.index(n) for n in ("2.3", "8.2", "8.1", "2.9"))
+    out[i23] = (model_px[i23, 0], model_px[i82, 1] + 1.0)     # collapsed onto (below) the lower outer lip
+    peak = np.ones(len(out))
+
+    class Search:
+        def nearest_covered(self, px):
+            return tuple(px)
+
+    _lip_order_pass(tpl, Search(), out, peak, model_px, np.zeros(len(out), bool))
+    assert out[i23, 1] == pytest.approx(model_px[i23, 1])     # back at the seam, below the upper outer lip
+    assert out[i23, 1] < out[i82, 1] and out[i23, 1] > out[i81, 1]
+    assert peak[i23] == 0.0 and peak[i29] == 1.0               # the uncollapsed point is left alone
+    np.testing.assert_array_equal(out[i29], model_px[i29])
