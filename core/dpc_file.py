@@ -65,6 +65,8 @@ import numpy as np
 
 from core.mesh_io import write_atomic, write_reporting_errors
 
+from .text_files import integer as _integer
+from .text_files import number as _number
 from .text_files import read_text_file
 
 __all__ = [
@@ -447,22 +449,6 @@ class _Parser:
         else:
             fps = [table.get(name, name if name in known else None) for name in chosen]
         return chosen, fps
-
-
-def _number(token: str) -> float | None:
-    try:
-        value = float(token)
-    except ValueError:
-        return None
-    return value if math.isfinite(value) else None
-
-
-def _integer(token: str) -> int | None:
-    try:
-        return int(token)
-    except ValueError:
-        value = _number(token)
-        return int(value) if value is not None and value.is_integer() else None
 
 
 # ------------------------------------------------------------------ writing

@@ -35,6 +35,8 @@ import numpy as np
 
 from core.mesh_io import write_atomic, write_reporting_errors
 
+from .text_files import integer as _integer
+from .text_files import number as _number
 from .text_files import read_text_file
 
 __all__ = [
@@ -224,24 +226,6 @@ def _content_lines(text: str):
         tokens = line.split()
         if tokens and not tokens[0].startswith("#"):
             yield number, tokens
-
-
-def _number(token: str) -> float | None:
-    """The finite float ``token`` spells, else None."""
-    try:
-        value = float(token)
-    except ValueError:
-        return None
-    return value if math.isfinite(value) else None
-
-
-def _integer(token: str) -> int | None:
-    """The whole number ``token`` spells ('3' or '3.0'), else None."""
-    try:
-        return int(token)
-    except ValueError:
-        value = _number(token)
-        return int(value) if value is not None and value.is_integer() else None
 
 
 def _looks_like_mask(tokens: list[str]) -> bool:

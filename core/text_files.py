@@ -1,8 +1,9 @@
 """Reading small text formats (.fap, DPC) with clear errors: missing file, folder, permissions,
-binary data, UTF-16 (read, with a note) and latin-1 fallback."""
+binary data, UTF-16 (read, with a note) and latin-1 fallback; and the tokens' numbers."""
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
@@ -39,3 +40,21 @@ def read_text_file(path, kind: str, error: type[Exception], binary_hint: str) ->
         return data.decode("utf-8-sig"), []
     except UnicodeDecodeError:
         return data.decode("latin-1"), []
+
+
+def number(token: str) -> float | None:
+    """The finite float ``token`` spells, else None."""
+    try:
+        value = float(token)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
+
+
+def integer(token: str) -> int | None:
+    """The whole number ``token`` spells ('3' or '3.0'), else None."""
+    try:
+        return int(token)
+    except ValueError:
+        value = number(token)
+        return int(value) if value is not None and value.is_integer() else None
