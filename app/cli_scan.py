@@ -17,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from app.cli import CliError, load_face_or_default
 
 SCAN_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
@@ -87,7 +89,8 @@ def cmd_landmarks(args: argparse.Namespace) -> int:
             print(f"  note: {line}", file=sys.stderr)
         low = detection.low_confidence()
         return (f"{len(detection.landmarks)} landmarks -> {target}"
-                + (f"; check {len(low)} with low confidence" if low else ""))
+                + (f"; check {len(low)} with low confidence" if low else "")
+                + (f"; not in mm: register with --scale {detection.scale_hint:.3g}" if detection.scale_hint else ""))
 
     return _run_batch(files, work, "landmarked")
 
@@ -114,6 +117,8 @@ def cmd_register(args: argparse.Namespace) -> int:
             raise CliError(f"no landmark file {lm_path}; run 'mimica landmarks' first")
         try:
             landmarks = load_landmarks(lm_path, scan)
+            if args.scale is not None:  # surface points survive scaling
+                scan = scan.scaled(args.scale)
             registration = register_scan(scan, landmarks, template=args.template)
         except (LandmarkFileError, ValueError) as exc:
             raise CliError(str(exc)) from None
@@ -165,8 +170,21 @@ def add_register(sub) -> None:
     p.add_argument("scan", metavar="SCAN|FOLDER")
     p.add_argument("--landmarks", "-l", required=True, metavar="L.json|FOLDER")
     p.add_argument("--template", choices=TEMPLATES, default="mpeg4_80")
+    p.add_argument("--scale", type=_positive_factor, metavar="FACTOR",
+                   help="multiply the scan's coordinates by FACTOR first (a scan in other units; "
+                        "'mimica landmarks' prints the factor it suggests)")
     p.add_argument("--out", "-o", required=True, metavar="FACE.obj|FOLDER")
     p.set_defaults(func=cmd_register)
+
+
+def _positive_factor(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number such as 10 or 0.001, got {text!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"the scale factor must be a positive number, got {text!r}")
+    return value
 
 
 def add_evaluate(sub) -> None:

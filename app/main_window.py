@@ -530,8 +530,13 @@ class MainWindow(QMainWindow):
         self.load_texture_action = self._action(
             "Load &texture image…", self.load_texture_dialog,
             tip="Map an image onto the face through its texture coordinates (e.g. a scan's separate JPEG)")
+        self.flip_texture_action = self._action(
+            "&Flip texture vertically", self.flip_texture,
+            tip="Turn the texture image upside down (for files whose texture coordinates count rows from the "
+                "other end, e.g. a glTF made from an OBJ)")
         self.tools_menu.addAction(self.scale_face_action)
         self.tools_menu.addAction(self.load_texture_action)
+        self.tools_menu.addAction(self.flip_texture_action)
 
         help_menu = bar.addMenu("&Help")
         help_menu.addAction(self.about_action)
@@ -925,17 +930,49 @@ class MainWindow(QMainWindow):
         def done(detection):
             if self.face is not face:
                 return  # the face changed meanwhile
+            if detection.scale_hint and self._accept_scale_hint(detection.scale_hint):
+                self._rescale_with_detection(detection)
+                return
             self.landmark_editor.apply_detection(detection.landmarks, detection.confidence)
-            low = detection.low_confidence()
-            note = f"; {len(low)} with low confidence are worth checking" if low else ""
-            self.statusBar().showMessage(
-                f"Detected {len(detection.landmarks)} landmarks in {detection.timings.get('total_s', 0):.1f} s{note}.",
-                15000)
-            if detection.report:
-                self._show_notes(detection.report, "landmark detection")
+            self._report_detection(detection)
 
         what = "Re-running matching with your edits fixed…" if fixed else "Detecting landmarks…"
         self._run_job(work, done, "Cannot detect landmarks", what)
+
+    def _accept_scale_hint(self, factor: float) -> bool:
+        """Ask whether to scale a face whose units are evidently not millimetres."""
+        width = float(np.ptp(self.face.vertices[:, 0]))
+        answer = QMessageBox.question(
+            self, "Scale the face?",
+            f"This face is {factor:.2f} times {'smaller' if factor > 1 else 'larger'} than a human face "
+            f"({width:.0f} mm wide as loaded): its file's units are probably not millimetres.\n\n"
+            f"Scale it by {factor:.3g}? Distances in mm and the muscle model need the real size; the "
+            "landmarks were found either way.",
+            QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, QMessageBox.StandardButton.Yes)
+        return answer == QMessageBox.StandardButton.Yes
+
+    def _rescale_with_detection(self, detection) -> None:
+        """Scale the face by the detection's factor, then put the detection (with its confidences) on
+        the scaled face: surface points do not change with scale."""
+        factor = detection.scale_hint
+
+        def reapply(ok: bool) -> None:
+            self.load_finished.disconnect(reapply)
+            if ok:
+                self.landmark_editor.apply_detection(detection.landmarks, detection.confidence)
+                self._report_detection(detection)
+
+        self.load_finished.connect(reapply)
+        self.scale_face(factor)
+
+    def _report_detection(self, detection) -> None:
+        low = detection.low_confidence()
+        note = f"; {len(low)} with low confidence are worth checking" if low else ""
+        self.statusBar().showMessage(
+            f"Detected {len(detection.landmarks)} landmarks in {detection.timings.get('total_s', 0):.1f} s{note}.",
+            15000)
+        if detection.report:
+            self._show_notes(detection.report, "landmark detection")
 
     def build_correspondence(self) -> None:
         """Register the current face to the MPEG-4 template and switch the view to the canonical face."""
@@ -1000,6 +1037,17 @@ class MainWindow(QMainWindow):
             self.show_error("Cannot load the texture", str(exc))
             return
         self.replace_face(face, f"Applying the texture {Path(path).name}…")
+
+    def flip_texture(self) -> None:
+        """Show the current face with its texture image upside down (an undo is flipping again)."""
+        if self.face is None:
+            return
+        if self.face.texture is None or self.face.uv is None:
+            self.show_error("Cannot flip the texture", "This face has no texture image. Load one first with "
+                            "Tools > Load texture image…")
+            return
+        self.replace_face(self.face.with_texture(np.ascontiguousarray(self.face.texture[::-1])),
+                          "Flipping the texture…")
 
     def load_texture_dialog(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Load texture image", "",

@@ -5,8 +5,10 @@ confidence), ``register_scan(scan, landmarks)`` -> ``correspondence.Registration
 face with the template's feature points as landmarks, ready for ``core.rig.FaceRig``).
 
 Steps of ``detect_landmarks``: input checks (size, units) -> rigid ICP of the scan to the model
-(point-to-plane, centroid start) -> candidates, HK maps and Colombo seeds -> greedy structural
-matching -> patch refinement on the surface -> confidence (see ``matching``). The model is the
+(point-to-plane, centroid start; when the model's skin does not lie on the result, e.g. a bust or
+a file in other units, ``alignment.locate_face`` searches for the face and its size, and matching
+runs on a copy scaled to millimetres, see ``Detection.scale_hint``) -> candidates, HK maps and
+Colombo seeds -> greedy structural matching -> patch refinement on the surface -> confidence (see ``matching``). The model is the
 built-in default face unless given; its context (template points, appearance, frontal raster) is
 cached per model object.
 
@@ -47,6 +49,8 @@ class Detection:
     positions : name -> (3,) mm on the scan.
     transform : (4, 4) scan -> model frame (ICP).
     sources : name -> "seed" | "candidate" | "refined" | "fixed" | "prediction".
+    scale_hint : the factor that gives the scan a human face's size in mm when its units are
+        evidently not millimetres (None when they are); ``transform`` then includes that scale.
     """
 
     landmarks: dict[str, SurfacePoint]
@@ -58,6 +62,7 @@ class Detection:
     transform: np.ndarray = field(default_factory=lambda: np.eye(4))
     sources: dict[str, str] = field(default_factory=dict)
     rays: SurfaceRays | None = field(default=None, repr=False)
+    scale_hint: float | None = None
 
     def low_confidence(self, threshold: float = 0.5) -> list[str]:
         return [n for n, c in self.confidence.items() if c < threshold]
@@ -122,6 +127,46 @@ def check_scan(scan: Face, model: Face | None = None) -> None:
             f"Mimica works in millimetres.{unit}")
 
 
+# A scan found to be this much larger or smaller than the model is taken to be in other units
+# (adult faces vary by about +-10 % in size).
+UNIT_MISMATCH = 1.3
+
+
+def _skin_off(scan: Face, model: Face, transform) -> bool:
+    """True when much of the model's front skin does not lie on the ICP-aligned scan."""
+    from .alignment import skin_fit
+
+    return skin_fit(scan, model, transform)[1] < 0.6
+
+
+def _locate(scan: Face, model: Face, report: list[str]):
+    """(scan -> model rigid transform of the scan scaled by ``scale``, scale) from
+    ``alignment.locate_face``, or None when no face is found there (the reason goes to report)."""
+    from .alignment import FaceNotFoundError, locate_face
+
+    try:
+        found = locate_face(scan, model)
+    except FaceNotFoundError as exc:
+        report.append(str(exc))
+        return None
+    scale = found.scale
+    if 1 / UNIT_MISMATCH <= scale <= UNIT_MISMATCH:
+        scale = 1.0  # a big or small face, not other units: match at the scan's own size
+        # (the rigid part was fitted at the face's own size; refit without the scale below)
+        from .icp import icp
+
+        refit = icp(scan.vertices[np.unique(scan.triangles)], model, initial=found.transform, max_iterations=50,
+                    sample=3000)
+        report.append(f"the face was found inside a larger scan ({100 * found.model_paired:.0f}% of the model "
+                      f"paired, median distance {found.median_mm:.1f} mm)")
+        return refit.transform, scale
+    report.append(
+        f"the scan's face is {scale:.2f} times {'smaller' if scale > 1 else 'larger'} than a human face: its units "
+        f"are probably not millimetres. Landmarks were found on a copy scaled by {scale:.3g}; scale the face by "
+        f"{scale:.3g} (Tools > Scale face) so distances and muscles are right")
+    return found.transform, scale
+
+
 def _progress(progress, fraction, message):
     if progress is not None:
         progress(float(fraction), message)
@@ -157,22 +202,30 @@ def detect_landmarks(scan: Face, *, template: str = "mpeg4_80", model: Face | No
 
     t1 = time.perf_counter()
     res = icp(scan.vertices[np.unique(scan.triangles)], model, max_iterations=50, sample=3000)
+    T, scale = res.transform, 1.0
+    if res.rms_mm > 0.05 * ctx.scale or res.inlier_fraction < 0.5 or _skin_off(scan, model, T):
+        # More than a face (a bust, a whole head) or not in millimetres: search for the face.
+        _progress(progress, 0.15, "searching for the face in the scan (size and position)")
+        located = _locate(scan, model, report)
+        if located is not None:
+            T, scale = located
+        else:
+            report.append(f"rigid alignment is poor (RMS {res.rms_mm:.1f} mm, {100 * res.inlier_fraction:.0f}% of "
+                          "points paired): is the scan a frontal face? Landmarks may be wrong")
     timings["icp_s"] = time.perf_counter() - t1
-    if res.rms_mm > 0.05 * ctx.scale or res.inlier_fraction < 0.5:
-        report.append(f"rigid alignment is poor (RMS {res.rms_mm:.1f} mm, {100 * res.inlier_fraction:.0f}% of points "
-                      "paired): is the scan a frontal face? Landmarks may be wrong")
-    T = res.transform
+    work = scan if scale == 1.0 else scan.scaled(scale)
     _progress(progress, 0.4, "building the ray scene")
     t2 = time.perf_counter()
-    rays = SurfaceRays(scan.vertices, scan.triangles)
+    rays = SurfaceRays(work.vertices, work.triangles)
     timings["rays_s"] = time.perf_counter() - t2
     if rays.engine != "embree":
         report.append("embreex is not available: the surface raster uses a nearest-vertex approximation")
     _progress(progress, 0.5, "matching landmarks")
-    result = match(scan, T, ctx, params, rays=rays, fixed=fixed_pos, report=report)
+    fixed_work = {n: p * scale for n, p in fixed_pos.items()}
+    result = match(work, T, ctx, params, rays=rays, fixed=fixed_work, report=report)
     timings.update(result.timings)
     inv = np.linalg.inv(T)
-    pos_scan = result.positions @ inv[:3, :3].T + inv[:3, 3]
+    pos_scan = (result.positions @ inv[:3, :3].T + inv[:3, 3]) / scale
     names = result.names
     landmarks = {n: SurfacePoint(int(result.triangle[i]), tuple(result.bary[i])) for i, n in enumerate(names)}
     for n, p in fixed_pos.items():  # fixed landmarks exactly as given
@@ -185,8 +238,9 @@ def detect_landmarks(scan: Face, *, template: str = "mpeg4_80", model: Face | No
         report.append(f"{len(low)} landmark(s) with low confidence, worth checking: {', '.join(low[:12])}"
                       f"{' ...' if len(low) > 12 else ''}")
     return Detection(landmarks, {n: float(result.confidence[i]) for i, n in enumerate(names)}, report, timings,
-                     template, {n: pos_scan[i] for i, n in enumerate(names)}, T,
-                     {n: result.source[i] for i, n in enumerate(names)}, rays)
+                     template, {n: pos_scan[i] for i, n in enumerate(names)}, T @ np.diag([scale] * 3 + [1.0]),
+                     {n: result.source[i] for i, n in enumerate(names)}, rays if scale == 1.0 else None,
+                     scale_hint=None if scale == 1.0 else scale)
 
 
 def register_scan(scan: Face, landmarks: Mapping, *, template: str = "mpeg4_80",

@@ -119,3 +119,28 @@ def test_gui_subcommand_missing_file(capsys):
 @pytest.mark.parametrize("text,expected", [("1200x900", (1200, 900)), ("64X48", (64, 48))])
 def test_parse_size(text, expected):
     assert cli._parse_size(text) == expected
+
+
+def test_landmarks_then_register_a_scan_in_other_units(tmp_path, capsys):
+    """A face stored in 2-mm units: 'landmarks' finds the points and names the factor, 'register
+    --scale' builds the canonical face at human size."""
+    from core.mesh_io import load_face, save_face
+    from core.registration.pipeline import default_model
+    from core.registration.virtual_scanner import scan_face
+
+    scan = scan_face(default_model(), n_target=20_000, rng=np.random.default_rng(1)).face
+    scan_path = tmp_path / "half.ply"
+    save_face(scan.scaled(0.5), scan_path)
+    landmarks = tmp_path / "half.json"
+    assert cli.main(["landmarks", str(scan_path), "--out", str(landmarks)]) == 0
+    out = capsys.readouterr()
+    assert "not millimetres" in out.err and "--scale 2" in out.out, out
+    canonical = tmp_path / "half.obj"
+    assert cli.main(["register", str(scan_path), "-l", str(landmarks), "--scale", "2", "-o", str(canonical)]) == 0
+    face = load_face(canonical)
+    assert face.n_vertices == 4560
+    width = np.ptp(face.vertices[:, 0])
+    assert abs(width - np.ptp(scan.vertices[:, 0])) < 0.1 * width   # back at the face's size in mm
+    with pytest.raises(SystemExit):
+        cli.main(["register", str(scan_path), "-l", str(landmarks), "--scale", "-3", "-o", str(canonical)])
+    assert "positive number" in capsys.readouterr().err

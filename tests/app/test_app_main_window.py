@@ -407,3 +407,36 @@ def test_scale_face_and_load_texture_replace_the_face(qtbot, window, synthetic_f
     window.load_texture(tmp_path / "bad.png")
     assert error_boxes and "not an image" in error_boxes[-1][1]
     assert window.face.texture.shape == (8, 16, 3)   # nothing lost
+
+
+def test_flip_texture_turns_the_image_upside_down(qtbot, window, synthetic_face, error_boxes):
+    before = window.face.texture.copy()
+    with qtbot.waitSignal(window.load_finished, timeout=30000):
+        window.flip_texture()
+    assert np.array_equal(window.face.texture, before[::-1])
+    assert window.face.landmarks == synthetic_face.landmarks
+
+
+def test_detection_in_other_units_offers_to_scale_and_keeps_the_landmarks(qtbot, window, synthetic_face,
+                                                                        monkeypatch):
+    """A detector that finds the face 2x too small: the window asks, scales, and the detected points
+    (with their confidences) land on the scaled face."""
+    from PySide6.QtWidgets import QMessageBox
+
+    import core.registration.pipeline as pipeline
+    from core.face import SurfacePoint
+
+    points = {"9.3": SurfacePoint(3, (0.2, 0.3, 0.5)), "2.1": SurfacePoint(5, (1.0, 0.0, 0.0))}
+    detection = pipeline.Detection(points, {"9.3": 0.9, "2.1": 0.2}, ["units look wrong"], {"total_s": 0.1},
+                                   "mpeg4_80", scale_hint=2.0)
+    monkeypatch.setattr(pipeline, "detect_landmarks", lambda face, fixed=None: detection)
+    asked = []
+    monkeypatch.setattr(QMessageBox, "question", lambda *a, **k: asked.append(a[2]) or QMessageBox.StandardButton.Yes)
+    monkeypatch.setattr(window, "_show_notes", lambda lines, what: None)
+    width = np.ptp(synthetic_face.vertices[:, 0])
+    with qtbot.waitSignal(window.load_finished, timeout=30000):
+        window.detect_landmarks()
+    qtbot.waitUntil(lambda: window.landmark_editor.model.confidence("2.1") == pytest.approx(0.2), timeout=10000)
+    assert asked and "2.00 times smaller" in asked[0] and "Scale it by 2?" in asked[0]
+    assert np.ptp(window.face.vertices[:, 0]) == pytest.approx(2 * width)
+    assert window.face.landmarks["9.3"] == points["9.3"]
