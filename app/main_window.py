@@ -344,6 +344,7 @@ class MainWindow(QMainWindow):
         self._signals.loaded.connect(self._on_loaded)
         self._signals.failed.connect(self._on_load_failed)
         self._notes_box: QMessageBox | None = None
+        self._notes_seen: list[str] | None = None  # notes of the face an edited copy replaces
         self._framed_when_shown = False
 
         self.setWindowTitle(APP_NAME)
@@ -759,6 +760,9 @@ class MainWindow(QMainWindow):
         if path:
             self.add_recent_file(path)
         notes = list(getattr(face.metadata, "notes", []) or [])
+        seen, self._notes_seen = self._notes_seen, None
+        if seen is not None:  # an edited copy of the shown face: only what is new is news
+            notes = [n for n in notes if n not in seen]
         shown = Path(path).name if path else face.metadata.name
         if notes:
             self.statusBar().showMessage(f"Loaded {shown} — " + "; ".join(notes), 15000)
@@ -775,6 +779,7 @@ class MainWindow(QMainWindow):
         if generation != self._generation:
             return
         self._finish_load()
+        self._notes_seen = None
         title = f"Could not open {Path(path).name}" if path else "Could not load the default face"
         if self.face is None and getattr(self, "_fallback_to_default", False):
             # Start the fallback before the (blocking) message box, so the
@@ -994,6 +999,7 @@ class MainWindow(QMainWindow):
     def replace_face(self, face, message: str) -> None:
         """Show an edited copy of the current face; its rig is rebuilt in the background."""
         self._fallback_to_default = False
+        self._notes_seen = list(self.face.metadata.notes) if self.face is not None else None
         self._start_load(self.face_path or "", lambda progress: face, message)
 
     def scale_face(self, factor: float) -> None:
@@ -1001,7 +1007,7 @@ class MainWindow(QMainWindow):
         if self.face is None:
             return
         face = self.face.scaled(factor)
-        face.metadata.notes.append(f"Scaled by {factor:g} in Mimica.")
+        face.metadata.notes.append(f"Scaled by {factor:.4g} in Mimica.")  # scaled() copied the notes
         self.replace_face(face, f"Scaling the face by {factor:g}…")
 
     def scale_face_dialog(self) -> None:
@@ -1059,10 +1065,7 @@ class MainWindow(QMainWindow):
         """Rebuild the animation rig (FAPs, muscles) from the current, corrected landmarks."""
         if self.face is None:
             return
-        face = self.face
-        self._fallback_to_default = False
-        self._start_load(self.face_path or "", lambda progress: face,
-                         "Rebuilding the animation from the corrected landmarks…")
+        self.replace_face(self.face, "Rebuilding the animation from the corrected landmarks…")
 
     def _open_fap(self) -> None:
         self.fap_player_dock.show()

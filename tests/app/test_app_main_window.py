@@ -409,12 +409,19 @@ def test_scale_face_and_load_texture_replace_the_face(qtbot, window, synthetic_f
     assert window.face.texture.shape == (8, 16, 3)   # nothing lost
 
 
-def test_flip_texture_turns_the_image_upside_down(qtbot, window, synthetic_face, error_boxes):
+def test_flip_texture_turns_the_image_upside_down(qtbot, window, synthetic_face, error_boxes, monkeypatch):
+    shown = []
+    monkeypatch.setattr(window, "_show_notes", lambda notes, name: shown.append(notes))
+    window.face.metadata.notes.append("Scaled from centimetres to millimetres.")
+    window.face_path = "head.glb"  # as if opened from a file: its load notes were shown then
     before = window.face.texture.copy()
     with qtbot.waitSignal(window.load_finished, timeout=30000):
         window.flip_texture()
     assert np.array_equal(window.face.texture, before[::-1])
     assert window.face.landmarks == synthetic_face.landmarks
+    with qtbot.waitSignal(window.load_finished, timeout=30000):
+        window.scale_face(2.0)
+    assert shown == [["Scaled by 2 in Mimica."]]   # the load notes are not shown again for each edit
 
 
 def test_detection_in_other_units_offers_to_scale_and_keeps_the_landmarks(qtbot, window, synthetic_face,
