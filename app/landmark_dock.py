@@ -567,8 +567,7 @@ class LandmarkEditor(QObject):
         if face_actor is not None and face is not None:
             self.picker = picking.SurfacePicker(face_actor.actor, face_actor.mesh, face.triangles)
         self.dock.table_model.set_model(self.model)
-        height = float(np.ptp(face.vertices[:, 1])) if face is not None and face.n_vertices else 200.0
-        self.markers.set_names(self.model.names if self.model is not None else [], face_height_mm=height or 200.0)
+        self.markers.set_names(self.model.names if self.model is not None else [], face_height_mm=self._face_height())
         self._marker_mtime = -1
         self._sync_all()
 
@@ -753,6 +752,17 @@ class LandmarkEditor(QObject):
             self._last_dir = str(Path(path).parent)
             self.load_file(path)
 
+    def _face_height(self) -> float:
+        """mm the face spans vertically, for sizing labels: from its landmarks when it has several
+        (a bust or a whole head is much taller than its face), else from the mesh."""
+        face = self.face
+        if face is None or not face.n_vertices:
+            return 200.0
+        if len(face.landmarks) >= 8:
+            # The landmarks span from the hairline (11.1) to the chin (2.1): 0.89 of the default face.
+            return float(np.ptp(face.landmark_positions()[:, 1])) / 0.89 or 200.0
+        return float(np.ptp(face.vertices[:, 1])) or 200.0
+
     def _error(self, title: str, message: str) -> None:
         self._status(message.splitlines()[0][:140], 8000)
         QMessageBox.warning(self.dock, title, message)
@@ -761,8 +771,7 @@ class LandmarkEditor(QObject):
     def _model_changed(self, name: str) -> None:
         self.dock.table_model.refresh(name)
         if not name and self.model is not None:
-            height = float(np.ptp(self.face.vertices[:, 1])) or 200.0
-            self.markers.set_names(self.model.names, face_height_mm=height)
+            self.markers.set_names(self.model.names, face_height_mm=self._face_height())
             self._selection_changed(self.model.selected)  # rows may have moved
         self._update_counts()
         self._update_markers(force=True)
