@@ -69,9 +69,12 @@ def load_face_or_default(path: str | None):
     except ImportError as exc:
         raise CliError(f"mesh loading is not available ({exc})") from None
     try:
-        return load_face(p)
+        face = load_face(p)
     except MeshLoadError as exc:
         raise CliError(f"cannot load {path}: {exc}") from None
+    from core.registration.correspondence import with_canonical_landmarks
+
+    return with_canonical_landmarks(face)  # a saved canonical face animates again
 
 
 # ---------------------------------------------------------------- commands

@@ -65,6 +65,33 @@ def _run_batch(files: list[Path], work, what: str) -> int:
     return 1 if failed else 0
 
 
+def _with_texture(scan, args: argparse.Namespace):
+    """``scan`` with the image of ``--texture`` (flipped with ``--flip-texture``), if given."""
+    if not args.texture:
+        if args.flip_texture and scan.texture is not None:
+            return scan.with_texture(np.ascontiguousarray(scan.texture[::-1]))
+        return scan
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(args.texture) as image:
+            texture = np.asarray(image.convert("RGB"))
+    except (OSError, UnidentifiedImageError) as exc:
+        raise CliError(f"--texture {args.texture}: not an image Mimica can read ({exc})") from None
+    try:
+        return scan.with_texture(np.ascontiguousarray(texture[::-1]) if args.flip_texture else texture)
+    except ValueError as exc:
+        raise CliError(f"--texture {args.texture}: {exc}") from None
+
+
+def _add_texture_options(p) -> None:
+    p.add_argument("--texture", metavar="IMAGE",
+                   help="map IMAGE onto the scan through its texture coordinates (a scan whose texture is a "
+                        "separate file)")
+    p.add_argument("--flip-texture", action="store_true",
+                   help="turn the texture upside down (texture coordinates that count rows from the other end)")
+
+
 def cmd_landmarks(args: argparse.Namespace) -> int:
     """Detect the template's landmarks on each scan and save them as landmark JSON."""
     from core.landmarks_io import LandmarkFileError, save_landmarks
@@ -75,7 +102,7 @@ def cmd_landmarks(args: argparse.Namespace) -> int:
     out = Path(args.out)
 
     def work(path: Path) -> str:
-        scan = load_face_or_default(str(path))
+        scan = _with_texture(load_face_or_default(str(path)), args)
         try:
             detection = detect_landmarks(scan, template=args.template)
         except ValueError as exc:
@@ -111,7 +138,7 @@ def cmd_register(args: argparse.Namespace) -> int:
         raise CliError(f"--out must end in .obj, .ply or .glb, got {args.out!r}")
 
     def work(path: Path) -> str:
-        scan = load_face_or_default(str(path))
+        scan = _with_texture(load_face_or_default(str(path)), args)
         lm_path = landmark_source / f"{path.stem}.landmarks.json" if batch else landmark_source
         if not lm_path.is_file():
             raise CliError(f"no landmark file {lm_path}; run 'mimica landmarks' first")
@@ -160,6 +187,7 @@ def add_landmarks(sub) -> None:
     p.add_argument("--template", choices=TEMPLATES, default="mpeg4_80",
                    help="landmark set: the 80-point MPEG-4 template (default) or the thesis's 48 points")
     p.add_argument("--out", "-o", required=True, metavar="L.json|FOLDER")
+    _add_texture_options(p)
     p.set_defaults(func=cmd_landmarks)
 
 
@@ -174,6 +202,7 @@ def add_register(sub) -> None:
                    help="multiply the scan's coordinates by FACTOR first (a scan in other units; "
                         "'mimica landmarks' prints the factor it suggests)")
     p.add_argument("--out", "-o", required=True, metavar="FACE.obj|FOLDER")
+    _add_texture_options(p)
     p.set_defaults(func=cmd_register)
 
 

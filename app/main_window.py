@@ -702,8 +702,10 @@ class MainWindow(QMainWindow):
 
         def loader(progress):
             from core.mesh_io import load_face
+            from core.registration.correspondence import with_canonical_landmarks
 
-            return load_face(path, progress=progress)
+            # A canonical face saved by Build correspondence or 'mimica register' gets its landmarks back.
+            return with_canonical_landmarks(load_face(path, progress=progress))
 
         self._fallback_to_default = fallback_to_default
         self._start_load(path, loader, f"Loading {Path(path).name}…")

@@ -33,6 +33,7 @@ Choices the thesis leaves open (written down here):
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -43,7 +44,7 @@ from ..face import Face, FaceMetadata, SurfacePoint, vertex_normals
 from ..fap.template import DenseTemplate, TemplateError, _edge_vertices, skin_triangles
 from ..subdivision import subdivide
 from ..surface_query import TriangleSet
-from .templates import get_template
+from .templates import TEMPLATE_NAMES, get_template
 
 
 class CorrespondenceError(ValueError):
@@ -282,14 +283,25 @@ def canonical_face(scan: Face, projection: Projection, template_name: str) -> Fa
         c = np.einsum("kj,kjd->kd", projection.scan_bary,
                       scan.vertex_colors[scan.triangles[projection.scan_triangle]].astype(float))
         colours = np.clip(np.round(c), 0, 255).astype(np.uint8)
-    tpl = get_template(template_name)
     t = dense.triangles
-    # Base vertex i keeps index i: a landmark is that vertex, as a corner of one of its triangles.
-    first_tri = np.full(len(tpl.base.points), -1)
-    corner = np.zeros(len(tpl.base.points), np.int64)
+    landmarks = _base_vertex_landmarks(template_name, t)
+    meta = FaceMetadata(source=scan.metadata.source, units="mm",
+                        notes=[f"registered to template {template_name} ({len(dense.vertices)} vertices)"],
+                        name=f"{scan.metadata.name} ({template_name})")
+    return Face(dense.vertices, t, uv=uv, texture=scan.texture if uv is not None else None,
+                vertex_colors=colours, landmarks=landmarks, metadata=meta)
+
+
+def _base_vertex_landmarks(template_name: str, triangles: np.ndarray) -> dict[str, SurfacePoint]:
+    """The template's landmarks on a canonical face: base vertex i keeps index i, so a landmark is
+    that vertex, as a corner of the first triangle using it."""
+    tpl = get_template(template_name)
+    n_base = len(tpl.base.points)
+    first_tri = np.full(n_base, -1)
+    corner = np.zeros(n_base, np.int64)
     for k in range(3):
-        ids = np.nonzero(t[:, k] < len(tpl.base.points))[0]
-        vv = t[ids, k]
+        ids = np.nonzero(triangles[:, k] < n_base)[0]
+        vv = triangles[ids, k]
         unset = first_tri[vv] < 0
         first_tri[vv[unset]], corner[vv[unset]] = ids[unset], k
     landmarks = {}
@@ -298,11 +310,40 @@ def canonical_face(scan: Face, projection: Projection, template_name: str) -> Fa
         bary = [0.0, 0.0, 0.0]
         bary[corner[i]] = 1.0
         landmarks[name] = SurfacePoint(int(first_tri[i]), tuple(bary))
-    meta = FaceMetadata(source=scan.metadata.source, units="mm",
-                        notes=[f"registered to template {template_name} ({len(dense.vertices)} vertices)"],
-                        name=f"{scan.metadata.name} ({template_name})")
-    return Face(dense.vertices, t, uv=uv, texture=scan.texture if uv is not None else None,
-                vertex_colors=colours, landmarks=landmarks, metadata=meta)
+    return landmarks
+
+
+@functools.lru_cache(maxsize=None)
+def canonical_triangles(template_name: str) -> np.ndarray:
+    """(T, 3) triangles of every canonical face of ``template_name`` (they depend on the template's
+    subdivision steps only, not on the scan)."""
+    template = get_template(template_name).base
+    v = np.random.default_rng(0).random((len(template.points), 3))  # any non-degenerate positions
+    t, creases, coords = template.triangles, template.crease_edges(), np.eye(len(v))
+    for scheme in template.steps:
+        sub = subdivide(v, t, scheme=scheme, creases=creases, params=coords)
+        v, t, coords, creases = sub.vertices, sub.triangles, sub.params, sub.creases
+    t.setflags(write=False)
+    return t
+
+
+def with_canonical_landmarks(face: Face) -> Face:
+    """``face`` with its template landmarks restored when it is a canonical face saved without them
+    (mesh files carry no landmarks; same vertex count and triangles as a template's canonical
+    faces), else ``face`` unchanged."""
+    if face.landmarks:
+        return face
+    for name in TEMPLATE_NAMES:
+        tri = canonical_triangles(name)
+        if face.n_triangles == len(tri) and face.n_vertices == int(tri.max()) + 1 \
+                and np.array_equal(face.triangles, tri):
+            out = face.with_vertices(face.vertices)
+            for n, p in _base_vertex_landmarks(name, tri).items():
+                out.set_landmark(n, p)
+            out.metadata.notes.append(f"Recognised as a canonical face of template {name}: its "
+                                      f"{len(out.landmarks)} landmarks were restored.")
+            return out
+    return face
 
 
 def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, template: str = "mpeg4_80",

@@ -8,9 +8,9 @@ Steps of ``detect_landmarks``: input checks (size, units) -> rigid ICP of the sc
 (point-to-plane, centroid start; when the model's skin does not lie on the result, e.g. a bust or
 a file in other units, ``alignment.locate_face`` searches for the face and its size, and matching
 runs on a copy scaled to millimetres, see ``Detection.scale_hint``) -> candidates, HK maps and
-Colombo seeds -> greedy structural matching -> patch refinement on the surface -> confidence (see ``matching``). The model is the
-built-in default face unless given; its context (template points, appearance, frontal raster) is
-cached per model object.
+Colombo seeds -> greedy structural matching -> patch refinement on the surface -> confidence (see
+``matching``). The model is the built-in default face unless given; its context (template points,
+appearance, frontal raster) is cached per model object.
 
 Input checks (clear ValueErrors rather than nonsense): fewer than ``MIN_VERTICES`` vertices or
 triangles; a scan whose size differs from the model's by more than 4x (typically metres or
@@ -163,7 +163,8 @@ def _locate(scan: Face, model: Face, report: list[str]):
     report.append(
         f"the scan's face is {scale:.2f} times {'smaller' if scale > 1 else 'larger'} than a human face: its units "
         f"are probably not millimetres. Landmarks were found on a copy scaled by {scale:.3g}; scale the face by "
-        f"{scale:.3g} (Tools > Scale face) so distances and muscles are right")
+        f"{scale:.3g} (Tools > Scale face in the window, --scale with mimica register) so distances and muscles "
+        "are right")
     return found.transform, scale
 
 

@@ -139,8 +139,22 @@ def test_landmarks_then_register_a_scan_in_other_units(tmp_path, capsys):
     assert cli.main(["register", str(scan_path), "-l", str(landmarks), "--scale", "2", "-o", str(canonical)]) == 0
     face = load_face(canonical)
     assert face.n_vertices == 4560
+    # The OBJ has no landmarks, but Mimica recognises a canonical face and can animate it.
+    joy = tmp_path / "joy.png"
+    assert cli.main(["render", str(canonical), "--expression", "joy:80", "-o", str(joy), "--size", "200x150"]) == 0
+    assert image_variance(np.asarray(Image.open(joy))) > 0
     width = np.ptp(face.vertices[:, 0])
     assert abs(width - np.ptp(scan.vertices[:, 0])) < 0.1 * width   # back at the face's size in mm
     with pytest.raises(SystemExit):
         cli.main(["register", str(scan_path), "-l", str(landmarks), "--scale", "-3", "-o", str(canonical)])
     assert "positive number" in capsys.readouterr().err
+    # A separate texture image (here also flipped): the canonical face carries it through the scan's uv.
+    image = tmp_path / "tex.png"
+    Image.new("RGB", (8, 4), (0, 0, 255)).save(image)
+    assert cli.main(["register", str(scan_path), "-l", str(landmarks), "--scale", "2", "--texture", str(image),
+                     "--flip-texture", "-o", str(canonical)]) == 0
+    colours = load_face(canonical).texture.reshape(-1, 3)
+    assert (colours[:, 2] > 200).mean() > 0.9 and (colours[:, 0] < 50).mean() > 0.9
+    (tmp_path / "bad.png").write_text("no image")
+    assert cli.main(["landmarks", str(scan_path), "--texture", str(tmp_path / "bad.png"), "-o", str(landmarks)]) == 1
+    assert "not an image" in capsys.readouterr().err

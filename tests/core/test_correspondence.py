@@ -79,3 +79,20 @@ def test_carry_back_rest_and_jaw(scan, registration):
 def test_missing_landmarks_are_a_clear_error(scan):
     with pytest.raises(CorrespondenceError, match="missing"):
         dense_correspondence(scan, {"9.3": scan.landmark_position("9.3")}, template="a48")
+
+
+def test_a_saved_canonical_face_gets_its_landmarks_back(registration, tmp_path):
+    from core.mesh_io import load_face, save_face
+    from core.registration.correspondence import with_canonical_landmarks
+
+    path = tmp_path / "canonical.obj"
+    save_face(registration.face, path)
+    bare = load_face(path)
+    assert not bare.landmarks   # mesh files carry no landmarks
+    restored = with_canonical_landmarks(bare)
+    assert restored.landmarks == registration.face.landmarks
+    assert "Recognised as a canonical face" in restored.metadata.notes[-1]
+    # Any other mesh is left alone, and a face that has landmarks is not touched.
+    other = type(bare)(bare.vertices, bare.triangles[::-1].copy())
+    assert not with_canonical_landmarks(other).landmarks
+    assert with_canonical_landmarks(registration.face) is registration.face
