@@ -28,22 +28,27 @@ def face_scan(model):
     return scan_face(model, n_target=30_000, rng=np.random.default_rng(5)).face
 
 
-def to_bust_units(points):
+def to_bust_units(points, units=UNITS):
     """mm in the model's frame -> the bust file's frame and units."""
-    return (apply_transform(points, rigid_transform(PITCH, SHIFT))) / UNITS
+    return (apply_transform(points, rigid_transform(PITCH, SHIFT))) / units
 
 
-@pytest.fixture(scope="module")
-def bust(face_scan):
+def make_bust(face_scan, units=UNITS) -> Face:
     """The face scan on top of shoulders (a box as wide as a torso under the chin), tilted, moved and
-    stored in 4.5-mm units: the scan's centroid is far below the face and its size is 'wrong'."""
+    stored in ``units``-mm units: the scan's centroid is far below the face."""
     torso = trimesh.creation.box(extents=(330.0, 170.0, 160.0))
     torso.apply_translation((0.0, -200.0, -70.0))
     offset = face_scan.n_vertices
     vertices = np.concatenate([face_scan.vertices, torso.vertices])
     triangles = np.concatenate([face_scan.triangles, torso.faces + offset])
     uv = np.concatenate([face_scan.uv, np.zeros((len(torso.vertices), 2))])
-    return Face(to_bust_units(vertices), triangles, uv=uv, texture=face_scan.texture)
+    return Face(to_bust_units(vertices, units), triangles, uv=uv, texture=face_scan.texture)
+
+
+@pytest.fixture(scope="module")
+def bust(face_scan):
+    """The bust stored in 4.5-mm units: its size is 'wrong' too."""
+    return make_bust(face_scan)
 
 
 def test_locate_face_recovers_units_and_placement(model, bust):
@@ -84,6 +89,17 @@ def test_detection_on_the_bust_finds_the_landmarks_and_suggests_the_scale(model,
 
 def test_a_scan_in_millimetres_gets_no_scale_hint(face_scan):
     assert detect_landmarks(face_scan, template="a48").scale_hint is None
+
+
+def test_a_bust_in_millimetres_is_matched_at_its_own_size(face_scan):
+    bust_mm = make_bust(face_scan, units=1.0)
+    det = detect_landmarks(bust_mm, template="a48")
+    assert det.scale_hint is None
+    truth = template_positions(face_scan, "a48")
+    names = list(truth)
+    err = np.linalg.norm(np.array([det.positions[n] for n in names])
+                         - to_bust_units(np.array([truth[n] for n in names]), 1.0), axis=1)
+    assert np.median(err) < 1.5 and np.mean(err < 9.0) > 0.95
 
 
 def test_something_that_is_no_face_is_reported(model):
