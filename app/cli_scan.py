@@ -67,20 +67,13 @@ def _run_batch(files: list[Path], work, what: str) -> int:
 
 def _with_texture(scan, args: argparse.Namespace):
     """``scan`` with the image of ``--texture`` (flipped with ``--flip-texture``), if given."""
-    if not args.texture:
-        if args.flip_texture and scan.texture is not None:
-            return scan.with_texture(np.ascontiguousarray(scan.texture[::-1]))
-        return scan
-    from PIL import Image, UnidentifiedImageError
+    from core.mesh_io import MeshLoadError, load_texture_image
 
     try:
-        with Image.open(args.texture) as image:
-            texture = np.asarray(image.convert("RGB"))
-    except (OSError, UnidentifiedImageError) as exc:
-        raise CliError(f"--texture {args.texture}: not an image Mimica can read ({exc})") from None
-    try:
-        return scan.with_texture(np.ascontiguousarray(texture[::-1]) if args.flip_texture else texture)
-    except ValueError as exc:
+        if args.texture:
+            scan = scan.with_texture(load_texture_image(args.texture))
+        return scan.with_flipped_texture() if args.flip_texture and scan.texture is not None else scan
+    except (MeshLoadError, ValueError) as exc:
         raise CliError(f"--texture {args.texture}: {exc}") from None
 
 

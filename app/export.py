@@ -71,6 +71,7 @@ Speed (measured here: software rendering, Mesa llvmpipe, a 2-core machine shared
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import json
 import math
@@ -412,11 +413,12 @@ def _wait(proc: subprocess.Popen, cancelled: Callable[[], bool]) -> int:
                 raise ExportCancelled() from None
 
 
-class _Sink:
+class _Sink(abc.ABC):
     """Takes (h, w, 3) uint8 frames for one output; ``finish`` completes it, ``abort`` drops it."""
 
-    def write(self, image: np.ndarray) -> None:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abc.abstractmethod
+    def write(self, image: np.ndarray) -> None:
+        """Add one frame."""
 
     def finish(self, cancelled: Callable[[], bool]) -> None:
         pass

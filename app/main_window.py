@@ -1030,18 +1030,13 @@ class MainWindow(QMainWindow):
 
     def load_texture(self, path) -> None:
         """Map the image at ``path`` onto the current face (errors in a message box)."""
-        from PIL import Image, UnidentifiedImageError
+        from core.mesh_io import MeshLoadError, load_texture_image
 
         if self.face is None:
             return
         try:
-            with Image.open(path) as image:
-                texture = np.asarray(image.convert("RGB"))
-            face = self.face.with_texture(texture)
-        except (OSError, UnidentifiedImageError) as exc:
-            self.show_error("Cannot load the texture", f"'{Path(path).name}' is not an image Mimica can read: {exc}")
-            return
-        except ValueError as exc:
+            face = self.face.with_texture(load_texture_image(path))
+        except (MeshLoadError, ValueError) as exc:
             self.show_error("Cannot load the texture", str(exc))
             return
         self.replace_face(face, f"Applying the texture {Path(path).name}…")
@@ -1054,8 +1049,7 @@ class MainWindow(QMainWindow):
             self.show_error("Cannot flip the texture", "This face has no texture image. Load one first with "
                             "Tools > Load texture image…")
             return
-        self.replace_face(self.face.with_texture(np.ascontiguousarray(self.face.texture[::-1])),
-                          "Flipping the texture…")
+        self.replace_face(self.face.with_flipped_texture(), "Flipping the texture…")
 
     def load_texture_dialog(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Load texture image", "",

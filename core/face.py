@@ -411,6 +411,13 @@ class Face:
             landmarks=self._landmarks, metadata=self.metadata, parts=self._parts, _topology=self._topology,
         )
 
+    def with_flipped_texture(self) -> "Face":
+        """The same face with its texture image upside down (for texture coordinates that count rows
+        from the other end); ValueError when it has no texture."""
+        if self._texture is None:
+            raise ValueError("this face has no texture image to flip")
+        return self.with_texture(np.ascontiguousarray(self._texture[::-1]))
+
     def scaled(self, factor: float) -> "Face":
         """The face scaled by ``factor`` about the origin (e.g. to fix units); landmarks follow."""
         factor = float(factor)

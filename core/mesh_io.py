@@ -38,9 +38,10 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from core.face import Face, FaceMetadata
-from core.mesh_formats import READERS, RawMesh, plural, reason, weld
+from core.mesh_formats import READERS, RawMesh, _image_to_rgb, plural, reason, weld
 
-__all__ = ["MeshLoadError", "MeshSaveError", "load_face", "save_face", "LOAD_FORMATS", "SAVE_FORMATS"]
+__all__ = ["MeshLoadError", "MeshSaveError", "load_face", "load_texture_image", "save_face", "LOAD_FORMATS",
+           "SAVE_FORMATS"]
 
 #: Extensions :func:`load_face` understands, with a human name for messages.
 LOAD_FORMATS = {".obj": "OBJ", ".ply": "PLY", ".stl": "STL", ".gltf": "glTF", ".glb": "GLB"}
@@ -79,6 +80,19 @@ class MeshSaveError(Exception):
 
 
 # =====================================================================  load
+def load_texture_image(path) -> np.ndarray:
+    """(H, W, 3) uint8 of the image at ``path`` (any mode: alpha dropped, grey expanded, 16-bit
+    scaled), for a texture that comes as a separate file. MeshLoadError with a user-facing message."""
+    import PIL.Image
+
+    path = Path(path)
+    try:
+        with PIL.Image.open(path) as image:
+            return _image_to_rgb(image)
+    except Exception as exc:  # noqa: BLE001 - PIL raises many kinds; the user needs one sentence
+        raise MeshLoadError(f"'{path.name}' is not an image Mimica can read ({reason(exc)})") from None
+
+
 def load_face(path, *, progress: ProgressCallback | None = None, max_triangles: int = 5_000_000) -> Face:
     """Load a face mesh, repair what can be repaired and convert it to millimetres.
 

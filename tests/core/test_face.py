@@ -107,3 +107,11 @@ def test_scaled_and_retextured_copies_keep_landmarks(grid_face):
     assert np.array_equal(retextured.texture, image) and retextured.landmarks == face.landmarks
     with pytest.raises(ValueError, match="texture coordinates"):
         Face(face.vertices, face.triangles).with_texture(image)
+
+
+def test_with_flipped_texture_turns_the_image_upside_down(grid_face):
+    flipped = grid_face.with_flipped_texture()
+    assert np.array_equal(flipped.texture, grid_face.texture[::-1])
+    assert flipped.landmarks == grid_face.landmarks and np.array_equal(flipped.uv, grid_face.uv)
+    with pytest.raises(ValueError, match="no texture"):
+        grid_face.without_texture().with_flipped_texture()

@@ -641,3 +641,17 @@ def test_two_textured_materials_use_the_first_with_note(tmp_path):
         "The mesh uses 2 texture images; Mimica shows one per face, so only 'b.png' is used and other parts "
         "may look wrongly coloured."
     ]
+
+
+def test_load_texture_image_reads_any_mode_and_refuses_non_images(tmp_path):
+    from PIL import Image
+
+    from core.mesh_io import MeshLoadError, load_texture_image
+
+    grey16 = tmp_path / "depthlike.png"
+    Image.fromarray(np.full((4, 6), 65535, np.uint16)).save(grey16)
+    rgb = load_texture_image(grey16)
+    assert rgb.shape == (4, 6, 3) and rgb.dtype == np.uint8 and (rgb == 255).all()   # scaled, not clipped garbage
+    (tmp_path / "bad.jpg").write_text("hello")
+    with pytest.raises(MeshLoadError, match="bad.jpg' is not an image"):
+        load_texture_image(tmp_path / "bad.jpg")
