@@ -2,13 +2,12 @@
 
 A project is human-readable JSON::
 
-    {"format": "mimica-project", "version": 1, "generator": "Mimica 0.1.0",
+    {"format": "mimica-project", "version": 2, "generator": "Mimica 0.1.0",
      "face": {"builtin": "default_face"}                       # the built-in face: nothing else stored
           or {"path": "anna.face.ply", "absolute": "/home/u/anim/anna.face.ply", "sha256": "…"},
      "landmarks": [{"name": "2.1", "triangle": 812, "barycentric": [0.2, 0.3, 0.5], "xyz": [x, y, z]}, …],
-     "rig": {"faps": {"3": 120.0}, "expressions": [{"id": 1, "name": "joy", "intensity": 0.5}],
-             "visemes": [{"id": 1, "intensity": 0.3}], "muscles": [{"name": "risorius", "side": "left",
-             "force": 4.0}], "jaw": 0.0},
+     "rig": {"values": {"fap:3": 120.0, "expression:joy": 0.5, "muscle:risorius:left": 4.0}},
+                                                               # parameters away from their defaults
      "timeline": {"duration": 10.0, "fps": 30, "tracks": [{"key": "fap:3", "keys": [[0.0, 0.0, "smooth"], …]}]},
      "speech": [{"text": "Olá", "lang": "pt-br", "start_s": 1.0, "rate_wpm": 175}],
      "view": {…}}                                              # opaque to core: camera, display mode, overlays
@@ -43,17 +42,17 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from .face import Face, SurfacePoint
-from .fap import tables
 from .mesh_io import save_face, write_atomic, write_reporting_errors
+from .parameters import ParameterError, check_value, key_of, sort_key
 from .timeline import Key, Timeline, TimelineError, Track, canonical_key
 
 FORMAT_NAME = "mimica-project"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the rig's values by parameter key; 1 (still read): FAPs, presets and muscles apart
 SUFFIX = ".mimica"
 AUTOSAVE_SUFFIX = ".autosave"
 BUILTIN_FACES = ("default_face",)
@@ -91,63 +90,30 @@ class FaceRef:
 
 @dataclass
 class RigSettings:
-    """The rig's own parameter values (what the sliders show), not the animation.
+    """The rig's own parameter values (what the sliders show), not the animation: {canonical key:
+    value} for every parameter away from its default (``core.parameters``), any layer's included."""
 
-    faps : FAP number -> value (FAP units; FAPs not listed are 0); expressions / visemes : the active
-    presets as (id, intensity 0..1); muscles : (name, side or None) -> force; jaw : degrees.
-    """
-
-    faps: dict[int, float] = field(default_factory=dict)
-    expressions: tuple[tuple[int, float], ...] = ()
-    visemes: tuple[tuple[int, float], ...] = ()
-    muscles: dict[tuple[str, str | None], float] = field(default_factory=dict)
-    jaw: float = 0.0
+    values: dict[str, float] = field(default_factory=dict)
 
     @classmethod
-    def from_rig(cls, rig, muscles: Mapping[tuple[str, str | None], float] | None = None,
-                 jaw: float = 0.0) -> "RigSettings":
-        """Capture a ``FaceRig``'s values (plus the muscle layer's forces and jaw, which the app holds)."""
-        values = rig.fap_values()
-        return cls(
-            faps={i + 1: float(v) for i, v in enumerate(values) if v != 0.0},
-            expressions=tuple((int(i), float(w)) for i, w in rig.expressions if i != 0 and w != 0.0),
-            visemes=tuple((int(i), float(w)) for i, w in rig.visemes if i != 0 and w != 0.0),
-            muscles={(str(n), s): float(f) for (n, s), f in (muscles or {}).items()},
-            jaw=float(jaw),
-        )
+    def from_rig(cls, rig) -> "RigSettings":
+        """Capture a ``FaceRig``'s values (every layer it has)."""
+        return cls(rig.values(nondefault=True))
 
-    def apply(self, rig, muscles=None) -> None:
-        """Put these values on a ``FaceRig`` (and a muscle layer with ``set_forces``/``set_jaw``)."""
-        rig.reset_faps()
-        if self.faps:
-            rig.set_faps(self.faps)
-        _restore_presets(rig, self.expressions, "expression")
-        _restore_presets(rig, self.visemes, "viseme")
-        if muscles is not None:
-            if self.muscles:
-                muscles.set_forces(dict(self.muscles))
-            muscles.set_jaw(self.jaw)
+    def apply(self, rig, *, build_layers: bool = True) -> dict[str, float]:
+        """Put these values on a ``FaceRig`` (everything else back to its default).
 
-
-def _restore_presets(rig, mix: tuple[tuple[int, float], ...], kind: str) -> None:
-    mix_method = getattr(rig, f"set_{kind}_mix", None)
-    single = getattr(rig, f"set_{kind}")
-    if not mix:
-        single(None, 0.0)
-    elif len(mix) == 1:
-        single(mix[0][0], mix[0][1])
-    # A FAP 2 / FAP 1 blend is restored through the same call so its order is kept exactly.
-    elif len(mix) == 2 and kind == "expression" and all(abs(w * 63 - round(w * 63)) < 1e-9 for _, w in mix):
-        (a, wa), (b, wb) = mix
-        rig.set_fap2(a, round(wa * 63), b, round(wb * 63))
-    elif len(mix) == 2 and kind == "viseme" and abs(mix[0][1] + mix[1][1] - 1) < 1e-9:
-        (a, wa), (b, _) = mix
-        rig.set_fap1(a, b, round(wa * 63))
-    elif mix_method is not None:
-        mix_method(dict(mix))
-    else:
-        best = max(mix, key=lambda e: e[1])
-        single(best[0], best[1])
+        Layers the rig lacks are built first when ``build_layers`` (``rig.ensure_layers``; the muscle
+        layer takes about a second); otherwise their values are returned, not applied.
+        """
+        if build_layers:
+            rig.ensure_layers(self.values)
+        owned = set(rig.parameters())
+        pending = {k: v for k, v in self.values.items() if k not in owned}
+        with rig.batch():
+            rig.reset()
+            rig.set_values({k: v for k, v in self.values.items() if k in owned})
+        return pending
 
 
 @dataclass(frozen=True)
@@ -174,7 +140,6 @@ class Project:
 
     @classmethod
     def from_state(cls, face: Face, face_ref: FaceRef, rig=None, timeline: Timeline | None = None, *,
-                   muscles: Mapping[tuple[str, str | None], float] | None = None, jaw: float = 0.0,
                    speech: list[SpeechClip] | None = None, view: dict | None = None) -> "Project":
         """A project from the app's live objects (the face's landmarks and their positions included)."""
         names = face.landmark_names
@@ -183,7 +148,7 @@ class Project:
             face=face_ref,
             landmarks=dict(face.landmarks),
             landmark_positions={n: tuple(float(c) for c in p) for n, p in zip(names, positions)},
-            rig=RigSettings.from_rig(rig, muscles, jaw) if rig is not None else RigSettings(),
+            rig=RigSettings.from_rig(rig) if rig is not None else RigSettings(),
             timeline=timeline if timeline is not None else Timeline(),
             speech=list(speech or []),
             view=dict(view or {}),
@@ -233,15 +198,7 @@ def to_document(project: Project, base_dir: str | os.PathLike | None = None) -> 
                 if name in project.landmark_positions else {})}
             for name, p in project.landmarks.items()
         ]
-    rig = project.rig
-    names = tables.expression_names()
-    doc["rig"] = {
-        "faps": {str(int(n)): float(v) for n, v in sorted(rig.faps.items())},
-        "expressions": [{"id": int(i), "name": names[int(i)], "intensity": float(w)} for i, w in rig.expressions],
-        "visemes": [{"id": int(i), "intensity": float(w)} for i, w in rig.visemes],
-        "muscles": [{"name": n, "side": s, "force": float(f)} for (n, s), f in rig.muscles.items()],
-        "jaw": float(rig.jaw),
-    }
+    doc["rig"] = {"values": {k: float(v) for k, v in sorted(project.rig.values.items(), key=lambda e: sort_key(e[0]))}}
     tl = project.timeline
     doc["timeline"] = {
         "duration": tl.duration, "fps": tl.fps,
@@ -404,7 +361,7 @@ def load_project(path: str | os.PathLike) -> Project:
     base = path.resolve().parent
     face = _read_face(doc["face"], base)
     landmarks, positions = _read_landmarks(doc.get("landmarks"))
-    rig = _read_rig(doc["rig"])
+    rig = _read_rig(doc["rig"], doc["version"].int())
     timeline = _read_timeline(doc["timeline"])
     speech = [_read_clip(c) for c in doc.get("speech", []).elements()]
     view = doc.get("view", {}).dict()
@@ -453,38 +410,48 @@ def _read_landmarks(f: _Field):
     return landmarks, positions
 
 
-def _read_rig(f: _Field) -> RigSettings:
-    faps = {}
+def _read_rig(f: _Field, version: int) -> RigSettings:
+    if version == 1:
+        return RigSettings(_read_rig_v1(f))
+    values = {}
+    for k, v in f.get("values", {}).items():
+        try:
+            key = key_of(k)
+            values[key] = check_value(key, v.number())
+        except ParameterError as exc:
+            raise v.fail(str(exc)) from None
+    return RigSettings(values)
+
+
+def _read_rig_v1(f: _Field) -> dict[str, float]:
+    """Format 1's rig: FAPs by number, preset lists, muscles as (name, side, force), the jaw."""
+    values: dict[str, float] = {}
+
+    def put(field_: _Field, spelling, value) -> None:
+        try:
+            key = key_of(spelling)
+            values[key] = values.get(key, 0.0) + check_value(key, value)
+        except ParameterError as exc:
+            raise field_.fail(str(exc)) from None
+
     for k, v in f.get("faps", {}).items():
         if not k.isdigit():
             raise v.fail("must be keyed by FAP number")
-        try:
-            spec = tables.fap_spec(int(k))
-        except ValueError as exc:
-            raise v.fail(str(exc)) from None
-        faps[spec.number] = v.number()
-    expressions = []
-    for e in f.get("expressions", []).elements():
-        try:
-            eid = tables.expression_id(e["id"].int())
-        except ValueError as exc:
-            raise e["id"].fail(str(exc)) from None
-        expressions.append((eid, _intensity(e["intensity"])))
-    visemes = []
-    for e in f.get("visemes", []).elements():
-        try:
-            vid = tables.viseme_id(e["id"].int())
-        except ValueError as exc:
-            raise e["id"].fail(str(exc)) from None
-        visemes.append((vid, _intensity(e["intensity"])))
-    muscles = {}
+        put(v, int(k), v.number())
+    for kind in ("expression", "viseme"):
+        for e in f.get(kind + "s", []).elements():
+            ident = e["id"].int()
+            if ident:
+                put(e["id"], f"{kind}:{ident}", _intensity(e["intensity"]))
     for e in f.get("muscles", []).elements():
         side = e.get("side").value
         if side not in (None, "left", "right"):
             raise e["side"].fail(f"must be \"left\", \"right\" or null, got {_describe(side)}")
-        muscles[(e["name"].str(), side)] = e["force"].number()
-    return RigSettings(faps=faps, expressions=tuple(expressions), visemes=tuple(visemes), muscles=muscles,
-                       jaw=f.get("jaw", 0.0).number())
+        put(e, (e["name"].str(), side), e["force"].number())
+    jaw = f.get("jaw", 0.0).number()
+    if jaw:
+        put(f.get("jaw"), "jaw", jaw)
+    return values
 
 
 def _intensity(f: _Field) -> float:

@@ -1,36 +1,64 @@
-"""The face rig: one object that owns the animation parameters and gives the current vertices.
+"""The face rig: the one model of a face's animation, composed of layers.
 
-Composition order (each layer adds to the previous one's output):
+Composition order (``FaceRig.vertices``; each layer's offset adds to the result so far):
 
     x = rest
-        + F · (fap_values ∘ fapu)         FAP layer: one sparse product (the Facial Animation Table)
-        + later layers' offsets           e.g. muscles (issue 4), blends; added via ``add_layer``
-    then rigid motions: eyeballs rotate about their centres (gaze FAPs 23-26) and the whole
-    head about the top of the spine (FAPs 48-50).
+    for layer in layers:   x = x + layer.offset(x)       FAPs first (the Facial Animation Table),
+                                                          then muscles, then later layers in the
+                                                          order they were added
+    for layer in layers:   x = layer.finish(x)           non-additive steps, FAP layer only today:
+                                                          lids stop on each other and slide over the
+                                                          eyeballs, eyeballs (FAPs 23-26) and the
+                                                          head (48-50) rotate
 
 The FAP values that drive the FAT are the *effective* values: the user's low-level values plus
 the active expression (FAP 2) and viseme (FAP 1) presets scaled by their intensities. Several
 FAPs acting on one point add their displacements (linear superposition, as in the MPEG-4
-players and thesis A's "combine FAT entries like keyframes"), except the eyelids: an upper and a
-lower lid that together close more than the opening stop where they meet (see
+players and thesis A's "combine FAT entries like keyframes"), except the eyelids (see
 ``core.fap.fat.lid_contact``).
 
-The rig emits ``changed`` (psygnal, no Qt) after every parameter change; ``vertices()`` is
-cached until the next change.
+Every parameter of every layer is reachable by its canonical key (``core.parameters``):
+``rig.value(key)``, ``rig.set_values({key: value})``, ``rig.parameters()``. The whole state is
+captured by ``rig.snapshot()`` and put back by ``rig.restore(snap)`` — the only capture/restore,
+used by undo, the timeline, project files and export. ``rig.copy()`` is an independent rig in the
+same state (export evaluates its own copy).
+
+Events (psygnal, no Qt): ``parameters_changed(change)`` after parameter values changed, with a
+:class:`core.layer.ParameterChange` naming the keys, their new and previous values, so nobody
+diffs; ``changed(change)`` after anything that moves the vertices (the same change, or an empty
+one when a dynamic layer only settled). A layer with ``dynamic = True`` (the muscles) moves only
+when it settles: setting its forces emits ``parameters_changed`` alone. ``vertices()`` is cached until the next change.
 """
 
 from __future__ import annotations
 
+import contextlib
+from dataclasses import dataclass
 from typing import Callable, Iterable, Mapping
 
 import numpy as np
 from psygnal import Signal
 
+from . import parameters as P
 from .face import Face
 from .fap import tables
 from .fap.fat import FapDeformer
+from .fap.layer import FapLayer, fraction, mix_from
+from .layer import ParameterChange, RigLayer, layer_factory
 
 N_FAPS = tables.N_FAPS
+
+__all__ = ["FaceRig", "RigSnapshot", "ParameterChange", "N_FAPS"]
+
+
+@dataclass(frozen=True)
+class RigSnapshot:
+    """The state of every layer of a rig: ((layer name, layer snapshot), ...) in layer order."""
+
+    layers: tuple[tuple[str, object], ...]
+
+    def of(self, name: str):
+        return dict(self.layers).get(name)
 
 
 class FaceRig:
@@ -44,89 +72,200 @@ class FaceRig:
         A prebuilt FAP deformer for ``face`` (built here otherwise; about a second for 50k vertices).
     """
 
-    changed = Signal()
+    changed = Signal(object)             # ParameterChange (empty when only a dynamic layer moved)
+    parameters_changed = Signal(object)  # ParameterChange with the keys whose values changed
 
     def __init__(self, face: Face, deformer: FapDeformer | None = None):
         self.face = face
         self.deformer = deformer if deformer is not None else FapDeformer(face)
         self.specs = tables.fap_specs()
         self.fapu = self.deformer.fapu
-        self._values = np.zeros(N_FAPS)
-        self._expressions: tuple[tuple[int, float], ...] = ((0, 0.0),)
-        self._visemes: tuple[tuple[int, float], ...] = ((0, 0.0),)
-        self._layers: dict[str, Callable[[np.ndarray], np.ndarray]] = {}
+        self.faps = FapLayer(self.deformer)
+        self._layers: dict[str, RigLayer] = {}
+        self._owner: dict[str, str] = {}
         self._cache: np.ndarray | None = None
+        self._batch: list[ParameterChange] | None = None
+        self.add_layer(self.faps)
 
-    # ------------------------------------------------------------ FAPs
+    # ------------------------------------------------------------ layers
+    @property
+    def layers(self) -> tuple[RigLayer, ...]:
+        return tuple(self._layers.values())
+
+    def layer(self, name: str) -> RigLayer | None:
+        return self._layers.get(name)
+
+    def add_layer(self, layer: RigLayer) -> RigLayer:
+        """Append ``layer`` (replacing one of the same name, in its place) and listen to it."""
+        old = self._layers.get(layer.name)
+        if old is not None:
+            self._disconnect(old)
+        self._layers[layer.name] = layer
+        self._owner = {k: name for name, lay in self._layers.items() for k in lay.parameters()}
+        layer.parameters_changed.connect(self._on_layer_parameters)
+        layer.pose_changed.connect(self._on_layer_pose)
+        self._touch(ParameterChange(layer=layer.name))
+        return layer
+
+    def remove_layer(self, name: str) -> None:
+        layer = self._layers.pop(name, None) if name != self.faps.name else None
+        if layer is not None:
+            self._disconnect(layer)
+            self._owner = {k: n for k, n in self._owner.items() if n != name}
+            self._touch(ParameterChange(layer=name))
+
+    def ensure_layers(self, keys: Iterable) -> list[str]:
+        """Add the registered layers (``core.layer.register_layer``) that own ``keys`` but are missing;
+        returns the names of the layers added (e.g. the muscle layer for a ``muscle:`` track)."""
+        added = []
+        for kind in dict.fromkeys(P.parse(k).kind for k in keys):
+            entry = layer_factory(kind)
+            if entry is not None and entry[0] not in self._layers:
+                layer = entry[1](self)
+                if self._layers.get(entry[0]) is not layer:
+                    self.add_layer(layer)
+                added.append(entry[0])
+        return added
+
+    def _disconnect(self, layer: RigLayer) -> None:
+        with contextlib.suppress(Exception):
+            layer.parameters_changed.disconnect(self._on_layer_parameters)
+        with contextlib.suppress(Exception):
+            layer.pose_changed.disconnect(self._on_layer_pose)
+
+    # ------------------------------------------------------------ the parameter registry
+    def parameters(self) -> tuple[str, ...]:
+        """Canonical keys of every parameter this rig can animate, layer by layer."""
+        return tuple(self._owner)
+
+    def describe(self, key) -> P.Parameter:
+        return P.describe(key)
+
+    def owner(self, key) -> RigLayer:
+        """The layer that animates ``key``; ParameterError saying why when none does."""
+        k = P.key_of(key)
+        name = self._owner.get(k)
+        if name is None:
+            entry = layer_factory(P.parse(k).kind)
+            if entry is not None and entry[0] not in self._layers:
+                raise P.ParameterError(f"{k} needs the {entry[0]} layer, which this face does not have yet")
+            if P.parse(k).kind == "fap":
+                self.faps.check_fap(int(P.parse(k).id), 0.0)   # raises the reason this FAP is not animated
+            raise P.ParameterError(f"{k} is not animated on this face")
+        return self._layers[name]
+
+    def value(self, key) -> float:
+        return self.owner(key).value(P.key_of(key))
+
+    def values(self, keys: Iterable | None = None, *, nondefault: bool = False) -> dict[str, float]:
+        """{key: value} for ``keys`` (all parameters when None); only those away from their default
+        when ``nondefault``."""
+        out = {}
+        for k in (self.parameters() if keys is None else [P.key_of(k) for k in keys]):
+            v = self.value(k)
+            if not nondefault or v != P.describe(k).default:
+                out[k] = v
+        return out
+
+    def set_values(self, values: Mapping) -> None:
+        """Set parameters of any layers by key; everything is validated before anything changes.
+        One ``changed`` at most."""
+        groups: dict[str, dict[str, float]] = {}
+        for spelling, value in values.items():
+            k = P.key_of(spelling)
+            groups.setdefault(self.owner(k).name, {})[k] = P.check_value(k, value)
+        if "faps" in groups:   # FAPs have a face-specific check beyond the range (animated here?)
+            for k, v in groups["faps"].items():
+                if k.startswith("fap:"):
+                    self.faps.check_fap(int(k[4:]), v)
+        with self.batch():
+            for name, group in groups.items():
+                self._layers[name].set_values(group)
+
+    def reset(self, keys: Iterable | None = None) -> None:
+        """Put parameters (all when None) back to their defaults."""
+        keys = self.parameters() if keys is None else [P.key_of(k) for k in keys]
+        self.set_values({k: P.describe(k).default for k in keys})
+
+    # ------------------------------------------------------------ snapshots
+    def snapshot(self) -> RigSnapshot:
+        return RigSnapshot(tuple((name, layer.snapshot()) for name, layer in self._layers.items()))
+
+    def restore(self, snapshot: RigSnapshot) -> None:
+        """Put a :meth:`snapshot` back (layers it does not know keep their state). One ``changed``."""
+        with self.batch():
+            for name, snap in snapshot.layers:
+                layer = self._layers.get(name)
+                if layer is not None:
+                    layer.restore(snap)
+
+    def copy(self) -> "FaceRig":
+        """An independent rig in the same state (shares the immutable deformer and layer models)."""
+        twin = FaceRig(self.face, self.deformer)
+        twin.faps.restore(self.faps.snapshot())
+        for name, layer in self._layers.items():
+            if name != self.faps.name:
+                twin.add_layer(layer.copy())
+        return twin
+
+    @contextlib.contextmanager
+    def batch(self):
+        """Merge every change inside the block into one event (emitted at its end)."""
+        if self._batch is not None:
+            yield
+            return
+        self._batch = []
+        try:
+            yield
+        finally:
+            changes, self._batch = self._batch, None
+            if changes:
+                self._emit(_merged([c for c, _ in changes]), any(moves for _, moves in changes))
+
+    # ------------------------------------------------------------ FAPs (the FAP layer's API)
     @property
     def animated_faps(self) -> tuple[int, ...]:
         """FAP numbers this face can animate (the 46 of thesis A, plus gaze and head when possible)."""
         return self.deformer.animated_faps
 
     def fap_value(self, number: int) -> float:
-        return float(self._values[tables.fap_spec(number).number - 1])
+        return float(self.faps.fap_values()[tables.fap_spec(number).number - 1])
 
     def fap_values(self) -> np.ndarray:
         """(68,) the user's low-level FAP values (index n - 1), a copy."""
-        return self._values.copy()
+        return self.faps.fap_values()
 
     def check_fap(self, number: int, value: float) -> tuple[int, float]:
         """(number, value) validated; ValueError with a message for the user otherwise."""
-        spec = tables.fap_spec(number)
-        if spec.number not in self.animated_faps:
-            why = self.deformer.why_not_animated(spec.number)
-            raise ValueError(f"FAP {spec.number} ({spec.name}) cannot be animated on this face: {why}")
-        value = float(value)
-        if not np.isfinite(value):
-            raise ValueError(f"{spec.name}: value must be a finite number, got {value}")
-        if not spec.minimum <= value <= spec.maximum:
-            raise ValueError(
-                f"{spec.name} = {value:g} is outside its range {spec.minimum:g} to {spec.maximum:g} {spec.unit}"
-            )
-        return spec.number, value
+        return self.faps.check_fap(number, value)
 
     def set_fap(self, number: int, value: float) -> None:
         self.set_faps({number: value})
 
     def set_faps(self, values: Mapping[int, float]) -> None:
         """Set several FAPs at once (all validated first; nothing changes if one is invalid)."""
-        checked = [self.check_fap(n, v) for n, v in values.items()]
-        changed = False
-        for n, v in checked:
-            if self._values[n - 1] != v:
-                self._values[n - 1] = v
-                changed = True
-        if changed:
-            self._touch()
+        checked = dict(self.check_fap(n, v) for n, v in values.items())
+        self.faps.set_values({f"fap:{n}": v for n, v in checked.items()})
 
     def reset_faps(self, numbers: Iterable[int] | None = None) -> None:
         """Zero the given FAPs (all when None)."""
-        if numbers is None:
-            if not self._values.any():
-                return
-            self._values[:] = 0.0
-        else:
-            idx = [tables.fap_spec(n).number - 1 for n in numbers]
-            if not self._values[idx].any():
-                return
-            self._values[idx] = 0.0
-        self._touch()
+        self.faps.reset_faps(numbers)
 
     # ------------------------------------------------------------ presets (FAP 2, FAP 1)
     @property
     def expression(self) -> tuple[int, float]:
         """(expression id 0..6, intensity 0..1) of the main FAP 2 preset."""
-        return self._expressions[0]
+        return self.faps.expressions[0]
 
     @property
     def expressions(self) -> tuple[tuple[int, float], ...]:
         """All active expression presets (FAP 2 can blend two), as (id, intensity)."""
-        return self._expressions
+        return self.faps.expressions
 
     def set_expression(self, expression: str | int | None, intensity: float = 1.0) -> None:
         """Activate one expression preset (thesis A Table B.1) at ``intensity`` in [0, 1]; None = neutral."""
         eid = 0 if expression is None else tables.expression_id(expression)
-        self._set_presets("_expressions", ((eid, _fraction(intensity, "expression intensity")),))
+        self.faps.set_mixes(expressions=((eid, fraction(intensity, "expression intensity")),) if eid else ())
 
     def set_fap2(self, select1: int, intensity1: int, select2: int = 0, intensity2: int = 0) -> None:
         """MPEG-4 FAP 2 as in a .fap file: expression1·i1/63 + expression2·i2/63 (intensities 0..63)."""
@@ -135,77 +274,64 @@ class FaceRig:
             if not 0 <= inten <= 63:
                 raise ValueError(f"FAP 2 expression intensity must be 0..63, got {inten}")
             mix.append((tables.expression_id(int(sel)), inten / 63.0))
-        self._set_presets("_expressions", tuple(mix))
+        self.faps.set_mixes(expressions=tuple(mix))
 
     @property
     def viseme(self) -> tuple[int, float]:
         """(viseme id 0..14, intensity 0..1) of the main FAP 1 preset."""
-        return self._visemes[0]
+        return self.faps.visemes[0]
 
     @property
     def visemes(self) -> tuple[tuple[int, float], ...]:
-        return self._visemes
+        return self.faps.visemes
 
     def set_viseme(self, viseme: str | int | None, intensity: float = 1.0) -> None:
         """Activate one viseme preset (resources/mpeg4/viseme_presets.csv) at ``intensity`` in [0, 1]."""
         vid = 0 if viseme is None else tables.viseme_id(viseme)
-        self._set_presets("_visemes", ((vid, _fraction(intensity, "viseme intensity")),))
+        self.faps.set_mixes(visemes=((vid, fraction(intensity, "viseme intensity")),) if vid else ())
 
     def set_fap1(self, select1: int, select2: int, blend: int) -> None:
         """MPEG-4 FAP 1 as in a .fap file: viseme1·b/63 + viseme2·(1 - b/63), blend 0..63."""
         if not 0 <= blend <= 63:
             raise ValueError(f"FAP 1 viseme_blend must be 0..63, got {blend}")
         mix = ((tables.viseme_id(int(select1)), blend / 63.0), (tables.viseme_id(int(select2)), 1 - blend / 63.0))
-        self._set_presets("_visemes", mix)
+        self.faps.set_mixes(visemes=mix)
 
     def set_expression_mix(self, mix: Mapping[str | int, float]) -> None:
         """Several expression presets at once, {name or id: intensity 0..1} (they add linearly)."""
-        self._set_presets("_expressions", _mix(mix, tables.expression_id, "expression intensity"))
+        self.faps.set_mixes(expressions=mix_from(mix, tables.expression_id, "expression intensity"))
 
     def set_viseme_mix(self, mix: Mapping[str | int, float]) -> None:
         """Several viseme presets at once, {name or id: intensity 0..1} (e.g. coarticulated lip-sync)."""
-        self._set_presets("_visemes", _mix(mix, tables.viseme_id, "viseme intensity"))
-
-    def _set_presets(self, attribute: str, mix: tuple[tuple[int, float], ...]) -> None:
-        if getattr(self, attribute) != mix:
-            setattr(self, attribute, mix)
-            self._touch()
+        self.faps.set_mixes(visemes=mix_from(mix, tables.viseme_id, "viseme intensity"))
 
     def preset_values(self) -> np.ndarray:
         """(68,) FAP values contributed by the active expression and viseme presets."""
-        out = np.zeros(N_FAPS)
-        for eid, weight in self._expressions:
-            out += tables.expression_table()[eid] * weight
-        for vid, weight in self._visemes:
-            out += tables.viseme_table()[vid] * weight
-        return out
+        return self.faps.preset_values()
 
     def effective_fap_values(self) -> np.ndarray:
         """(68,) user values + presets: what drives the deformation."""
-        return self._values + self.preset_values()
-
-    # ------------------------------------------------------------ layers
-    def add_layer(self, name: str, offset: Callable[[np.ndarray], np.ndarray]) -> None:
-        """Add a layer: ``offset(x)`` gets the FAP-deformed (n, 3) vertices and returns (n, 3) mm to add.
-
-        The layer calls ``rig.touch()`` when its own parameters change.
-        """
-        self._layers[name] = offset
-        self._touch()
-
-    def remove_layer(self, name: str) -> None:
-        if self._layers.pop(name, None) is not None:
-            self._touch()
-
-    def touch(self) -> None:
-        """Tell the rig that a layer's parameters changed."""
-        self._touch()
+        return self.faps.effective_values()
 
     # ------------------------------------------------------------ results
+    def touch(self) -> None:
+        """Tell the rig that its vertices must be recomputed (a layer moved without an event)."""
+        self._touch(ParameterChange())
+
     def vertices(self) -> np.ndarray:
         """(n, 3) mm: the current face (read-only array, cached until the next change)."""
         if self._cache is None:
-            x = self.deformer.deform(self.effective_fap_values(), layers=tuple(self._layers.values()))
+            x = self.face.vertices
+            layers = self.layers
+            for layer in layers:
+                offset = layer.offset(x)
+                if offset is not None:
+                    x = x + offset
+            for layer in layers:
+                finish: Callable | None = getattr(layer, "finish", None)
+                if finish is not None:
+                    x = finish(x)
+            x = np.array(x, dtype=float)
             x.setflags(write=False)
             self._cache = x
         return self._cache
@@ -218,20 +344,40 @@ class FaceRig:
         """(n,) in [0, 1]: how strongly FAP ``number`` moves each vertex (its influence region)."""
         return self.deformer.influence(tables.fap_spec(number).number)
 
-    def _touch(self) -> None:
-        self._cache = None
-        self.changed.emit()
+    # ------------------------------------------------------------ events
+    def _on_layer_parameters(self, change: ParameterChange) -> None:
+        # A dynamic layer (muscles) moves only when it settles (pose_changed): a new force alone
+        # changes a parameter, not the vertices.
+        moves = not getattr(self._layers.get(change.layer), "dynamic", False)
+        self._touch(change, moves=moves)
+
+    def _on_layer_pose(self) -> None:
+        self._touch(ParameterChange())
+
+    def _touch(self, change: ParameterChange, *, moves: bool = True) -> None:
+        if moves:
+            self._cache = None
+        if self._batch is not None:
+            self._batch.append((change, moves))
+        else:
+            self._emit(change, moves)
+
+    def _emit(self, change: ParameterChange, moves: bool) -> None:
+        if change.values:
+            self.parameters_changed.emit(change)
+        if moves:
+            self.changed.emit(change)
 
 
-def _mix(mix: Mapping, to_id: Callable, what: str) -> tuple[tuple[int, float], ...]:
-    """{name or id: intensity} -> ((id, intensity), ...), strongest first (so ``expression``/``viseme``
-    name the main preset); all validated before anything changes; neutral when empty."""
-    items = sorted(((to_id(k), _fraction(v, what)) for k, v in mix.items()), key=lambda e: -e[1])
-    return tuple(e for e in items if e[0] and e[1] > 0) or ((0, 0.0),)
-
-
-def _fraction(value: float, what: str) -> float:
-    value = float(value)
-    if not (np.isfinite(value) and 0.0 <= value <= 1.0):
-        raise ValueError(f"{what} must be between 0 and 1 (0-100 %), got {value:g}")
-    return value
+def _merged(changes: list[ParameterChange]) -> ParameterChange:
+    """One change for a batch: last new value and first previous value per key; keys that came
+    back to where they started are dropped."""
+    values: dict[str, float] = {}
+    previous: dict[str, float] = {}
+    for c in changes:
+        for k, v in c.values.items():
+            previous.setdefault(k, c.previous.get(k, v))
+            values[k] = v
+    keys = [k for k in values if values[k] != previous[k]]
+    layers = dict.fromkeys(c.layer for c in changes if c.layer)
+    return ParameterChange({k: values[k] for k in keys}, {k: previous[k] for k in keys}, "+".join(layers))

@@ -1,14 +1,8 @@
 """Timeline: tracks of keyframes for any rig parameter, evaluation at time t, simulated-layer caching.
 
-Parameter keys (strings; validated against a registry of kinds, ``register_kind`` adds more):
-
-    ``fap:<n>``                      a low-level FAP 3..68 (or its name: ``fap:open_jaw`` -> ``fap:3``),
-                                     in its own FAP unit, within the slider range of ``faps.csv``
-    ``expression:<name>``            an expression preset (FAP 2) intensity 0..1, e.g. ``expression:joy``
-    ``viseme:<id>``                  a viseme preset (FAP 1) intensity 0..1, id 1..14 (0 = silence, no track)
-    ``muscle:<name>:<left|right>``   a muscle force per side (finite, >= 0); ``muscle:<name>`` for an
-                                     unpaired muscle such as ``muscle:orbicularis_oris``
-    ``jaw``                          the muscle layer's jaw angle in degrees
+Parameter keys are the rig's canonical keys (``core.parameters``: ``fap:3``, ``expression:joy``,
+``viseme:1``, ``muscle:risorius:left``, ``jaw``, and whatever a new layer registers); values are
+checked against the parameter's range (no silent clamping).
 
 Choices the theses leave open (thesis A §4 interpolates poses linearly; nothing about editing):
 
@@ -35,8 +29,8 @@ Choices the theses leave open (thesis A §4 interpolates poses linearly; nothing
 
 from __future__ import annotations
 
+import contextlib
 import math
-import re
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
@@ -44,7 +38,7 @@ from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 import numpy as np
 from psygnal import Signal
 
-from .fap import tables
+from . import parameters as P
 
 INTERPOLATIONS = ("step", "linear", "smooth")
 STEP, LINEAR, SMOOTH = 0, 1, 2
@@ -57,198 +51,39 @@ class TimelineError(ValueError):
     """Bad timeline input (unknown key, value out of range, missing key...); the message says what to do."""
 
 
-# ====================================================================== parameter kinds
-@dataclass(frozen=True)
-class ParameterKind:
-    """One family of animatable parameters, e.g. ``fap``.
-
-    canonical(args) -> canonical key string (raises TimelineError on bad arguments);
-    check(key, value) raises TimelineError if ``value`` is not allowed for ``key``;
-    simulated: the parameter drives a dynamic layer (muscles), so its evaluation needs
-    :class:`MuscleSimulationCache`.
-    """
-
-    name: str
-    syntax: str
-    canonical: Callable[[list[str]], str]
-    check: Callable[[str, float], None]
-    simulated: bool = False
-
-
-_KINDS: dict[str, ParameterKind] = {}
-_MUSCLES: dict[str, bool] | None = None  # name -> paired; None = any well-formed name accepted
-_MUSCLE_RANGES: dict[str, tuple[float, float]] = {}
-_JAW_RANGE: tuple[float, float] | None = None
-
-
-def register_kind(kind: ParameterKind) -> None:
-    """Make a new parameter family keyable (e.g. a future ``blend:<pose>`` layer)."""
-    _KINDS[kind.name] = kind
-
-
-def register_muscles(paired: Iterable[str], unpaired: Iterable[str] = (), *,
-                     ranges: Mapping[str, tuple[float, float]] | None = None,
-                     jaw_range: tuple[float, float] | None = None) -> None:
-    """Tell the timeline which muscles exist (the muscle layer calls this); keys are then checked strictly.
-
-    ranges : name -> (min, max) force; jaw_range : (min, max) degrees. Until this is called, any
-    ``muscle:<snake_case_name>[:<left|right>]`` key is accepted with any force >= 0, and any jaw angle.
-    """
-    global _MUSCLES, _MUSCLE_RANGES, _JAW_RANGE
-    _MUSCLES = {**{n: True for n in paired}, **{n: False for n in unpaired}}
-    _MUSCLE_RANGES = {n: (float(a), float(b)) for n, (a, b) in (ranges or {}).items()}
-    _JAW_RANGE = None if jaw_range is None else (float(jaw_range[0]), float(jaw_range[1]))
+# ====================================================================== parameters
+# Keys, their ranges and checks are the rig's parameter registry (core.parameters); the timeline
+# reports their errors as TimelineError.
+@contextlib.contextmanager
+def _as_timeline_error():
+    try:
+        yield
+    except P.ParameterError as exc:
+        raise TimelineError(str(exc)) from None
 
 
 def parameter_kinds() -> tuple[str, ...]:
-    return tuple(_KINDS)
-
-
-def kind_of(key: str) -> ParameterKind:
-    """The parameter kind of a (canonical or not) key."""
-    return _KINDS[_split(key)[0]]
+    return P.kinds()
 
 
 def canonical_key(key: str) -> str:
     """Validated canonical form of a parameter key (``fap:open_jaw`` -> ``fap:3``); TimelineError if unknown."""
     if not isinstance(key, str):
         raise TimelineError(f"parameter keys are strings like 'fap:3' or 'viseme:1', got {key!r}")
-    prefix, args = _split(key)
-    kind = _KINDS.get(prefix)
-    if kind is None:
-        raise TimelineError(
-            f"unknown parameter {key!r}: keys look like " + ", ".join(repr(k.syntax) for k in _KINDS.values())
-        )
-    return kind.canonical(args)
+    with _as_timeline_error():
+        return P.key_of(key)
 
 
 def check_value(key: str, value: float) -> float:
     """``value`` as float if allowed for canonical ``key``; TimelineError otherwise."""
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise TimelineError(f"{key}: key values must be numbers, got {value!r}") from None
-    if not math.isfinite(value):
-        raise TimelineError(f"{key}: key values must be finite numbers, got {value}")
-    kind_of(key).check(key, value)
-    return value
-
-
-def _split(key: str) -> tuple[str, list[str]]:
-    parts = key.strip().split(":")
-    return parts[0].strip().lower(), [p.strip() for p in parts[1:]]
-
-
-def _fap_canonical(args: list[str]) -> str:
-    if len(args) != 1 or not args[0]:
-        raise TimelineError("FAP keys are 'fap:<number>' (3..68) or 'fap:<name>', e.g. 'fap:3' or 'fap:open_jaw'")
-    try:
-        spec = tables.fap_spec(args[0])
-    except ValueError as exc:
-        raise TimelineError(f"fap:{args[0]}: {exc}") from None
-    if spec.number == 1:
-        raise TimelineError("FAP 1 (visemes) is keyed per viseme: use 'viseme:<id>' keys (intensity 0..1)")
-    if spec.number == 2:
-        raise TimelineError("FAP 2 (expressions) is keyed per expression: use 'expression:<name>' keys (0..1)")
-    if not (math.isfinite(spec.minimum) and math.isfinite(spec.maximum)):
-        raise TimelineError(f"FAP {spec.number} ({spec.name}) is not animated by Mimica, so it cannot be keyed")
-    return f"fap:{spec.number}"
-
-
-def _fap_check(key: str, value: float) -> None:
-    spec = tables.fap_spec(int(key.split(":")[1]))
-    if not spec.minimum <= value <= spec.maximum:
-        raise TimelineError(
-            f"{key} ({spec.name}) = {value:g} is outside its range {spec.minimum:g} to {spec.maximum:g} {spec.unit}"
-        )
-
-
-def _expression_canonical(args: list[str]) -> str:
-    if len(args) != 1 or not args[0]:
-        raise TimelineError("expression keys are 'expression:<name>', e.g. 'expression:joy'")
-    try:
-        eid = tables.expression_id(args[0])
-    except ValueError as exc:
-        raise TimelineError(str(exc)) from None
-    if eid == 0:
-        raise TimelineError("'expression:neutral' is the absence of expression; key the other expressions at 0")
-    return f"expression:{tables.expression_names()[eid]}"
-
-
-def _viseme_canonical(args: list[str]) -> str:
-    if len(args) != 1 or not args[0]:
-        raise TimelineError("viseme keys are 'viseme:<id>' with id 1..14, e.g. 'viseme:1' (p, b, m)")
-    try:
-        vid = tables.viseme_id(args[0])
-    except ValueError as exc:
-        raise TimelineError(str(exc)) from None
-    if vid == 0:
-        raise TimelineError("viseme 0 is silence (the neutral mouth): key the other visemes at 0 instead")
-    return f"viseme:{vid}"
-
-
-def _intensity_check(key: str, value: float) -> None:
-    if not 0.0 <= value <= 1.0:
-        raise TimelineError(f"{key}: intensity must be between 0 and 1, got {value:g}")
-
-
-_MUSCLE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
-
-
-def _muscle_canonical(args: list[str]) -> str:
-    if not 1 <= len(args) <= 2 or not _MUSCLE_NAME.match(args[0].lower()):
-        raise TimelineError("muscle keys are 'muscle:<name>:<left|right>' or 'muscle:<name>' for an unpaired "
-                            "muscle, e.g. 'muscle:zygomatic_major:left' or 'muscle:orbicularis_oris'")
-    name = args[0].lower()
-    side = args[1].lower() if len(args) == 2 else None
-    if side is not None and side not in ("left", "right"):
-        raise TimelineError(f"muscle side must be 'left' or 'right', got {args[1]!r}")
-    if _MUSCLES is not None:
-        if name not in _MUSCLES:
-            raise TimelineError(f"unknown muscle {name!r}; muscles are {', '.join(sorted(_MUSCLES))}")
-        if _MUSCLES[name] and side is None:
-            raise TimelineError(f"{name} is a left/right pair: use 'muscle:{name}:left' or 'muscle:{name}:right'")
-        if not _MUSCLES[name] and side is not None:
-            raise TimelineError(f"{name} is a single muscle: use 'muscle:{name}' without a side")
-    return f"muscle:{name}" + (f":{side}" if side else "")
-
-
-def _muscle_check(key: str, value: float) -> None:
-    if value < 0:
-        raise TimelineError(f"{key}: muscle forces pull, so they must be >= 0, got {value:g}")
-    lo, hi = _MUSCLE_RANGES.get(key.split(":")[1], (0.0, math.inf))
-    if not lo <= value <= hi:
-        raise TimelineError(f"{key}: force {value:g} is outside its range {lo:g} to {hi:g}")
-
-
-def _jaw_check(key: str, value: float) -> None:
-    if _JAW_RANGE is not None and not _JAW_RANGE[0] <= value <= _JAW_RANGE[1]:
-        raise TimelineError(f"jaw angle {value:g}° is outside its range {_JAW_RANGE[0]:g} to {_JAW_RANGE[1]:g}°")
-
-
-def _jaw_canonical(args: list[str]) -> str:
-    if args:
-        raise TimelineError("the jaw key is just 'jaw' (angle in degrees)")
-    return "jaw"
-
-
-register_kind(ParameterKind("fap", "fap:<number>", _fap_canonical, _fap_check))
-register_kind(ParameterKind("expression", "expression:<name>", _expression_canonical, _intensity_check))
-register_kind(ParameterKind("viseme", "viseme:<id>", _viseme_canonical, _intensity_check))
-register_kind(ParameterKind("muscle", "muscle:<name>:<left|right>", _muscle_canonical, _muscle_check,
-                            simulated=True))
-register_kind(ParameterKind("jaw", "jaw", _jaw_canonical, _jaw_check, simulated=True))
+    with _as_timeline_error():
+        return P.check_value(key, value)
 
 
 def is_simulated(key: str) -> bool:
-    """True for keys that drive the dynamic muscle layer (muscle forces, jaw)."""
-    return kind_of(key).simulated
-
-
-def muscle_target(key: str) -> tuple[str, str | None]:
-    """(name, side) of a canonical ``muscle:`` key, as ``MuscleLayer.set_forces`` takes it (side None if unpaired)."""
-    parts = key.split(":")
-    return parts[1], (parts[2] if len(parts) == 3 else None)
+    """True for keys that drive a dynamic layer (muscle forces, jaw)."""
+    with _as_timeline_error():
+        return P.is_simulated(key)
 
 
 # ====================================================================== keys and tracks
@@ -766,80 +601,23 @@ def _check_fps(fps: int) -> int:
 
 
 # ====================================================================== applying to the rig
-class MuscleControls(Protocol):
-    """What the timeline drives on a muscle layer."""
-
-    def set_forces(self, forces: Mapping[tuple[str, str | None], float]) -> None: ...
-
-    def set_jaw(self, degrees: float) -> None: ...
-
-
-def split_values(values: Mapping[str, float]) -> dict[str, Any]:
-    """Group evaluated values by kind: faps {n: v}, expressions {name: v}, visemes {id: v},
-    muscles {(name, side): v}, jaw (float or None)."""
-    out: dict[str, Any] = {"faps": {}, "expressions": {}, "visemes": {}, "muscles": {}, "jaw": None}
-    for key, value in values.items():
-        prefix, args = _split(key)
-        if prefix == "fap":
-            out["faps"][int(args[0])] = value
-        elif prefix == "expression":
-            out["expressions"][args[0]] = value
-        elif prefix == "viseme":
-            out["visemes"][int(args[0])] = value
-        elif prefix == "muscle":
-            out["muscles"][muscle_target(key)] = value
-        elif prefix == "jaw":
-            out["jaw"] = value
-    return out
-
-
-def apply_to_rig(rig, values: Mapping[str, float], muscles: MuscleControls | None = None) -> None:
-    """Set evaluated timeline values on a ``core.rig.FaceRig`` (and a muscle layer).
-
-    FAP tracks -> ``rig.set_faps`` (untracked FAPs keep the user's values). Expression and viseme
-    tracks: when the rig offers ``set_expression_mix`` / ``set_viseme_mix`` (mapping id -> intensity),
-    every keyed preset is applied; otherwise only the strongest expression and the strongest viseme
-    (``set_expression`` / ``set_viseme``, exact intensity; ties -> lowest id), since FAP 2 / FAP 1
-    blends quantise intensities to 1/63 and FAP 1 forces the two weights to sum to 1.
-    Muscle and jaw tracks go to ``muscles`` when given (a static pose); for the dynamic layer use
-    :class:`MuscleSimulationCache` (or :func:`apply_at`), which integrates them over time.
-    """
-    groups = split_values(values)
-    if groups["faps"]:
-        rig.set_faps(groups["faps"])
-    if groups["expressions"]:
-        mix = {tables.expression_id(n): v for n, v in groups["expressions"].items()}
-        _set_mix(rig, mix, "set_expression_mix", "set_expression")
-    if groups["visemes"]:
-        _set_mix(rig, groups["visemes"], "set_viseme_mix", "set_viseme")
-    if muscles is not None:
-        if groups["muscles"]:
-            muscles.set_forces(groups["muscles"])
-        if groups["jaw"] is not None:
-            muscles.set_jaw(groups["jaw"])
-
-
-def _set_mix(rig, mix: Mapping[int, float], mix_method: str, single_method: str) -> None:
-    if hasattr(rig, mix_method):
-        getattr(rig, mix_method)({i: v for i, v in mix.items() if v > 0})
-        return
-    best = max(sorted(mix), key=lambda i: mix[i])
-    if mix[best] > 0:
-        getattr(rig, single_method)(best, mix[best])
-    else:
-        getattr(rig, single_method)(None, 0.0)
+def apply_to_rig(rig, values: Mapping[str, float]) -> None:
+    """Set evaluated timeline values on a ``core.rig.FaceRig``: every parameter that is not simulated
+    (untracked parameters keep their values). Simulated ones (muscle forces, jaw) depend on the
+    force history: :class:`MuscleSimulationCache` (or :func:`apply_at`) integrates them over time."""
+    rig.set_values({k: v for k, v in values.items() if not is_simulated(k)})
 
 
 def apply_at(timeline: Timeline, t: float, rig, simulation: "MuscleSimulationCache | None" = None) -> dict[str, float]:
-    """Pose the rig at time ``t``: evaluate, apply presets/FAPs, bring the muscle layer to frame(t).
+    """Pose the rig at time ``t``: evaluate, set the parameters, bring the simulated layer to frame(t).
 
-    Returns the evaluated values. The rig is touched once more when the muscle layer moved.
+    Returns the evaluated values. One ``rig.changed`` at most.
     """
     values = timeline.evaluate(t)
-    apply_to_rig(rig, values)
-    if simulation is not None:
-        simulation.seek(t)
-        rig.touch()
+    with rig.batch():
+        apply_to_rig(rig, values)
+        if simulation is not None:
+            simulation.seek(t)
     return values
 
 
@@ -847,9 +625,7 @@ def apply_at(timeline: Timeline, t: float, rig, simulation: "MuscleSimulationCac
 class SimulatedLayer(Protocol):
     """The dynamic layer contract (core.muscles.MuscleLayer)."""
 
-    def set_forces(self, forces: Mapping[tuple[str, str | None], float]) -> None: ...
-
-    def set_jaw(self, degrees: float) -> None: ...
+    def set_values(self, values: Mapping[str, float]) -> None: ...
 
     def start_animation(self) -> None: ...
 
@@ -950,20 +726,13 @@ class MuscleSimulationCache:
         keys = [k for k in self.timeline.tracks if is_simulated(k) and len(self.timeline.tracks[k])]
         # A parameter whose track was removed returns to rest (force 0, jaw 0) rather than keeping
         # the last value the cache gave it, so the result depends only on the current tracks.
-        for gone in self._driven - set(keys):
-            if gone == "jaw":
-                self.layer.set_jaw(0.0)
-            else:
-                self.layer.set_forces({muscle_target(gone): 0.0})
+        values = {gone: P.describe(gone).default for gone in self._driven - set(keys)}
         self._driven = set(keys)
-        if not keys:
-            return
-        names, values = self.timeline.evaluate_array(t, keys)
-        groups = split_values(dict(zip(names, values.tolist())))
-        if groups["muscles"]:
-            self.layer.set_forces(groups["muscles"])
-        if groups["jaw"] is not None:
-            self.layer.set_jaw(groups["jaw"])
+        if keys:
+            names, array = self.timeline.evaluate_array(t, keys)
+            values.update(zip(names, array.tolist()))
+        if values:
+            self.layer.set_values(values)
 
     def _on_edit(self, edit: Edit) -> None:
         if edit.settings_after is not None and edit.settings_after[1] != self._fps:
@@ -975,8 +744,6 @@ class MuscleSimulationCache:
 
 
 __all__ = [
-    "INTERPOLATIONS", "FPS_CHOICES", "TimelineError", "ParameterKind", "register_kind", "register_muscles",
-    "canonical_key", "check_value", "is_simulated", "muscle_target", "Key", "Track", "Edit", "Clipboard",
-    "Timeline", "apply_to_rig", "apply_at", "split_values", "SimulatedLayer", "MuscleControls",
-    "MuscleSimulationCache",
+    "INTERPOLATIONS", "FPS_CHOICES", "TimelineError", "canonical_key", "check_value", "is_simulated", "Key",
+    "Track", "Edit", "Clipboard", "Timeline", "apply_to_rig", "apply_at", "SimulatedLayer", "MuscleSimulationCache",
 ]

@@ -367,12 +367,16 @@ class FapDeformer:
             w[self.face.parts["teeth_lower"]] = 1.0
         return w
 
-    def deform(self, values: np.ndarray, layers: Sequence[Callable[[np.ndarray], np.ndarray]] = ()) -> np.ndarray:
-        """(n, 3) vertices for (68,) effective FAP values (FAP units), plus layer offsets, then rigid motions."""
+    def displacement(self, values: np.ndarray) -> np.ndarray:
+        """(n, 3) mm: the FAT's offsets for (68,) effective FAP values (FAP units), lids in contact."""
         values = lid_contact(np.asarray(values, dtype=float))
-        x = (self._rest + self.matrix @ (values * self.fapu_vector)).reshape(-1, 3)
-        for layer in layers:
-            x = x + layer(x)
+        return (self.matrix @ (values * self.fapu_vector)).reshape(-1, 3)
+
+    def finish(self, x: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(n, 3) ``x`` (all offsets added) after the FAPs' non-additive steps: upper lids stop on the
+        lower ones and slide over the eyeballs, eyeballs rotate (gaze 23-26), the head rotates (48-50)."""
+        values = lid_contact(np.asarray(values, dtype=float))
+        x = np.array(x, dtype=float)
         if values[18:22].any():
             for upper, lower in self._eye_rims:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
@@ -398,6 +402,11 @@ class FapDeformer:
             R = _rotation((0, 1, 0), head[1]) @ _rotation((1, 0, 0), head[0]) @ _rotation((0, 0, 1), head[2])
             x = (x - self._head_pivot) @ R.T + self._head_pivot
         return x
+
+    def deform(self, values: np.ndarray) -> np.ndarray:
+        """(n, 3) vertices for (68,) effective FAP values alone: rest + FAT offsets, then :meth:`finish`
+        (``core.rig.FaceRig`` composes other layers' offsets in between)."""
+        return self.finish(self._rest.reshape(-1, 3) + self.displacement(values), values)
 
 
 def _rotation(axis, angle: float) -> np.ndarray:

@@ -25,13 +25,16 @@ with the thesis's timing.
 
 from __future__ import annotations
 
+import copy as _copy
 import time
 from dataclasses import dataclass
 
 import numpy as np
 from psygnal import Signal
 
+from .. import parameters as P
 from ..face import Face
+from ..layer import ParameterChange, fresh_signals
 from .force_file import ForceSet, _check_jaw
 from .model import TissueModel, dense_template
 from .muscles import MuscleSet, check_control, control_keys, jaw_range, spec_by_name
@@ -65,8 +68,11 @@ class MuscleLayer:
         Spring kernel backend (numba when installed).
     """
 
+    name = "muscles"
+    dynamic = True            # the face moves when the tissue settles (pose_changed), not on set_forces
     changed = Signal()        # controls or pose changed (widgets listen)
     pose_changed = Signal()   # the tissue moved: the face must be redrawn (the rig listens)
+    parameters_changed = Signal(object)  # core.layer.ParameterChange of the forces / jaw set
 
     def __init__(self, face: Face, *, level: int = 3, template_dense=None, backend: str | None = None):
         t0 = time.perf_counter()
@@ -77,6 +83,7 @@ class MuscleLayer:
         self.solver = TissueSolver(self.model, self.muscles, backend=backend)
         self._keys = control_keys()
         self._index = {k: i for i, k in enumerate(self._keys)}
+        self._param_keys = tuple(P.key_of(k) for k in self._keys)
         self._controls = np.zeros(len(self._keys))
         self._jaw_deg = 0.0
         self._state = self._rest_state()
@@ -124,9 +131,7 @@ class MuscleLayer:
         new = self._controls.copy()
         for key, value in checked:
             new[self._index[key]] = value
-        if not np.array_equal(new, self._controls):
-            self._controls = new
-            self._controls_changed()
+        self._set_controls(new, self._jaw_deg)
 
     def forces(self) -> dict[tuple[str, str | None], float]:
         """All 19 controls {(name, side): force}."""
@@ -138,10 +143,7 @@ class MuscleLayer:
 
     def set_jaw(self, degrees: float) -> None:
         """Jaw opening in degrees (range from ``resources/muscles/muscles.json``)."""
-        value = _check_jaw(degrees, ValueError, "jaw")
-        if value != self._jaw_deg:
-            self._jaw_deg = value
-            self._controls_changed()
+        self._set_controls(self._controls, _check_jaw(degrees, ValueError, "jaw"))
 
     def apply(self, force_set: ForceSet) -> None:
         """Set all controls from a force set (missing muscles 0), validated first."""
@@ -150,10 +152,7 @@ class MuscleLayer:
         for k, v in force_set.forces.items():
             key, value = check_control(k[0], k[1], v) if isinstance(k, tuple) and len(k) == 2 else _bad_key(k)
             full[key] = value
-        new = np.array([full[k] for k in self._keys])
-        if not np.array_equal(new, self._controls) or jaw != self._jaw_deg:
-            self._controls, self._jaw_deg = new, jaw
-            self._controls_changed()
+        self._set_controls(np.array([full[k] for k in self._keys]), jaw)
 
     def force_set(self, name: str = "") -> ForceSet:
         """The current controls as a ForceSet (non-zero forces only)."""
@@ -161,8 +160,7 @@ class MuscleLayer:
 
     def reset(self) -> None:
         """Zero forces, jaw 0, tissue back at rest (thesis C's "Initialise")."""
-        self._controls = np.zeros(len(self._keys))
-        self._jaw_deg = 0.0
+        self._set_controls(np.zeros(len(self._keys)), 0.0)
         self._state = self._rest_state()
         self._state.error = 0.0
         self._mode = "static"
@@ -250,10 +248,9 @@ class MuscleLayer:
         if not isinstance(snap, LayerSnapshot) or snap.state.x.shape != self._state.x.shape:
             raise ValueError("this snapshot does not belong to this muscle layer")
         self._state = snap.state.copy()
-        self._controls = snap.controls.copy()
-        self._jaw_deg = snap.jaw_deg
         self._mode = snap.mode
         self._relaxed_for = snap.relaxed_for
+        self._set_controls(snap.controls.copy(), snap.jaw_deg)
         self._pose_changed()
 
     # ------------------------------------------------------------ output
@@ -274,18 +271,54 @@ class MuscleLayer:
         """The rig layer function: the muscle offsets (``x`` is ignored: linear superposition)."""
         return self.skin_offsets()
 
-    def attach(self, rig, name: str = "muscles") -> None:
-        """Add this layer to a ``FaceRig`` and touch the rig whenever the layer changes."""
+    def finish(self, x: np.ndarray) -> np.ndarray:
+        return x
+
+    def attach(self, rig) -> None:
+        """Add this layer to a ``FaceRig`` (after its FAP layer); the rig listens to its events."""
         dense = getattr(getattr(rig, "deformer", None), "dense", None)
         if dense is not None and (dense is self.model.dense or (
                 dense.vertices.shape == self.model.skin_mm.shape and np.allclose(dense.vertices, self.model.skin_mm))):
             self.model.use_binding(getattr(rig.deformer, "binding", None))
-        rig.add_layer(name, self.offset)
-        if self._rig is not None:
-            self.pose_changed.disconnect(self._rig.touch)
+        rig.add_layer(self)
         self._rig = rig
-        # Only a new pose changes the face; a slider tick alone (before relax) would redraw it unchanged.
-        self.pose_changed.connect(rig.touch)
+
+    # ------------------------------------------------------------ the rig-layer protocol (core.layer)
+    def parameters(self) -> tuple[str, ...]:
+        return self._param_keys + ("jaw",)
+
+    def value(self, key) -> float:
+        k = P.parse(key)
+        if k.kind == "jaw":
+            return float(self._jaw_deg)
+        return float(self._controls[self._index[(k.id, k.side)]])
+
+    def set_values(self, values) -> None:
+        """Set forces and the jaw by parameter key (all validated first)."""
+        forces, jaw = {}, self._jaw_deg
+        for spelling, value in values.items():
+            k = P.parse(spelling)
+            if k.kind == "jaw":
+                jaw = _check_jaw(value, ValueError, "jaw")
+            elif k.kind == "muscle":
+                forces[(k.id, k.side)] = value
+            else:
+                raise P.ParameterError(f"{k} is not a muscle force or the jaw")
+        checked = [check_control(n, s, v) for (n, s), v in forces.items()]
+        new = self._controls.copy()
+        for key, value in checked:
+            new[self._index[key]] = value
+        self._set_controls(new, jaw)
+
+    def copy(self) -> "MuscleLayer":
+        """An independent layer on the same (immutable) tissue model, in the same state."""
+        twin = _copy.copy(self)
+        fresh_signals(twin)
+        twin._rig = None
+        twin._state = self._state.copy()
+        twin._controls = self._controls.copy()
+        twin._offsets = None
+        return twin
 
     def muscle_segments(self) -> list[tuple[str, str | None, np.ndarray, np.ndarray, float]]:
         """[(name, side, P (3,), R (3,), activation 0..1)] in face mm for drawing the linear muscles."""
@@ -317,8 +350,18 @@ class MuscleLayer:
     def _signature(self) -> tuple:
         return (self._controls.tobytes(), self._jaw_deg)
 
-    def _controls_changed(self) -> None:
+    def _set_controls(self, controls: np.ndarray, jaw_deg: float) -> None:
+        """Take new forces and jaw angle; announce the ones that changed."""
+        changed = np.flatnonzero(controls != self._controls)
+        previous = {self._param_keys[i]: float(self._controls[i]) for i in changed}
+        values = {self._param_keys[i]: float(controls[i]) for i in changed}
+        if jaw_deg != self._jaw_deg:
+            previous["jaw"], values["jaw"] = float(self._jaw_deg), float(jaw_deg)
+        if not values:
+            return
+        self._controls, self._jaw_deg = np.array(controls, dtype=float), float(jaw_deg)
         self.changed.emit()
+        self.parameters_changed.emit(ParameterChange(values, previous, self.name))
 
     def _pose_changed(self) -> None:
         self._offsets = None

@@ -38,3 +38,12 @@ def make_grid_face(nx: int = 6, ny: int = 5, size_mm: float = 200.0, seed: int =
 @pytest.fixture
 def grid_face() -> Face:
     return make_grid_face()
+
+
+@pytest.fixture(scope="session")
+def default_rig():
+    """A FaceRig on the built-in face (about 5 s to build; shared: reset what you change)."""
+    from core.default_face import load_default_face
+    from core.rig import FaceRig
+
+    return FaceRig(load_default_face())

@@ -23,7 +23,7 @@ def _timeline() -> Timeline:
         "viseme:7": [(t, float(v)) for t, v in zip(np.arange(0.0, 3.0, 0.1), rng.random(30))],
         "muscle:zygomatic_major:left": [(0.0, 0.0), (2.0, 9.5)],
         "muscle:orbicularis_oris": [(1.0, 8.0)],
-        "jaw": [(0.0, 0.0), (6.0, 12.0, "linear"), (7.0, -2.5)],
+        "jaw": [(0.0, 0.0), (6.0, 12.0, "linear"), (7.0, 2.5)],
     })
     return tl
 
@@ -32,8 +32,8 @@ def _project(face_ref=None, landmarks=None) -> Project:
     return Project(
         face=face_ref or FaceRef.default_face(),
         landmarks=landmarks,
-        rig=RigSettings(faps={3: 120.5, 19: -33.25}, expressions=((1, 0.5),), visemes=((4, 0.3), (7, 0.7)),
-                        muscles={("risorius", "left"): 42.0, ("orbicularis_oris", None): 8.0}, jaw=3.5),
+        rig=RigSettings({"fap:3": 120.5, "fap:19": -33.25, "expression:joy": 0.5, "viseme:4": 0.3, "viseme:7": 0.7,
+                         "muscle:risorius:left": 42.0, "muscle:orbicularis_oris": 8.0, "jaw": 3.5}),
         timeline=_timeline(),
         speech=[SpeechClip("Olá, como vai você?", "pt-br", 1.25)],
         view={"camera": {"position": [1.0, 2.0, 300.0], "zoom": 1.5}, "mode": "textured",
@@ -46,7 +46,7 @@ def test_round_trip_is_exact(tmp_path):
     original = _project()
     P.save_project(path, original)
     text = path.read_text(encoding="utf-8")
-    assert '"format": "mimica-project"' in text and '"version": 1' in text and "Olá" in text
+    assert '"format": "mimica-project"' in text and '"version": 2' in text and "Olá" in text
     loaded = P.load_project(path)
     assert loaded.face == FaceRef.default_face()
     assert loaded.rig == original.rig
@@ -124,7 +124,7 @@ def test_default_face_rig_is_restored_exactly(tmp_path):
     # so the deformer is reused instead of rebuilding it (about 4 s).
     rig2 = FaceRig(face2, deformer=rig.deformer)
     loaded.rig.apply(rig2)
-    assert rig2.expressions == ((1, 0.35),) and rig2.visemes == ((4, 20 / 63), (10, 1 - 20 / 63))
+    assert rig2.expressions == ((1, 0.35),) and dict(rig2.visemes) == {4: 20 / 63, 10: 1 - 20 / 63}
     np.testing.assert_array_equal(rig2.vertices(), wanted)
     apply_to_rig(rig2, loaded.timeline.evaluate(1.3))
     np.testing.assert_array_equal(rig2.vertices(), animated)
@@ -141,7 +141,7 @@ def test_newer_format_is_refused_with_a_clear_message(tmp_path):
     doc["version"] = 3
     with pytest.raises(ProjectVersionError) as info:
         P.load_project(_write(tmp_path, doc))
-    assert "made by a newer Mimica (format 3); this Mimica reads up to 1 — update Mimica" in str(info.value)
+    assert "made by a newer Mimica (format 3); this Mimica reads up to 2 — update Mimica" in str(info.value)
 
 
 @pytest.mark.parametrize("mutate, words", [
@@ -152,9 +152,10 @@ def test_newer_format_is_refused_with_a_clear_message(tmp_path):
     (lambda d: d["timeline"]["tracks"][1].__setitem__("key", "fap:999"), r"timeline.tracks\[1\].key is invalid"),
     (lambda d: d["timeline"].__setitem__("fps", 29), "frame rate"),
     (lambda d: d["timeline"].__setitem__("duration", 1.0), "extend the duration"),
-    (lambda d: d["rig"]["faps"].__setitem__("3", True), r"rig.faps.3 must be a number, got true"),
-    (lambda d: d["rig"]["expressions"][0].__setitem__("intensity", 2), "between 0 and 1"),
-    (lambda d: d["rig"]["muscles"][0].__setitem__("side", "up"), r"rig.muscles\[0\].side"),
+    (lambda d: d["rig"]["values"].__setitem__("fap:3", True), r"rig.values.fap:3 must be a number, got true"),
+    (lambda d: d["rig"]["values"].__setitem__("expression:joy", 2), "outside its range 0 to 1"),
+    (lambda d: d["rig"]["values"].__setitem__("muscle:risorius:up", 1.0), r"rig.values.muscle:risorius:up.*left/right"),
+    (lambda d: d["rig"]["values"].__setitem__("muscle:biceps:left", 1.0), "unknown muscle 'biceps'"),
     (lambda d: d.__setitem__("face", {"builtin": "someone"}), "unknown built-in face"),
     (lambda d: d.__setitem__("face", {"absolute": "/x.ply"}), "field face.path is missing"),
     (lambda d: d.__setitem__("view", []), "view must be an object"),
@@ -167,6 +168,20 @@ def test_bad_fields_are_named(tmp_path, mutate, words):
     doc = P.to_document(_project(), tmp_path)
     mutate(doc)
     with pytest.raises(ProjectError, match=words):
+        P.load_project(_write(tmp_path, doc))
+
+
+def test_format_1_projects_still_load(tmp_path):
+    doc = P.to_document(_project(), tmp_path)
+    doc["version"] = 1
+    doc["rig"] = {"faps": {"3": 120.5, "19": -33.25}, "expressions": [{"id": 1, "name": "joy", "intensity": 0.5}],
+                  "visemes": [{"id": 4, "intensity": 0.3}, {"id": 7, "intensity": 0.7}],
+                  "muscles": [{"name": "risorius", "side": "left", "force": 42.0},
+                              {"name": "orbicularis_oris", "side": None, "force": 8.0}], "jaw": 3.5}
+    loaded = P.load_project(_write(tmp_path, doc))
+    assert loaded.rig == _project().rig
+    doc["rig"]["muscles"][0]["side"] = "up"
+    with pytest.raises(ProjectError, match=r"rig.muscles\[0\].side"):
         P.load_project(_write(tmp_path, doc))
 
 

@@ -3,6 +3,7 @@ and the simulated-layer cache (against a 1-D damped system integrated exactly)."
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -28,7 +29,7 @@ def test_canonical_keys(key, canonical):
     ("eyebrow:3", "unknown parameter"), ("fap:1", "viseme:<id>"), ("fap:2", "expression:<name>"),
     ("fap:99", "1 to 68"), ("fap:1.5", "unknown FAP name"), ("viseme:0", "silence"), ("viseme:15", "0 to 14"),
     ("expression:neutral", "absence"), ("expression:bored", "unknown expression"),
-    ("muscle:zygomatic_major:up", "left' or 'right"), ("muscle:Bad-Name", "muscle keys"), ("jaw:2", "just 'jaw'"),
+    ("muscle:zygomatic_major:up", "left/right pair"), ("muscle:Bad-Name", "unknown muscle"), ("jaw:2", "just 'jaw'"),
     ("fap:", "FAP keys"),
 ])
 def test_bad_keys_raise_clear_errors(key, words):
@@ -42,28 +43,23 @@ def test_gaze_fap_not_animated_by_mimica_is_refused():
         T.canonical_key(f"fap:{spec.number}")
 
 
-def test_registered_muscles_are_checked_strictly():
-    saved = T._MUSCLES, T._MUSCLE_RANGES, T._JAW_RANGE
-    try:
-        T.register_muscles(["risorius"], ["orbicularis_oris"], ranges={"risorius": (0, 60)}, jaw_range=(0, 25))
-        with pytest.raises(TimelineError, match="outside its range 0 to 60"):
-            Track("muscle:risorius:left", [(0.0, 61.0)])
-        with pytest.raises(TimelineError, match="jaw angle 30° is outside"):
-            Track("jaw", [(0.0, 30.0)])
-        assert T.canonical_key("muscle:risorius:right") == "muscle:risorius:right"
-        with pytest.raises(TimelineError, match="unknown muscle"):
-            T.canonical_key("muscle:biceps:left")
-        with pytest.raises(TimelineError, match="left/right pair"):
-            T.canonical_key("muscle:risorius")
-        with pytest.raises(TimelineError, match="single muscle"):
-            T.canonical_key("muscle:orbicularis_oris:left")
-    finally:
-        T._MUSCLES, T._MUSCLE_RANGES, T._JAW_RANGE = saved
+def test_muscle_keys_are_checked_against_the_muscle_table():
+    with pytest.raises(TimelineError, match="outside its range 0 to 60"):
+        Track("muscle:risorius:left", [(0.0, 61.0)])
+    with pytest.raises(TimelineError, match="jaw angle"):
+        Track("jaw", [(0.0, 30.0)])
+    assert T.canonical_key("muscle:risorius:right") == "muscle:risorius:right"
+    with pytest.raises(TimelineError, match="unknown muscle"):
+        T.canonical_key("muscle:biceps:left")
+    with pytest.raises(TimelineError, match="left/right pair"):
+        T.canonical_key("muscle:risorius")
+    with pytest.raises(TimelineError, match="single muscle"):
+        T.canonical_key("muscle:orbicularis_oris:left")
 
 
 @pytest.mark.parametrize("key, value, words", [
-    ("fap:3", 5000, "outside its range"), ("viseme:3", 1.2, "between 0 and 1"), ("expression:joy", -0.1, "0 and 1"),
-    ("muscle:risorius:left", -1, ">= 0"), ("jaw", float("nan"), "finite"), ("fap:3", "x", "numbers"),
+    ("fap:3", 5000, "outside its range"), ("viseme:3", 1.2, "outside its range 0 to 1"), ("expression:joy", -0.1, "0 to 1"),
+    ("muscle:risorius:left", -1, "outside its range 0 to"), ("jaw", float("nan"), "finite"), ("fap:3", "x", "numbers"),
 ])
 def test_values_are_checked_not_clamped(key, value, words):
     with pytest.raises(TimelineError, match=words):
@@ -217,10 +213,10 @@ def test_earliest_change_bounds_where_values_differ():
     rng = np.random.default_rng(3)
     for trial in range(30):
         tl = Timeline(10.0, 30)
-        tl.add_keys({"jaw": [(t, rng.uniform(-5, 20)) for t in np.sort(rng.choice(np.arange(0, 10, 0.25), 8, False))]})
+        tl.add_keys({"jaw": [(t, rng.uniform(0, 25)) for t in np.sort(rng.choice(np.arange(0, 10, 0.25), 8, False))]})
         before = tl.track("jaw")
         i = int(rng.integers(0, len(before)))
-        edit = tl.set_key("jaw", float(before.times[i]), rng.uniform(-5, 20), T.INTERPOLATIONS[trial % 3])
+        edit = tl.set_key("jaw", float(before.times[i]), rng.uniform(0, 25), T.INTERPOLATIONS[trial % 3])
         start = edit.earliest_change()
         ts = np.linspace(0, 10, 401)
         ts = ts[ts < start]
@@ -229,49 +225,41 @@ def test_earliest_change_bounds_where_values_differ():
 
 # ---------------------------------------------------------------- applying to a rig
 class FakeRig:
+    """Records what the timeline sets, through the rig's one generic entry point."""
+
     def __init__(self):
         self.calls = []
 
-    def set_faps(self, values):
-        self.calls.append(("faps", dict(values)))
+    def set_values(self, values):
+        self.calls.append(("values", dict(values)))
 
-    def set_expression(self, expression, intensity=1.0):
-        self.calls.append(("expression", expression, intensity))
-
-    def set_viseme(self, viseme, intensity=1.0):
-        self.calls.append(("viseme", viseme, intensity))
-
-    def touch(self):
-        self.calls.append(("touch",))
+    @contextlib.contextmanager
+    def batch(self):
+        self.calls.append(("batch",))
+        yield
+        self.calls.append(("end",))
 
 
-class FakeMuscles:
-    def __init__(self):
-        self.forces, self.jaw = {}, None
-
-    def set_forces(self, forces):
-        self.forces.update(forces)
-
-    def set_jaw(self, degrees):
-        self.jaw = degrees
-
-
-def test_apply_to_rig_routes_each_kind():
-    rig, muscles = FakeRig(), FakeMuscles()
+def test_apply_to_rig_sets_every_non_simulated_parameter_by_key():
+    rig = FakeRig()
     values = {"fap:3": 120.0, "fap:19": 40.0, "expression:joy": 0.3, "expression:anger": 0.6, "viseme:4": 0.25,
               "viseme:1": 0.75, "muscle:risorius:left": 4.0, "muscle:orbicularis_oris": 2.0, "jaw": 7.5}
-    apply_to_rig(rig, values, muscles)
-    assert ("faps", {3: 120.0, 19: 40.0}) in rig.calls
-    assert ("expression", tables.expression_id("anger"), 0.6) in rig.calls  # strongest expression
-    assert ("viseme", 1, 0.75) in rig.calls
-    assert muscles.forces == {("risorius", "left"): 4.0, ("orbicularis_oris", None): 2.0} and muscles.jaw == 7.5
-    rig = FakeRig()
-    rig.set_viseme_mix = lambda mix: rig.calls.append(("viseme_mix", mix))
-    apply_to_rig(rig, {"viseme:4": 0.25, "viseme:1": 0.75, "viseme:7": 0.0})
-    assert rig.calls == [("viseme_mix", {4: 0.25, 1: 0.75})]
-    rig = FakeRig()
-    apply_to_rig(rig, {"expression:joy": 0.0})
-    assert rig.calls == [("expression", None, 0.0)]
+    apply_to_rig(rig, values)
+    assert rig.calls == [("values", {"fap:3": 120.0, "fap:19": 40.0, "expression:joy": 0.3, "expression:anger": 0.6,
+                                     "viseme:4": 0.25, "viseme:1": 0.75})]
+
+
+def test_apply_to_a_real_rig_blends_keyed_presets(default_rig):
+    rig = default_rig
+    rig.reset()
+    try:
+        apply_to_rig(rig, {"expression:joy": 0.3, "expression:anger": 0.6, "viseme:4": 0.25, "fap:3": 100.0})
+        assert rig.expressions == ((tables.expression_id("anger"), 0.6), (tables.expression_id("joy"), 0.3))
+        assert rig.value("viseme:4") == 0.25 and rig.fap_value(3) == 100.0
+        apply_to_rig(rig, {"expression:anger": 0.0})
+        assert rig.expressions == ((tables.expression_id("joy"), 0.3),)
+    finally:
+        rig.reset()
 
 
 # ---------------------------------------------------------------- simulated layer cache
@@ -287,11 +275,12 @@ class DampedLayer:
     def target(self):
         return sum(self.forces.values()) + self.jaw / 10
 
-    def set_forces(self, forces):
-        self.forces.update(forces)
-
-    def set_jaw(self, degrees):
-        self.jaw = degrees
+    def set_values(self, values):
+        for key, value in values.items():
+            if key == "jaw":
+                self.jaw = value
+            else:
+                self.forces[key] = value
 
     def start_animation(self):
         self.starts += 1
@@ -385,5 +374,6 @@ def test_apply_at_poses_rig_and_layer():
     tl, layer, rig = _sim_timeline(), DampedLayer(), FakeRig()
     cache = MuscleSimulationCache(tl, layer)
     values = T.apply_at(tl, 2.0, rig, cache)
-    assert values["fap:3"] == 300.0 and ("faps", {3: 300.0}) in rig.calls and rig.calls[-1] == ("touch",)
+    assert values["fap:3"] == 300.0 and rig.calls[0] == ("batch",) and rig.calls[-1] == ("end",)
+    assert ("values", {"fap:3": 300.0}) in rig.calls
     assert layer.x == pytest.approx(_reference(tl, 60), abs=1e-12)

@@ -1,0 +1,213 @@
+"""``FapLayer``: the MPEG-4 FAP values and presets of a face, as the rig's first layer.
+
+State: the user's 68 low-level values (FAP units; index n - 1), the active expression presets
+(FAP 2) and viseme presets (FAP 1) as ((id, intensity 0..1), ...), strongest first unless a
+.fap-style FAP 2/1 blend gave them in its own order. The *effective* values that drive the Facial
+Animation Table are the user's values plus the presets scaled by their intensities.
+
+Parameters (``core.parameters``): ``fap:<n>`` for every FAP this face can animate,
+``expression:<name>`` (1..6) and ``viseme:<id>`` (1..14) intensities. ``offset`` is the FAT's
+displacement; ``finish`` applies the FAPs' non-additive steps (lid contact, eyeball and head
+rotations) after every layer's offset.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Mapping
+
+import numpy as np
+from psygnal import Signal
+
+from .. import parameters as P
+from ..layer import ParameterChange
+from . import parameters as _kinds  # noqa: F401 - registers the fap/expression/viseme kinds
+from . import tables
+from .fat import FapDeformer
+
+N_FAPS = tables.N_FAPS
+Mix = tuple[tuple[int, float], ...]
+NEUTRAL: Mix = ((0, 0.0),)
+
+
+class FapLayer:
+    """The FAP values and presets of one face (see the module docstring)."""
+
+    name = "faps"
+    parameters_changed = Signal(object)
+    pose_changed = Signal()
+
+    def __init__(self, deformer: FapDeformer):
+        self.deformer = deformer
+        self._values = np.zeros(N_FAPS)
+        self._expressions: Mix = NEUTRAL
+        self._visemes: Mix = NEUTRAL
+        animated = [n for n in deformer.animated_faps if n > 2]
+        self._keys = (tuple(f"fap:{n}" for n in sorted(animated))
+                      + tuple(f"expression:{e}" for e in tables.expression_names()[1:])
+                      + tuple(f"viseme:{v}" for v in range(1, len(tables.viseme_names()))))
+
+    # ------------------------------------------------------------ the layer protocol
+    def parameters(self) -> tuple[str, ...]:
+        return self._keys
+
+    def value(self, key) -> float:
+        k = P.parse(key)
+        if k.kind == "fap":
+            return float(self._values[int(k.id) - 1])
+        mix, ident = self._mix_and_id(k)
+        return float(sum(w for i, w in mix if i == ident))
+
+    def set_values(self, values: Mapping) -> None:
+        """Set parameters by key (all validated first; nothing changes when one is invalid)."""
+        new = self._values.copy()
+        mixes = {"expression": dict(self._expressions), "viseme": dict(self._visemes)}
+        for spelling, value in values.items():
+            k = P.parse(spelling)
+            if k.kind == "fap":
+                number, value = self.check_fap(int(k.id), value)
+                new[number - 1] = value
+            elif k.kind in mixes:
+                mixes[k.kind][self._mix_and_id(k)[1]] = P.check_value(k, value)
+            else:
+                raise P.ParameterError(f"{k} is not a FAP, expression or viseme parameter")
+        expressions = self._expressions if mixes["expression"] == dict(self._expressions) else _sorted_mix(
+            mixes["expression"])
+        visemes = self._visemes if mixes["viseme"] == dict(self._visemes) else _sorted_mix(mixes["viseme"])
+        self._set_state(new, expressions, visemes)
+
+    def offset(self, x: np.ndarray) -> np.ndarray:
+        return self.deformer.displacement(self.effective_values())
+
+    def finish(self, x: np.ndarray) -> np.ndarray:
+        return self.deformer.finish(x, self.effective_values())
+
+    def snapshot(self) -> tuple:
+        return (tuple(self._values.tolist()), self._expressions, self._visemes)
+
+    def restore(self, snapshot) -> None:
+        values, expressions, visemes = snapshot
+        self._set_state(np.asarray(values, dtype=float), tuple(expressions), tuple(visemes))
+
+    def copy(self) -> "FapLayer":
+        twin = FapLayer(self.deformer)
+        twin.restore(self.snapshot())
+        return twin
+
+    # ------------------------------------------------------------ FAPs
+    @property
+    def animated_faps(self) -> tuple[int, ...]:
+        return self.deformer.animated_faps
+
+    def fap_values(self) -> np.ndarray:
+        """(68,) the user's low-level FAP values (index n - 1), a copy."""
+        return self._values.copy()
+
+    def check_fap(self, number: int, value: float) -> tuple[int, float]:
+        """(number, value) validated; ValueError with a message for the user otherwise."""
+        spec = tables.fap_spec(number)
+        if spec.number not in self.animated_faps:
+            why = self.deformer.why_not_animated(spec.number)
+            raise P.ParameterError(f"FAP {spec.number} ({spec.name}) cannot be animated on this face: {why}")
+        return spec.number, P.check_value(f"fap:{spec.number}", value)
+
+    def reset_faps(self, numbers=None) -> None:
+        new = self._values.copy()
+        if numbers is None:
+            new[:] = 0.0
+        else:
+            new[[tables.fap_spec(n).number - 1 for n in numbers]] = 0.0
+        self._set_state(new, self._expressions, self._visemes)
+
+    # ------------------------------------------------------------ presets
+    @property
+    def expressions(self) -> Mix:
+        return self._expressions
+
+    @property
+    def visemes(self) -> Mix:
+        return self._visemes
+
+    def set_mixes(self, expressions: Mix | None = None, visemes: Mix | None = None) -> None:
+        """Replace the expression and/or viseme mix exactly as given (order kept: FAP 2/1 blends)."""
+        self._set_state(self._values, self._expressions if expressions is None else _neutral_if_empty(expressions),
+                        self._visemes if visemes is None else _neutral_if_empty(visemes))
+
+    def preset_values(self) -> np.ndarray:
+        """(68,) FAP values contributed by the active expression and viseme presets."""
+        out = np.zeros(N_FAPS)
+        # Summed in id order, so the same weights give bit-identical values whatever the mix order
+        # (a project stores weights by key, not a .fap blend's order).
+        for eid, weight in sorted(self._expressions):
+            out += tables.expression_table()[eid] * weight
+        for vid, weight in sorted(self._visemes):
+            out += tables.viseme_table()[vid] * weight
+        return out
+
+    def effective_values(self) -> np.ndarray:
+        """(68,) user values + presets: what drives the deformation."""
+        return self._values + self.preset_values()
+
+    # ------------------------------------------------------------ internals
+    def _mix_and_id(self, k: P.ParamKey) -> tuple[Mix, int]:
+        if k.kind == "expression":
+            return self._expressions, tables.expression_id(k.id)
+        if k.kind == "viseme":
+            return self._visemes, tables.viseme_id(k.id)
+        raise P.ParameterError(f"{k} is not a FAP, expression or viseme parameter")
+
+    def _set_state(self, values: np.ndarray, expressions: Mix, visemes: Mix) -> None:
+        old = self._state_values()
+        self._values = np.array(values, dtype=float)
+        self._expressions, self._visemes = expressions, visemes
+        new = self._state_values()
+        # A reordered mix with the same weights changes nothing visible: no event.
+        keys = sorted((k for k in old.keys() | new.keys() if old.get(k, 0.0) != new.get(k, 0.0)),
+                      key=P.sort_key)
+        if not keys:
+            return
+        self.parameters_changed.emit(ParameterChange({k: new.get(k, 0.0) for k in keys},
+                                                     {k: old.get(k, 0.0) for k in keys}, self.name))
+
+    def _state_values(self) -> dict:
+        """{key: value} of every non-zero parameter."""
+        out: dict = {f"fap:{n + 1}": float(self._values[n]) for n in np.flatnonzero(self._values)}
+        names = tables.expression_names()
+        for i, w in self._expressions:
+            if i:
+                out[f"expression:{names[i]}"] = out.get(f"expression:{names[i]}", 0.0) + w
+        for i, w in self._visemes:
+            if i:
+                out[f"viseme:{i}"] = out.get(f"viseme:{i}", 0.0) + w
+        return out
+
+
+def _sorted_mix(weights: Mapping[int, float]) -> Mix:
+    """{id: intensity} -> ((id, intensity), ...) strongest first, zeros dropped; neutral when empty."""
+    items = sorted(((i, w) for i, w in weights.items() if i and w > 0), key=lambda e: -e[1])
+    return tuple(items) or NEUTRAL
+
+
+def _neutral_if_empty(mix: Mix) -> Mix:
+    return tuple(mix) or NEUTRAL
+
+
+def mix_from(mix: Mapping, to_id: Callable, what: str) -> Mix:
+    """{name or id: intensity 0..1} -> a mix, strongest first, all validated before anything changes."""
+    weights: dict[int, float] = {}
+    for k, v in mix.items():
+        weights[to_id(k)] = fraction(v, what)
+    return _sorted_mix(weights)
+
+
+def fraction(value, what: str) -> float:
+    """``value`` as a float in [0, 1]; ParameterError naming ``what`` otherwise."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise P.ParameterError(f"{what} must be a number between 0 and 1, got {value!r}") from None
+    if not (np.isfinite(value) and 0.0 <= value <= 1.0):
+        raise P.ParameterError(f"{what} must be between 0 and 1 (0-100 %), got {value:g}")
+    return value
+
+
+__all__ = ["FapLayer", "mix_from", "fraction", "NEUTRAL"]
