@@ -65,7 +65,7 @@ from PySide6.QtWidgets import (
 )
 
 from app import picking
-from app.undo import LandmarkMoveCommand, LandmarkSetCommand, make_undo_actions, make_undo_stack
+from app.undo import LandmarkMoveCommand, LandmarkSetCommand
 from core.landmark_editing import LandmarkEditModel, LandmarkFileError, LandmarkStatus
 
 __all__ = ["LandmarkDock", "LandmarkEditor", "LandmarkTableModel", "attach_landmark_editor", "registration_available"]
@@ -954,31 +954,14 @@ def attach_landmark_editor(window) -> LandmarkEditor:
     """Add the landmark dock and picking to a :class:`app.main_window.MainWindow`.
 
     * the dock goes to the right dock area, tabified with the FAP dock (Landmarks tab);
-    * ``window.undo_stack`` is created when missing, with Edit ▸ Undo/Redo when the window has
-      no undo action yet (``window.undo_action`` / ``window.redo_action``);
-    * ``window.rig_edits`` (:class:`app.undo.UndoableRigEdits`) records FAP/preset changes on that
-      stack, when the window has none yet (paused while ``window.fap_player`` plays);
-    * ``window.face_changed`` re-targets the editor (and ``rig_edits``) at the new face;
+    * landmark edits go on the document's one undo stack (``window.document.undo_stack``);
+    * ``window.face_changed`` re-targets the editor at the new face;
     * the editor is active (markers drawn, clicks handled) while the dock is showing; the scene's
       own landmark markers are hidden meanwhile.
 
     Returns the editor (also stored as ``window.landmark_editor``; the dock as ``window.landmark_dock``).
     """
-    from app.undo import UndoableRigEdits
-
-    if getattr(window, "undo_stack", None) is None:
-        window.undo_stack = make_undo_stack(window)
-    stack = window.undo_stack
-    if getattr(window, "undo_action", None) is None:
-        window.undo_action, window.redo_action = make_undo_actions(stack, window)
-        window.addAction(window.undo_action)
-        window.addAction(window.redo_action)
-        _add_edit_menu(window, [window.undo_action, window.redo_action])
-    if getattr(window, "rig_edits", None) is None:
-        window.rig_edits = UndoableRigEdits(stack, getattr(window, "rig", None), parent=window)
-        player = getattr(window, "fap_player", None)
-        if player is not None and hasattr(player, "state_changed"):
-            window.rig_edits.follow_player(player)  # playback is not an edit
+    stack = window.document.undo_stack
 
     dock = LandmarkDock(window)
     window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, dock)
@@ -1032,7 +1015,6 @@ def attach_landmark_editor(window) -> LandmarkEditor:
 
     def on_face(face) -> None:
         editor.set_face(face, getattr(window, "face_actor", None))
-        window.rig_edits.set_rig(getattr(window, "rig", None))
         hide_scene_landmarks()
         if getattr(window, "rig", None) is None and face is not None:
             dock.raise_()  # nothing to animate: correcting landmarks is what this face needs
@@ -1060,25 +1042,3 @@ def attach_landmark_editor(window) -> LandmarkEditor:
 def _dock_showing(dock: QDockWidget) -> bool:
     """True when the dock is on screen (not closed, not behind another tab)."""
     return dock.isVisible() and not dock.visibleRegion().isEmpty()
-
-
-def _add_edit_menu(window, actions) -> None:
-    """An Edit menu after File (Qt puts new menus last otherwise)."""
-    bar = window.menuBar()
-    menus = [a for a in bar.actions() if a.menu() is not None]
-    edit = None
-    for a in menus:
-        if a.text().replace("&", "") == "Edit":
-            edit = a.menu()
-    if edit is None:
-        from PySide6.QtWidgets import QMenu
-
-        edit = QMenu("&Edit", window)
-        before = menus[1] if len(menus) > 1 else None
-        if before is not None:
-            bar.insertMenu(before, edit)
-        else:
-            bar.addMenu(edit)
-    for act in actions:
-        edit.addAction(act)
-    window.edit_menu = edit

@@ -315,11 +315,10 @@ class MainWindow(QMainWindow):
 
         self._scene = scene
         self.settings = settings if settings is not None else QSettings(APP_NAME, APP_NAME)
-        self.face = None
-        self.face_path: str | None = None
+        from app.document import Document
+
+        self.document = Document(self)
         self.face_actor = None
-        self.rig = None
-        self.rig_message = ""
         self._mode = "textured"
         self._geometry_dirty = False
         self._overlay_dirty = False
@@ -469,27 +468,6 @@ class MainWindow(QMainWindow):
         self.fap_dock_action.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
         self.addAction(self.fap_dock_action)
 
-        # .fap playback (a simple player until the timeline lands): a bottom dock.
-        from app.fap_player import FapPlayer, FapPlayerBar
-
-        self.fap_player = FapPlayer(None, parent=self)
-        self.fap_player_bar = FapPlayerBar(self.fap_player, self)
-        self.fap_player_bar.message.connect(lambda text: self.statusBar().showMessage(text, 12000))
-        self.fap_player_dock = QDockWidget("FAP player", self)
-        self.fap_player_dock.setObjectName("fapPlayerDock")
-        self.fap_player_dock.setWidget(self.fap_player_bar)
-        self.fap_player_dock.setFeatures(QDockWidget.DockWidgetFeature.DockWidgetClosable
-                                         | QDockWidget.DockWidgetFeature.DockWidgetMovable
-                                         | QDockWidget.DockWidgetFeature.DockWidgetFloatable)
-        self.addDockWidget(Qt.DockWidgetArea.BottomDockWidgetArea, self.fap_player_dock)
-        self.fap_player_dock_action = self.fap_player_dock.toggleViewAction()
-        self.fap_player_dock_action.setText("FAP &player")
-        self.fap_player_dock_action.setStatusTip("Show or hide the .fap player bar")
-        self.open_fap_action = self._action("Open .fap &animation…", self._open_fap, "Ctrl+Shift+O",
-                                            tip="Open an MPEG-4 .fap animation and play it on this face")
-        self.export_fap_action = self._action("&Export .fap…", self.fap_player_bar.export_dialog, "Ctrl+Shift+E",
-                                              tip="Save the face's current FAP state as a one-frame .fap file")
-
     def _create_menus(self) -> None:
         bar = self.menuBar()
         file_menu = bar.addMenu("&File")
@@ -498,13 +476,20 @@ class MainWindow(QMainWindow):
         self._create_recent_actions()
         file_menu.addAction(self.save_action)
         file_menu.addSeparator()
-        file_menu.addAction(self.open_fap_action)
-        file_menu.addAction(self.export_fap_action)
-        file_menu.addSeparator()
         file_menu.addAction(self.screenshot_action)
         file_menu.addSeparator()
         file_menu.addAction(self.quit_action)
         self._rebuild_recent_menu()
+
+        from app.undo import make_undo_actions
+
+        self.undo_action, self.redo_action = make_undo_actions(self.document.undo_stack, self)
+        self.addAction(self.undo_action)
+        self.addAction(self.redo_action)
+        self.edit_menu = bar.addMenu("&Edit")
+        self.edit_menu.addAction(self.undo_action)
+        self.edit_menu.addAction(self.redo_action)
+        self.edit_menu.addSeparator()
 
         view_menu = bar.addMenu("&View")
         for act in self.mode_actions.values():
@@ -517,7 +502,6 @@ class MainWindow(QMainWindow):
         view_menu.addAction(self.reset_camera_action)
         view_menu.addSeparator()
         view_menu.addAction(self.fap_dock_action)
-        view_menu.addAction(self.fap_player_dock_action)
         self.view_menu = view_menu
 
         self.tools_menu = bar.addMenu("&Tools")
@@ -598,8 +582,6 @@ class MainWindow(QMainWindow):
         self._closing = True
         self._tick_timer.stop()
         self._disconnect_rig()
-        self.fap_player.stop()
-        self.fap_player.set_rig(None)
         self.fap_dock.set_rig(None, "")
         self._pool.clear()
         self._pool.waitForDone(5000)  # a worker must not outlive the window it reports to
@@ -808,8 +790,9 @@ class MainWindow(QMainWindow):
         self._tick_timer.stop()
         if self.face_actor is not None:
             self.face_actor.remove()
-        self.face = face
-        self.face_path = path if path is not None else getattr(face.metadata, "source", None)
+        self._disconnect_rig()
+        self.document.set_face(face, path=path if path is not None else getattr(face.metadata, "source", None),
+                               rig=rig, rig_message=rig_message)
         self.face_actor = self._scene.add_face_actor(
             self.plotter, face, self._mode, show_landmarks=self.landmarks_action.isChecked())
         self.landmarks_action.setEnabled(bool(face.landmark_names))
@@ -829,19 +812,13 @@ class MainWindow(QMainWindow):
                 pass
 
     def _set_rig(self, rig, message: str = "") -> None:
-        self._disconnect_rig()
-        self.rig = rig
-        self.rig_message = "" if rig is not None else message
         self._shown_overlay = (None, None)
         self._geometry_dirty = False
         if rig is not None:
             rig.changed.connect(self._on_rig_changed)
             # The actor starts at the neutral face; show the rig's state if it is not neutral.
             self._geometry_dirty = bool(rig.effective_fap_values().any())
-        self.fap_dock.set_rig(rig, self.rig_message)
-        self.fap_player.set_rig(rig)
-        self.open_fap_action.setEnabled(rig is not None)
-        self.export_fap_action.setEnabled(rig is not None)
+        self.fap_dock.set_rig(rig, self.document.rig_message)
         if rig is None and message:
             self.statusBar().showMessage(message.splitlines()[0], 15000)
         elif rig is not None:
@@ -849,15 +826,19 @@ class MainWindow(QMainWindow):
         self._overlay_dirty = True
         self._schedule_tick()
 
+    # The document's state, read through the window by the docks' older code paths.
+    face = property(lambda self: self.document.face)
+    face_path = property(lambda self: self.document.face_path,
+                         lambda self, path: setattr(self.document, "face_path", path))
+    rig = property(lambda self: self.document.rig)
+    rig_message = property(lambda self: self.document.rig_message)
+    undo_stack = property(lambda self: self.document.undo_stack)
+    rig_edits = property(lambda self: self.document.rig_edits)
+
     @property
     def muscle_layer(self):
         """The muscle layer of the current face (built by the muscle dock in the background), or None."""
-        override = getattr(self, "_muscle_layer_override", None)
-        return override if override is not None else getattr(getattr(self, "muscle_dock", None), "layer", None)
-
-    @muscle_layer.setter
-    def muscle_layer(self, layer) -> None:  # e.g. a stand-in layer in tests
-        self._muscle_layer_override = layer
+        return self.document.muscle_layer
 
     def play_demo(self) -> None:
         """Open the built-in showcase (``mimica demo``) on the timeline and play it in a loop."""
@@ -886,9 +867,7 @@ class MainWindow(QMainWindow):
         from app.timeline_dock import attach_timeline
 
         attach_timeline(self)  # sets self.timeline; reuses the undo stack and Edit menu
-        # The timeline supersedes the simple .fap player (View ▸ FAP player brings it back) and
-        # starts tall enough to show a few tracks.
-        self.fap_player_dock.hide()
+        # The timeline starts tall enough to show a few tracks.
         self.resizeDocks([self.timeline.dock], [260], Qt.Orientation.Vertical)
         self.landmark_dock.detect_requested.connect(self.detect_landmarks)
         self.landmark_dock.build_requested.connect(self.build_correspondence)
@@ -1062,10 +1041,6 @@ class MainWindow(QMainWindow):
         if self.face is None:
             return
         self.replace_face(self.face, "Rebuilding the animation from the corrected landmarks…")
-
-    def _open_fap(self) -> None:
-        self.fap_player_dock.show()
-        self.fap_player_bar.open_dialog()
 
     def _on_rig_changed(self) -> None:
         self._geometry_dirty = True

@@ -31,9 +31,9 @@ angle, driving a :class:`core.muscles.MuscleLayer` on the window's :class:`core.
   its ``ForceFileError`` message in a warning box and leaves the forces alone.
 * ``SolverDiverged``: timers stop, the message goes to the status line and the window's status
   bar; the layer has already restored its last good state, which the widgets then show.
-* Undo: every edit from this dock (slider, spin box, reset, preset, file, Rest) is one step on
-  ``window.undo_stack`` when the window has one; the changes of one control during one gesture
-  (a slider drag) merge into one step (:class:`app.undo.SetValueCommand`).
+* Undo: every edit from this dock (slider, spin box, reset, preset, file, Rest) is one rig event,
+  which the window's :class:`app.undo.UndoableRigEdits` records as one step like any parameter
+  change; the changes of one control during one gesture (a slider drag) merge into one step.
 * The muscles can be drawn in the viewport ("Show muscles", :mod:`app.muscle_view`).
 
 The layer takes seconds to build, so :func:`attach_muscle_dock` builds it on a worker thread
@@ -42,7 +42,7 @@ The layer takes seconds to build, so :func:`attach_muscle_dock` builds it on a w
 
 from __future__ import annotations
 
-import functools
+import contextlib
 import time
 import traceback
 from pathlib import Path
@@ -548,7 +548,7 @@ class MuscleDock(QDockWidget):
             self.view = None
         if layer is not None:
             if rig is not None:
-                layer.attach(rig, name="muscles")
+                layer.attach(rig)
                 self.rig = rig
             layer.changed.connect(self._on_layer_changed)
             self._make_view()
@@ -752,31 +752,6 @@ class MuscleDock(QDockWidget):
         forces = layer.forces()
         return tuple(float(forces.get(k, 0.0)) for k in control_keys()), float(layer.jaw_deg)
 
-    def _restore_state(self, layer, state: tuple) -> None:
-        """Undo/redo: put ``state`` into ``layer`` (ignored when the dock moved on to another layer)."""
-        from core.muscles import control_keys
-
-        if layer is not self.layer or not state:
-            return
-        forces, jaw = state
-        self.stop(relax=False)
-        self._guarded(lambda: (layer.set_forces(dict(zip(control_keys(), forces))), layer.set_jaw(jaw)))
-        self._start_relax()
-
-    def _record(self, text: str, old: tuple, merge_key=None) -> None:
-        stack = getattr(self.window_, "undo_stack", None)
-        layer = self.layer
-        if stack is None or layer is None or not old:
-            return
-        new = self.state()
-        if new == old:
-            return
-        from app.undo import SetValueCommand
-
-        merge = None if merge_key is None else ("muscles", id(layer), merge_key)
-        stack.push(SetValueCommand(text, functools.partial(self._restore_state, layer), old, new, merge,
-                                   applied=True))
-
     def _guarded(self, call) -> bool:
         """Run a layer call; bad values and a diverged solver become messages. Returns success."""
         from core.muscles import SolverDiverged
@@ -808,11 +783,12 @@ class MuscleDock(QDockWidget):
         if self.layer is None:
             return False
         self.stop(relax=False)
-        old = self.state()
         self._edit_started = time.perf_counter()
-        ok = self._guarded(call)
+        # One rig event per edit (forces and jaw together): the window's rig recorder makes it one
+        # undo step, merged with the rest of a slider drag.
+        with self.rig.batch() if self.rig is not None else contextlib.nullcontext():
+            ok = self._guarded(call)
         if ok:
-            self._record(text, old, merge_key)
             if not self.layer.converged:
                 self._start_relax()
             elif not self._relax_timer.isActive():

@@ -42,7 +42,6 @@ from PySide6.QtCore import QEvent, QObject, QSettings, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox
 
-from app.timeline_controller import rig_state
 from core import project as cp
 from core.timeline import Timeline
 
@@ -112,6 +111,7 @@ class ProjectActions(QObject):
         self._relay.opened.connect(self._on_face_opened)
         self._relay.failed.connect(self._on_face_failed)
         self._pending: tuple | None = None
+        self._pending_values: dict[str, float] = {}  # opened values of layers not built yet
         self._closed = False
         self._had_face = getattr(window, "face", None) is not None
 
@@ -211,12 +211,6 @@ class ProjectActions(QObject):
         self._face_ref = (id(face), ref)
         return ref
 
-    def _muscles(self):
-        """({(name, side): force}, jaw degrees) of the window's muscle layer (empty without one)."""
-        from app.timeline_controller import muscle_controls
-
-        return muscle_controls(getattr(self.window, "muscle_layer", None))
-
     def current_project(self, target: Path | None = None) -> cp.Project:
         """The open project as a :class:`core.project.Project` (``target``: where it will be written)."""
         w = self.window
@@ -224,9 +218,11 @@ class ProjectActions(QObject):
             raise cp.ProjectError("there is no face to save yet; wait until it is loaded")
         target = Path(target) if target is not None else (self.path or cp.autosave_path(
             None, untitled_id=self.untitled_id, state_dir=self.state_dir))
-        forces, jaw = self._muscles()
-        return cp.Project.from_state(w.face, self._face_ref_for(target), w.rig, self.c.timeline, muscles=forces,
-                                     jaw=jaw, speech=self.c.speech, view=self.view_state())
+        project = cp.Project.from_state(w.face, self._face_ref_for(target), w.rig, self.c.timeline,
+                                        speech=self.c.speech, view=self.view_state())
+        if self._pending_values and w.rig is not None:   # opened, but their layer is still being built
+            project.rig.values.update(self._pending_values)
+        return project
 
     def view_state(self) -> dict:
         """Camera, display mode, overlays and timeline UI state (plain JSON types)."""
@@ -412,6 +408,24 @@ class ProjectActions(QObject):
             self._face_ref = (id(face), project.face)
         self._finish_open(project, path, notes, dirty=dirty, offer_recovery=offer)
 
+    def _apply_pending_values(self, _change=None) -> None:
+        """A layer joined the rig (the muscles, built in the background): give it the opened values."""
+        rig = self.window.rig
+        if rig is None or not self._pending_values:
+            return
+        ready = {k: v for k, v in self._pending_values.items() if k in set(rig.parameters())}
+        if not ready:
+            return
+        for k in ready:
+            del self._pending_values[k]
+        if not self._pending_values:
+            rig.changed.disconnect(self._apply_pending_values)
+        with self.c._not_recorded():  # noqa: SLF001
+            try:
+                rig.set_values(ready)
+            except ValueError as exc:
+                self._warn("Some rig values could not be restored", str(exc))
+
     def _on_face_failed(self, generation: int, message: str) -> None:
         if generation != self._generation:
             return
@@ -429,14 +443,16 @@ class ProjectActions(QObject):
         c._set_speech(list(project.speech))  # noqa: SLF001
         c.set_timeline(project.timeline, time=time)
         rig = w.rig
+        self._pending_values = {}
         if rig is not None:
-            layer = getattr(w, "muscle_layer", None)
             with c._not_recorded():  # noqa: SLF001
                 try:
-                    project.rig.apply(rig, muscles=layer if hasattr(layer, "set_forces") else None)
+                    # Layers still building (the muscles) get their values when they join the rig.
+                    self._pending_values = project.rig.apply(rig, build_layers=False)
                 except ValueError as exc:
                     notes.append(f"Some rig values could not be restored: {exc}")
-            c._rig_state = rig_state(rig)  # noqa: SLF001
+            if self._pending_values:
+                rig.changed.connect(self._apply_pending_values)
         self.apply_view(project.view)
         if isinstance(tview, dict) and bool(tview.get("auto_key", False)) != c.auto_key:
             c.set_auto_key(bool(tview.get("auto_key", False)))

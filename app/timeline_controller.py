@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import hashlib
 import math
 import time
 import traceback
@@ -51,8 +50,8 @@ import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer, Signal
 from PySide6.QtGui import QUndoCommand
 
+from core import parameters as P
 from core import timeline as tl
-from core.fap import tables
 from core.timeline import Edit, Timeline, TimelineError, Track
 
 SPEEDS = (0.25, 0.5, 1.0, 1.5, 2.0, 4.0)
@@ -62,53 +61,18 @@ FPS_WINDOW_S = 1.0  # achieved fps = frames shown during the last second
 
 # ------------------------------------------------------------------ parameters
 def parameter_label(key: str) -> str:
-    """Short readable name of a canonical parameter key, e.g. "3 open jaw", "joy", "1 p b m"."""
-    kind, _, rest = key.partition(":")
-    if kind == "fap":
-        try:
-            from app.fap_dock import row_label
-
-            return row_label(tables.fap_spec(int(rest)))
-        except Exception:  # noqa: BLE001 - a label is decoration
-            return key
-    if kind == "expression":
-        return rest
-    if kind == "viseme":
-        vid = int(rest)
-        phon = tables.viseme_phonemes()[vid].replace(",", " ")
-        return f"{vid} {phon}".strip()
-    if kind == "muscle":
-        name, _, side = rest.partition(":")
-        label = name.replace("_", " ")
-        return f"{label} ({side[0].upper()})" if side else label
-    if key == "jaw":
-        return "jaw angle (°)"
-    return key
+    """Short readable name of a parameter key, e.g. "3 open jaw", "joy", "1 p b m" (``core.parameters``)."""
+    return P.label(key)
 
 
 def parameter_range(key: str, track: Track | None = None) -> tuple[float, float]:
-    """(low, high) to scale a parameter's curve in its lane."""
-    kind, _, rest = key.partition(":")
-    if kind == "fap":
-        spec = tables.fap_spec(int(rest))
-        return float(spec.minimum), float(spec.maximum)
-    if kind in ("expression", "viseme"):
-        return 0.0, 1.0
-    if kind == "muscle":
-        try:
-            from core.muscles.muscles import spec_by_name
-
-            spec = spec_by_name()[rest.split(":")[0]]
-            return float(spec.minimum), float(spec.maximum)
-        except Exception:  # noqa: BLE001 - fall back to the track's own span
-            pass
-    if kind == "jaw":
-        try:
-            from core.muscles.muscles import jaw_range
-
-            return jaw_range()
-        except Exception:  # noqa: BLE001
-            pass
+    """(low, high) to scale a parameter's curve in its lane: its range, or the track's span."""
+    try:
+        p = P.describe(key)
+        if math.isfinite(p.minimum) and math.isfinite(p.maximum):
+            return p.minimum, p.maximum
+    except P.ParameterError:
+        pass
     if track is not None and len(track):
         lo, hi = float(track.values.min()), float(track.values.max())
         return (min(lo, 0.0), hi if hi > lo else lo + 1.0)
@@ -116,43 +80,10 @@ def parameter_range(key: str, track: Track | None = None) -> tuple[float, float]
 
 
 def muscle_keys() -> tuple[str, ...]:
-    """``muscle:<name>[:<side>]`` for the muscle layer's 19 controls, then ``jaw`` (empty if unavailable)."""
-    try:
-        from core.muscles.muscles import control_keys
+    """The muscle layer's 19 force keys, then ``jaw``."""
+    from core.muscles import control_keys
 
-        keys = tuple(f"muscle:{n}:{s}" if s else f"muscle:{n}" for n, s in control_keys())
-    except Exception:  # noqa: BLE001 - the muscle layer is optional
-        return ()
-    return keys + ("jaw",)
-
-
-# ------------------------------------------------------------------ rig state
-def rig_state(rig) -> tuple:
-    """(68 FAP values, expressions, visemes): what the FAP dock can change (as ``UndoableRigEdits.state_of``)."""
-    return (tuple(float(v) for v in rig.fap_values()), tuple(rig.expressions), tuple(rig.visemes))
-
-
-def _restore_mix(rig, kind: str, mix: tuple) -> None:
-    single = getattr(rig, f"set_{kind}")
-    attribute = f"_{kind}s"
-    if tuple(getattr(rig, attribute)) == tuple(mix):
-        return
-    if len(mix) == 1:
-        single(None if mix[0][0] == 0 else mix[0][0], mix[0][1])
-        return
-    # A blend no public setter reproduces exactly (FAP 2/1 blends): restore it as stored.
-    rig._set_presets(attribute, tuple(mix))  # noqa: SLF001 - FaceRig has no restore_state yet
-
-
-def apply_rig_state(rig, state: tuple) -> None:
-    """Put a :func:`rig_state` back (only what differs; FAPs the rig cannot animate stay 0)."""
-    values, expressions, visemes = state
-    current = rig.fap_values()
-    changed = {n + 1: v for n, v in enumerate(values) if current[n] != v}
-    if changed:
-        rig.set_faps(changed)
-    _restore_mix(rig, "expression", expressions)
-    _restore_mix(rig, "viseme", visemes)
+    return tuple(P.key_of(k) for k in control_keys()) + ("jaw",)
 
 
 # ------------------------------------------------------------------ undo
@@ -177,14 +108,14 @@ def _merge_edits(first: Edit, second: Edit, label: str) -> Edit:
 class TimelineEditCommand(QUndoCommand):
     """One undo step of the timeline: an applied ``Edit``, optionally with extra state around it.
 
-    rig_before / rig_after : :func:`rig_state` tuples restored after the edit is undone / redone
-    (auto-key: the slider change and its keys are one step). extra_undo / extra_redo : callables run
-    after the timeline part (e.g. the speech clip list of a lip-sync edit). merge_key : commands with
-    the same key in the same user gesture merge (a slider drag with auto-key = one step).
+    rig_before / rig_after : {parameter key: value} put back on the rig after the edit is undone /
+    redone (auto-key: the slider change and its keys are one step). extra_undo / extra_redo :
+    callables run after the timeline part (e.g. the speech clip list of a lip-sync edit).
+    merge_key : commands with the same key in the same user gesture merge (a drag with auto-key = one step).
     """
 
     def __init__(self, controller: "TimelineController", edit: Edit, text: str | None = None, *,
-                 applied: bool = True, rig_before: tuple | None = None, rig_after: tuple | None = None,
+                 applied: bool = True, rig_before: Mapping | None = None, rig_after: Mapping | None = None,
                  extra_undo: Callable[[], None] | None = None, extra_redo: Callable[[], None] | None = None,
                  merge_key=None):
         super().__init__(text or edit.label)
@@ -218,23 +149,13 @@ class TimelineEditCommand(QUndoCommand):
             return False
         self.edit = _merge_edits(self.edit, other.edit, self.edit.label)
         if other.rig_after is not None:
-            self.rig_after = other.rig_after
-        if self.rig_before is None:
-            self.rig_before = other.rig_before
+            self.rig_after = {**(self.rig_after or {}), **other.rig_after}
+        if other.rig_before is not None:
+            self.rig_before = {**other.rig_before, **(self.rig_before or {})}
         return True
 
 
 # ------------------------------------------------------------------ controller
-def muscle_controls(layer) -> tuple[dict, float]:
-    """({(name, side): force}, jaw degrees) of a muscle layer (``core.muscles.MuscleLayer``: ``forces()``
-    and ``jaw_deg``); empty for None."""
-    if layer is None:
-        return {}, 0.0
-    forces = layer.forces
-    forces = forces() if callable(forces) else forces
-    return dict(forces), float(getattr(layer, "jaw_deg", getattr(layer, "jaw", 0.0)) or 0.0)
-
-
 class TimelineController(QObject):
     """The timeline of the window's project, its cursor and playback.
 
@@ -282,7 +203,7 @@ class TimelineController(QObject):
         self._auto_key_paused_recorder = None
         self._applying = 0
         self._rig = None
-        self._rig_state: tuple | None = None
+        self._export_animation = None
         self._simulation = None
         self._sim_layer = None
         self._audio_cache: tuple | None = None
@@ -313,12 +234,11 @@ class TimelineController(QObject):
         """Follow ``rig`` (the window's, after a face change) and pose it at the cursor."""
         if self._rig is not None:
             with contextlib.suppress(ValueError, RuntimeError, TypeError):
-                self._rig.changed.disconnect(self._on_rig_changed)
+                self._rig.parameters_changed.disconnect(self._on_rig_changed)
         self._rig = rig
-        self._rig_state = None if rig is None else rig_state(rig)
         self._drop_simulation()
         if rig is not None:
-            rig.changed.connect(self._on_rig_changed)
+            rig.parameters_changed.connect(self._on_rig_changed)
             self.apply_time(self.current_time)
 
     def _on_face_changed(self, _face=None) -> None:
@@ -368,7 +288,8 @@ class TimelineController(QObject):
 
     # ------------------------------------------------------------ muscle layer
     def _muscle_layer(self):
-        return getattr(self.window, "muscle_layer", None)
+        """The rig's simulated layer (the muscles), or None."""
+        return None if self._rig is None else self._rig.layer("muscles")
 
     def _drop_simulation(self) -> None:
         if self._simulation is not None:
@@ -390,22 +311,15 @@ class TimelineController(QObject):
 
     # ------------------------------------------------------------ posing
     def _animatable_values(self, values: Mapping[str, float]) -> dict[str, float]:
-        rig = self._rig
-        animated = set(rig.animated_faps) if rig is not None else set()
-        out = {}
-        for k, v in values.items():
-            if k.startswith("fap:") and int(k[4:]) not in animated:
-                continue
-            if tl.is_simulated(k):
-                continue
-            out[k] = v
-        return out
+        """The values of parameters this rig animates and that are not simulated."""
+        owned = set(self._rig.parameters()) if self._rig is not None else set()
+        return {k: v for k, v in values.items() if k in owned and not tl.is_simulated(k)}
 
     def apply_time(self, t: float, keys: Iterable[str] | None = None) -> None:
         """Pose the rig at time ``t`` from the timeline (all tracks, or the given parameter keys).
 
-        Expression / viseme tracks are always applied as a set (the strongest one wins on a rig
-        without preset mixes). One ``rig.changed`` at most.
+        Parameters this face cannot animate (gaze without eyeballs, muscles before their layer is
+        built) are skipped, not an error. One ``rig.changed`` at most; never an undo step.
         """
         rig = self._rig
         if rig is None:
@@ -413,26 +327,18 @@ class TimelineController(QObject):
         values = self.timeline.evaluate(t)
         if keys is not None:
             wanted = set(keys)
-            kinds = {k.split(":")[0] for k in wanted} & {"expression", "viseme"}
-            values = {k: v for k, v in values.items() if k in wanted or k.split(":")[0] in kinds}
+            values = {k: v for k, v in values.items() if k in wanted}
         values = self._animatable_values(values)
-        before = rig_state(rig)
-        moved = False
-        with self._not_recorded():
+        with self._not_recorded(), rig.batch():
             try:
-                with rig.changed.blocked():
-                    tl.apply_to_rig(rig, values)
-                    sim_keys = [k for k in self.timeline.tracks if tl.is_simulated(k)]
-                    if sim_keys and (keys is None or any(tl.is_simulated(k) for k in keys)):
-                        sim = self._simulation_for()
-                        if sim is not None:
-                            sim.seek(t)
-                            moved = True
+                rig.set_values(values)
+                sim_keys = [k for k in self.timeline.tracks if tl.is_simulated(k)]
+                if sim_keys and (keys is None or any(tl.is_simulated(k) for k in keys)):
+                    sim = self._simulation_for()
+                    if sim is not None:
+                        sim.seek(t)
             except ValueError as exc:
                 self.message.emit(f"Could not pose the face at {t:.2f} s: {exc}")
-            if moved or rig_state(rig) != before:
-                rig.touch()
-        self._rig_state = rig_state(rig)
 
     def seek(self, t: float, *, snap: bool = True) -> float:
         """Move the cursor to ``t`` (s; snapped to the nearest frame, clamped) and pose the rig there."""
@@ -538,7 +444,7 @@ class TimelineController(QObject):
             self.fps_measured.emit(self.achieved_fps)
 
     # ------------------------------------------------------------ edits
-    def _run_command(self, timeline: Timeline, edit: Edit, rig_after: tuple | None,
+    def _run_command(self, timeline: Timeline, edit: Edit, rig_after: Mapping | None,
                      extra: Callable[[], None] | None) -> None:
         """Undo/redo body: apply the edit to the timeline it was made on, then the extra state."""
         try:
@@ -548,10 +454,9 @@ class TimelineController(QObject):
             return
         if extra is not None:
             extra()
-        if rig_after is not None and self._rig is not None and timeline is self.timeline:
+        if rig_after and self._rig is not None and timeline is self.timeline:
             with self._not_recorded():
-                apply_rig_state(self._rig, rig_after)
-            self._rig_state = rig_state(self._rig)
+                self._rig.set_values({k: v for k, v in rig_after.items() if k in set(self._rig.parameters())})
 
     def push(self, make_edit: Callable[[], Edit], text: str | None = None, **command_kw) -> Edit | None:
         """Run a ``core.timeline`` edit and put it on the undo stack; a refused edit -> ``message``."""
@@ -594,50 +499,15 @@ class TimelineController(QObject):
 
     # ------------------------------------------------------------ values of the rig
     def rig_value(self, key: str) -> float | None:
-        """The rig's (or muscle layer's) current value of a parameter; None when unknown."""
+        """The rig's current value of a parameter (any layer); None when the rig does not animate it."""
         rig = self._rig
-        kind, _, rest = key.partition(":")
-        if kind == "fap":
-            return None if rig is None else rig.fap_value(int(rest))
-        if kind == "expression":
-            if rig is None:
-                return None
-            eid = tables.expression_id(rest)
-            return float(sum(w for i, w in rig.expressions if i == eid))
-        if kind == "viseme":
-            if rig is None:
-                return None
-            vid = int(rest)
-            return float(sum(w for i, w in rig.visemes if i == vid))
-        layer = self._muscle_layer()
-        if layer is None:
+        if rig is None or key not in set(rig.parameters()):
             return None
-        forces, jaw = muscle_controls(layer)
-        if kind == "muscle":
-            return float(forces.get(tl.muscle_target(key), 0.0))
-        if key == "jaw":
-            return jaw
-        return None
+        return rig.value(key)
 
     def non_neutral_parameters(self) -> list[str]:
-        """Parameters away from neutral in the rig (and the muscle layer when it exposes its values)."""
-        rig = self._rig
-        out: list[str] = []
-        if rig is not None:
-            values = rig.fap_values()
-            for n in np.flatnonzero(values):
-                with contextlib.suppress(TimelineError):
-                    out.append(tl.canonical_key(f"fap:{n + 1}"))
-            names = tables.expression_names()
-            out += [f"expression:{names[i]}" for i, w in rig.expressions if i != 0 and w > 0]
-            out += [f"viseme:{i}" for i, w in rig.visemes if i != 0 and w > 0]
-        forces, jaw = muscle_controls(self._muscle_layer())
-        for (name, side), f in forces.items():
-            if f != 0:
-                out.append(f"muscle:{name}:{side}" if side else f"muscle:{name}")
-        if jaw:
-            out.append("jaw")
-        return list(dict.fromkeys(out))
+        """Parameters away from their default in the rig (every layer)."""
+        return [] if self._rig is None else list(self._rig.values(nondefault=True))
 
     def keyable_controls(self) -> list[str]:
         """The "selected controls" Set key keys (see the module docstring)."""
@@ -685,42 +555,26 @@ class TimelineController(QObject):
         elif not on and self._auto_key_paused_recorder is not None:
             self._auto_key_paused_recorder.resume()
             self._auto_key_paused_recorder = None
-        if self._rig is not None:
-            self._rig_state = rig_state(self._rig)
         self.auto_key_changed.emit(on)
 
-    def _on_rig_changed(self) -> None:
-        rig = self._rig
-        if rig is None or self._applying:
+    def _on_rig_changed(self, change) -> None:
+        """A parameter changed (the event names the keys, new and previous values): tell the views,
+        and key it at the cursor when auto-key is on (one undo step with the change itself)."""
+        if self._rig is None or self._applying:
             return
-        new = rig_state(rig)
-        old, self._rig_state = self._rig_state, new
         self.rig_values_changed.emit()
-        if not self._auto_key or self.playing or old is None or new == old:
+        if not self._auto_key or self.playing or not change.values:
             return
         t = self.current_time
-        rows = {}
-        for n, (a, b) in enumerate(zip(old[0], new[0])):
-            if a != b:
-                rows[f"fap:{n + 1}"] = [(t, b, None)]
-        names = tables.expression_names()
-        for what, i_old, i_new, name_of in (("expression", old[1], new[1], lambda i: names[i]),
-                                            ("viseme", old[2], new[2], str)):
-            if i_old == i_new:
-                continue
-            weights = {i: 0.0 for i, _ in i_old if i != 0}
-            weights.update({i: w for i, w in i_new if i != 0})
-            for i, w in weights.items():
-                rows[f"{what}:{name_of(i)}"] = [(t, w, None)]
-        if not rows:
-            return
+        rows = {k: [(t, v, None)] for k, v in change.values.items()}
         try:
             edit = self.timeline.add_keys(rows, label="auto-key")
         except TimelineError as exc:
             self.message.emit(f"Auto-key: {exc}")
             return
         what = _describe_change(rows)
-        self.undo_stack.push(TimelineEditCommand(self, edit, f"{what} (auto-key)", rig_before=old, rig_after=new,
+        self.undo_stack.push(TimelineEditCommand(self, edit, f"{what} (auto-key)", rig_before=dict(change.previous),
+                                                 rig_after=dict(change.values),
                                                  merge_key=("auto-key", id(self.timeline), frozenset(rows))))
 
     # ------------------------------------------------------------ key selection operations
@@ -838,6 +692,29 @@ class TimelineController(QObject):
             self.message.emit(f"Imported {len(tracks)} tracks from '{path.name}'. " + " ".join(notes))
         return done
 
+    def export_fap(self, path) -> bool:
+        """Write the timeline as an MPEG-4 .fap file at its frame rate (the rig's current pose as one
+        frame when nothing is keyed). Errors go to ``message``; returns success."""
+        from core.animation import sequence_from_rig
+        from core.fap_file import FapFileError, write_fap
+
+        path = Path(path)
+        if self._rig is None:
+            self.message.emit("This face has no rig: there is no FAP animation to export.")
+            return False
+        try:
+            if self.timeline.tracks:
+                sequence = self.animation().fap_sequence(self.timeline.fps, name=path.stem or "mimica")
+            else:
+                sequence = sequence_from_rig(self._rig, fps=self.timeline.fps, name=path.stem or "mimica")
+            write_fap(path, sequence)
+        except (FapFileError, ValueError, OSError) as exc:
+            self.message.emit(f"Could not export '{path.name}': {exc}")
+            return False
+        self.message.emit(f"Wrote '{path.name}': {sequence.n_frames} frame{'s' if sequence.n_frames != 1 else ''} "
+                          f"at {sequence.fps:g} fps.")
+        return True
+
     def add_lipsync(self, result, text: str, lang: str, *, rate_wpm: int = 175) -> Edit | None:
         """Add a ``core.lipsync.LipSyncResult``'s tracks as one undoable edit (with its speech clip).
 
@@ -894,44 +771,25 @@ class TimelineController(QObject):
         self.speech_changed.emit()
 
     def audio_path(self) -> Path | None:
-        """A WAV with every speech clip at its start time, time 0 = timeline 0 (None without speech).
+        """A WAV with every speech clip at its start time, time 0 = timeline 0 (None without speech;
+        ``core.animation.speech_wav``: written once per clip set)."""
+        from core.animation import speech_wav
 
-        Regenerated from the clips' text (core.lipsync caches the syntheses), written once per clip set.
-        """
-        if not self.speech:
-            return None
-        signature = tuple((c.text, c.lang, c.start_s, c.rate_wpm) for c in self.speech)
-        if self._audio_cache is not None and self._audio_cache[0] == signature and self._audio_cache[1].is_file():
-            return self._audio_cache[1]
-        import wave
-
-        from core import lipsync
-
-        pieces = []
-        rate = None
-        for clip in self.speech:
-            path, sr = lipsync.speech_audio(clip.text, clip.lang, rate_wpm=clip.rate_wpm)
-            with wave.open(str(path), "rb") as w:
-                samples = np.frombuffer(w.readframes(w.getnframes()), "<i2")
-            rate = rate or sr
-            if sr != rate:
-                continue  # eSpeak uses one rate; a different one would need resampling
-            pieces.append((int(round(clip.start_s * rate)), samples))
-        n = max(start + len(s) for start, s in pieces)
-        mix = np.zeros(n, np.int32)
-        for start, s in pieces:
-            mix[start:start + len(s)] += s
-        mix = np.clip(mix, -32768, 32767).astype("<i2")
-        digest = hashlib.sha256(repr(signature).encode()).hexdigest()[:16]
-        target = lipsync.write_wav(lipsync.speech_cache_dir() / f"timeline-{digest}.wav", mix, rate)
-        self._audio_cache = (signature, target)
-        return target
+        return speech_wav(self.speech) if self.speech else None
 
     # ------------------------------------------------------------ export
+    def animation(self):
+        """The timeline on a copy of the rig (``core.animation.ProjectAnimation``): what export renders,
+        evaluated apart from the face on screen (and from another thread) without moving it."""
+        from core.animation import ProjectAnimation
+
+        return ProjectAnimation(self._rig.copy(), self.timeline.copy())
+
     def frame_vertices(self, t: float) -> np.ndarray:
-        """(n, 3) mm: the face at time ``t`` (poses the rig; call :meth:`seek` afterwards to go back)."""
-        self.apply_time(float(t))
-        return np.array(self._rig.vertices(), copy=True)
+        """(n, 3) mm: the face at time ``t``, on a copy of the rig (the face on screen does not move)."""
+        if self._export_animation is None or self._export_animation.rig.face is not self._rig.face:
+            self._export_animation = self.animation()
+        return self._export_animation.vertices(float(t))
 
     def export_video(self, *, still: bool = False):
         """File ▸ Export video… for the timeline (``app.export_dialog.run_export_dialog``)."""
@@ -947,23 +805,17 @@ class TimelineController(QObject):
             traceback.print_exc()
             self.message.emit(f"The speech audio could not be prepared ({exc}); exporting without sound.")
             audio = None
-        job = run_export_dialog(self.window, self.window.face, self.frame_vertices, self.timeline.duration,
+        animation = self.animation()
+        job = run_export_dialog(self.window, self.window.face, animation.vertices, self.timeline.duration,
                                 self.timeline.fps, audio, still=still, current_time_s=self.current_time)
-        if job is None:
-            return None
-        back = self.current_time
-        for name in ("finished", "failed", "cancelled"):
-            sig = getattr(job, name, None)
-            if sig is not None:
-                sig.connect(lambda *_a: self.seek(back))
         return job
 
 
 def _sort_key(key: str):
-    kind, _, rest = key.partition(":")
-    order = {"fap": 0, "expression": 1, "viseme": 2, "muscle": 3, "jaw": 4}.get(kind, 5)
-    num = int(rest) if rest.isdigit() else 0
-    return order, num, rest
+    try:
+        return P.sort_key(key)
+    except P.ParameterError:
+        return (99, key, 0, key, "")
 
 
 def _shorten(text: str, n: int = 24) -> str:
@@ -972,4 +824,4 @@ def _shorten(text: str, n: int = 24) -> str:
 
 
 __all__ = ["TimelineController", "TimelineEditCommand", "SPEEDS", "parameter_label", "parameter_range",
-           "muscle_keys", "rig_state", "apply_rig_state"]
+           "muscle_keys"]

@@ -1104,33 +1104,6 @@ def _menu(window, title: str, before: str | None = None) -> QMenu:
     return menu
 
 
-def _undo_stack_for(window):
-    """The window's undo stack; created here (with a rig recorder and Edit ▸ Undo/Redo) while the window has none."""
-    stack = getattr(window, "undo_stack", None)
-    if stack is not None:
-        return stack
-    from app.undo import UndoableRigEdits, make_undo_actions, make_undo_stack
-
-    stack = make_undo_stack(window)
-    window.undo_stack = stack
-    window.rig_edits = UndoableRigEdits(stack, getattr(window, "rig", None), window)
-
-    def follow_face(_face=None):
-        window.rig_edits.set_rig(getattr(window, "rig", None))
-        stack.clear()
-
-    window.face_changed.connect(follow_face)
-    undo, redo = make_undo_actions(stack, window)
-    window.addAction(undo)
-    window.addAction(redo)
-    edit = _menu(window, "&Edit", before="View")
-    edit.addAction(undo)
-    edit.addAction(redo)
-    edit.addSeparator()
-    window.undo_action, window.redo_action = undo, redo
-    return stack
-
-
 def _action(window, text: str, slot, shortcut=None, tip: str = "", checkable: bool = False) -> QAction:
     act = QAction(text, window)
     if shortcut is not None:
@@ -1158,18 +1131,11 @@ def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, auto
     """
     from app.project_actions import AUTOSAVE_MS, ProjectActions
 
-    stack = _undo_stack_for(window)
+    stack = window.document.undo_stack
     controller = TimelineController(window, stack)
     dock = TimelineDock(controller, window)
     controller.dock = dock
     window.addDockWidget(Qt.DockWidgetArea.BottomDockWidgetArea, dock)
-    player_dock = getattr(window, "fap_player_dock", None)
-    if player_dock is not None:
-        window.tabifyDockWidget(player_dock, dock)
-        player_dock.hide()  # the timeline supersedes the simple player; View ▸ FAP player brings it back
-        player = getattr(window, "fap_player", None)
-        if player is not None:
-            dock.visibilityChanged.connect(lambda visible: visible and player.is_playing and player.pause())
     dock.show()
     dock.raise_()
     window.resizeDocks([dock], [300], Qt.Orientation.Vertical)
@@ -1226,14 +1192,16 @@ def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, auto
                               "Make viseme (and blink) tracks from typed text, spoken by eSpeak NG")
     tools.addAction(acts["lipsync"])
     file_menu = _menu(window, "&File")
-    acts["import_animation"] = _action(window, "&Import animation (.fap, .dpc)…", lambda: _import_dialog(c), None,
-                                       "Add a .fap or DPC control-point animation as tracks at the cursor")
+    acts["import_animation"] = _action(window, "&Import animation (.fap, .dpc)…", lambda: _import_dialog(c),
+                                       "Ctrl+Shift+O", "Add a .fap or DPC control-point animation as tracks at the cursor")
+    acts["export_fap"] = _action(window, "Export .&fap…", lambda: _export_fap_dialog(c), "Ctrl+Shift+E",
+                                 "Write the timeline (or the current pose) as an MPEG-4 .fap animation")
     acts["export_video"] = _action(window, "Export &video…", c.export_video, "Ctrl+E",
                                    "Render the timeline to MP4 (with speech), GIF, AVI or PNG images")
     acts["export_still"] = _action(window, "Export s&till…", lambda: c.export_video(still=True), None,
                                    "Render the face at the timeline's current time to PNG or JPEG")
     anchor = getattr(window, "screenshot_action", None)
-    for name in ("import_animation", "export_video", "export_still"):
+    for name in ("import_animation", "export_fap", "export_video", "export_still"):
         if anchor is not None and anchor in file_menu.actions():
             file_menu.insertAction(anchor, acts[name])
         else:
@@ -1257,6 +1225,15 @@ def _import_dialog(controller: TimelineController) -> None:
                                           "Animations (*.fap *.dpc *.txt);;All files (*)")
     if path:
         controller.import_animation(path)
+
+
+def _export_fap_dialog(controller: TimelineController) -> None:
+    from PySide6.QtWidgets import QFileDialog
+
+    path, _ = QFileDialog.getSaveFileName(controller.window, "Export .fap animation", "animation.fap",
+                                          "MPEG-4 FAP animation (*.fap)")
+    if path:
+        controller.export_fap(path if path.lower().endswith(".fap") else path + ".fap")
 
 
 def open_lipsync_dialog(controller: TimelineController):

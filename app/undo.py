@@ -239,12 +239,13 @@ def make_undo_actions(stack: QUndoStack, parent: QObject) -> tuple[QAction, QAct
 
 # ------------------------------------------------------------------ rig edits
 class UndoableRigEdits(QObject):
-    """Turns every change of a FaceRig's parameters into undo steps on ``stack``.
+    """Turns every parameter change of a FaceRig (any layer: FAPs, presets, muscles, jaw, ...) into
+    undo steps on ``stack``.
 
-    It listens to ``rig.changed`` and diffs the rig's state (the 68 low-level FAP values and
-    the expression/viseme presets) against the last one it saw, so it needs no hook in the
-    widgets: the FAP dock's sliders, spin boxes, resets and presets are all recorded. Changes
-    of the same parameters during one gesture (a slider drag) merge into one step.
+    It listens to ``rig.parameters_changed``, whose event names the keys with their new and previous
+    values, so it needs no hook in the widgets and diffs nothing. A step holds only the keys it
+    changed (undoing an old step never reverts later, unrelated changes); changes of the same keys
+    during one gesture (a slider drag) merge into one step.
 
     Parameters
     ----------
@@ -257,7 +258,6 @@ class UndoableRigEdits(QObject):
         super().__init__(parent if parent is not None else stack)
         self.stack = stack
         self.rig = None
-        self._state = None
         self._applying = False
         self._paused = 0
         gestures()
@@ -268,21 +268,18 @@ class UndoableRigEdits(QObject):
         """Follow ``rig`` (None: record nothing)."""
         if self.rig is not None:
             with contextlib.suppress(ValueError, RuntimeError, TypeError):
-                self.rig.changed.disconnect(self._on_changed)
+                self.rig.parameters_changed.disconnect(self._on_changed)
         self.rig = rig
-        self._state = None if rig is None else self.state_of(rig)
         if rig is not None:
-            rig.changed.connect(self._on_changed)
+            rig.parameters_changed.connect(self._on_changed)
 
     def pause(self) -> None:
         """Stop recording (nested calls need as many :meth:`resume`)."""
         self._paused += 1
 
     def resume(self) -> None:
-        """Record again; what changed while paused is taken as the new starting point (no step)."""
+        """Record again (what changed while paused is no step)."""
         self._paused = max(0, self._paused - 1)
-        if not self._paused and self.rig is not None:
-            self._state = self.state_of(self.rig)
 
     @contextlib.contextmanager
     def suspended(self):
@@ -293,108 +290,36 @@ class UndoableRigEdits(QObject):
         finally:
             self.resume()
 
-    def follow_player(self, player) -> None:
-        """Record nothing while ``player`` (app.fap_player.FapPlayer: ``state_changed(bool playing)``)
-        plays; the pose it stops on becomes the starting point of the next step."""
-        playing = [False]
-
-        def on_state(is_playing: bool) -> None:
-            if bool(is_playing) != playing[0]:
-                playing[0] = bool(is_playing)
-                self.pause() if is_playing else self.resume()
-
-        player.state_changed.connect(on_state)
-
     @property
     def recording(self) -> bool:
         return self.rig is not None and not self._paused
 
-    # ------------------------------------------------------------ state
-    @staticmethod
-    def state_of(rig) -> tuple:
-        """(FAP values tuple (68,), expressions, visemes): everything a FAP-dock edit can change."""
-        return (tuple(float(v) for v in rig.fap_values()), tuple(rig.expressions), tuple(rig.visemes))
-
-    def apply_state(self, part: dict) -> None:
-        """Put the parameters in ``part`` back into the rig (undo/redo; not recorded).
-
-        ``part`` maps FAP numbers to values and/or "expressions"/"visemes" to preset mixes: only
-        what one step changed, so undoing an old step never reverts later, unrelated changes.
-        """
+    # ------------------------------------------------------------ steps
+    def apply_state(self, part: Mapping[str, float]) -> None:
+        """Put the parameters of one step back into the rig (undo/redo; not recorded)."""
         rig = self.rig
         if rig is None:
             return
         self._applying = True
         try:
-            faps = {k: v for k, v in part.items() if isinstance(k, int)}
-            current = rig.fap_values()
-            faps = {n: v for n, v in faps.items() if current[n - 1] != v}
-            if faps:
-                rig.set_faps(faps)
-            if "expressions" in part and tuple(rig.expressions) != part["expressions"]:
-                _restore_presets(rig, "_expressions", part["expressions"], rig.set_expression, rig.set_fap2)
-            if "visemes" in part and tuple(rig.visemes) != part["visemes"]:
-                _restore_presets(rig, "_visemes", part["visemes"], rig.set_viseme, None)
+            rig.set_values({k: v for k, v in part.items() if k in set(rig.parameters())})
         finally:
             self._applying = False
-            self._state = self.state_of(rig)
 
-    def _on_changed(self) -> None:
-        rig = self.rig
-        if rig is None or self._applying:
+    def _on_changed(self, change) -> None:
+        if self.rig is None or self._applying or self._paused or not change.values:
             return
-        new = self.state_of(rig)
-        old = self._state
-        self._state = new
-        if self._paused or old is None or new == old:
-            return
-        before, after, text = _difference(old, new)
-        command = SetValueCommand(text, self.apply_state, before, after,
-                                  merge_id=("rig", id(rig), tuple(after)), applied=True)
+        before, after = dict(change.previous), dict(change.values)
+        command = SetValueCommand(describe_keys(after), self.apply_state, before, after,
+                                  merge_id=("rig", id(self.rig), tuple(after)), applied=True)
         self.stack.push(command)
 
 
-def _restore_presets(rig, attribute: str, mix: tuple, single_setter, fap2_setter) -> None:
-    public = attribute.lstrip("_")  # "expressions" / "visemes"
-    if len(mix) == 1:
-        pid, intensity = mix[0]
-        single_setter(None if pid == 0 else pid, intensity)
-        if tuple(getattr(rig, public)) == mix:
-            return
-    if fap2_setter is not None and len(mix) == 2:
-        (s1, i1), (s2, i2) = mix
-        k1, k2 = round(i1 * 63), round(i2 * 63)
-        if abs(k1 / 63 - i1) < 1e-12 and abs(k2 / 63 - i2) < 1e-12:
-            fap2_setter(s1, k1, s2, k2)
-            if tuple(getattr(rig, public)) == mix:
-                return
-    # A mix no public setter reproduces exactly (e.g. a .fap FAP 1 blend): restore it as stored.
-    # FaceRig has no public "set this preset mix" yet (asked for in the issue-6 report).
-    rig._set_presets(attribute, tuple(mix))  # noqa: SLF001
+def describe_keys(keys) -> str:
+    """"3 open jaw", "joy", "Risorius (L)" for one parameter; "4 parameters" for several."""
+    from core import parameters
 
-
-def _difference(old: tuple, new: tuple) -> tuple[dict, dict, str]:
-    """(what changed, before), (after) as partial states, and "what" for the Undo text."""
-    from core.fap import tables
-
-    changed_faps = [i + 1 for i, (a, b) in enumerate(zip(old[0], new[0])) if a != b]
-    before = {n: old[0][n - 1] for n in changed_faps}
-    after = {n: new[0][n - 1] for n in changed_faps}
-    for key, i in (("expressions", 1), ("visemes", 2)):
-        if old[i] != new[i]:
-            before[key], after[key] = old[i], new[i]
-    parts = []
-    if len(changed_faps) == 1:
-        try:
-            from app.fap_dock import readable_name
-
-            parts.append(f"FAP {changed_faps[0]} {readable_name(tables.fap_spec(changed_faps[0]))}")
-        except Exception:  # noqa: BLE001 - the text is decoration
-            parts.append(f"FAP {changed_faps[0]}")
-    elif changed_faps:
-        parts.append(f"{len(changed_faps)} FAPs")
-    if "expressions" in after:
-        parts.append("expression")
-    if "visemes" in after:
-        parts.append("viseme")
-    return before, after, " and ".join(parts) or "animation"
+    keys = list(keys)
+    if len(keys) == 1:
+        return parameters.label(keys[0])
+    return f"{len(keys)} parameters"

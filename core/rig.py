@@ -82,7 +82,6 @@ class FaceRig:
         self.fapu = self.deformer.fapu
         self.faps = FapLayer(self.deformer)
         self._layers: dict[str, RigLayer] = {}
-        self._owner: dict[str, str] = {}
         self._cache: np.ndarray | None = None
         self._batch: list[ParameterChange] | None = None
         self.add_layer(self.faps)
@@ -101,7 +100,6 @@ class FaceRig:
         if old is not None:
             self._disconnect(old)
         self._layers[layer.name] = layer
-        self._owner = {k: name for name, lay in self._layers.items() for k in lay.parameters()}
         layer.parameters_changed.connect(self._on_layer_parameters)
         layer.pose_changed.connect(self._on_layer_pose)
         self._touch(ParameterChange(layer=layer.name))
@@ -111,7 +109,6 @@ class FaceRig:
         layer = self._layers.pop(name, None) if name != self.faps.name else None
         if layer is not None:
             self._disconnect(layer)
-            self._owner = {k: n for k, n in self._owner.items() if n != name}
             self._touch(ParameterChange(layer=name))
 
     def ensure_layers(self, keys: Iterable) -> list[str]:
@@ -136,7 +133,11 @@ class FaceRig:
     # ------------------------------------------------------------ the parameter registry
     def parameters(self) -> tuple[str, ...]:
         """Canonical keys of every parameter this rig can animate, layer by layer."""
-        return tuple(self._owner)
+        return tuple(self._owners())
+
+    def _owners(self) -> dict[str, str]:
+        """{key: layer name}, asked of the layers each time (what a layer animates may change)."""
+        return {k: name for name, layer in self._layers.items() for k in layer.parameters()}
 
     def describe(self, key) -> P.Parameter:
         return P.describe(key)
@@ -144,7 +145,7 @@ class FaceRig:
     def owner(self, key) -> RigLayer:
         """The layer that animates ``key``; ParameterError saying why when none does."""
         k = P.key_of(key)
-        name = self._owner.get(k)
+        name = self._owners().get(k)
         if name is None:
             entry = layer_factory(P.parse(k).kind)
             if entry is not None and entry[0] not in self._layers:
@@ -171,9 +172,11 @@ class FaceRig:
         """Set parameters of any layers by key; everything is validated before anything changes.
         One ``changed`` at most."""
         groups: dict[str, dict[str, float]] = {}
+        owners = self._owners()
         for spelling, value in values.items():
             k = P.key_of(spelling)
-            groups.setdefault(self.owner(k).name, {})[k] = P.check_value(k, value)
+            name = owners.get(k) or self.owner(k).name   # owner() raises the reason
+            groups.setdefault(name, {})[k] = P.check_value(k, value)
         if "faps" in groups:   # FAPs have a face-specific check beyond the range (animated here?)
             for k, v in groups["faps"].items():
                 if k.startswith("fap:"):

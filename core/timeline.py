@@ -343,6 +343,10 @@ class Timeline:
             self._tracks[track.key] = track
         self._plan = None
 
+    def copy(self) -> "Timeline":
+        """An independent timeline with the same tracks (tracks are immutable, so they are shared)."""
+        return Timeline(self._duration, self._fps, self._tracks)
+
     # -------------------------------------------------------- settings
     @property
     def duration(self) -> float:

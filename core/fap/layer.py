@@ -41,14 +41,13 @@ class FapLayer:
         self._values = np.zeros(N_FAPS)
         self._expressions: Mix = NEUTRAL
         self._visemes: Mix = NEUTRAL
-        animated = [n for n in deformer.animated_faps if n > 2]
-        self._keys = (tuple(f"fap:{n}" for n in sorted(animated))
-                      + tuple(f"expression:{e}" for e in tables.expression_names()[1:])
-                      + tuple(f"viseme:{v}" for v in range(1, len(tables.viseme_names()))))
+        self._presets = (tuple(f"expression:{e}" for e in tables.expression_names()[1:])
+                         + tuple(f"viseme:{v}" for v in range(1, len(tables.viseme_names()))))
 
     # ------------------------------------------------------------ the layer protocol
     def parameters(self) -> tuple[str, ...]:
-        return self._keys
+        """``fap:<n>`` for the FAPs this face animates, then every expression and viseme."""
+        return tuple(f"fap:{n}" for n in sorted(self.deformer.animated_faps) if n > 2) + self._presets
 
     def value(self, key) -> float:
         k = P.parse(key)

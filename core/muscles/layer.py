@@ -315,6 +315,9 @@ class MuscleLayer:
         twin = _copy.copy(self)
         fresh_signals(twin)
         twin._rig = None
+        # The solver's matrices are shared; its per-solve caches (frame, Anderson history) are not.
+        twin.solver = _copy.copy(self.solver)
+        twin.solver._aa = None
         twin._state = self._state.copy()
         twin._controls = self._controls.copy()
         twin._offsets = None

@@ -369,41 +369,38 @@ def test_background_load_builds_the_rig(qtbot, settings, error_boxes):
     w.close()
 
 
-# ------------------------------------------------------------------ the .fap player in the window
-def test_window_plays_a_fap_file_on_its_rig(qtbot, win, rig, default_face, tmp_path):
-    """File ▸ Open .fap animation loads into the player dock, which drives the window's rig."""
+# ------------------------------------------------------------------ .fap files through the timeline
+def test_window_imports_and_exports_fap_files_through_the_timeline(qtbot, win, rig, default_face, tmp_path):
+    """File ▸ Import animation puts a .fap file on the timeline, which drives the window's rig;
+    File ▸ Export .fap writes the timeline back (the .fap player dock is retired)."""
     path = tmp_path / "jaw.fap"
-    lines = ["2.1 jaw 25 3"]
+    lines = ["2.1 jaw 30 3"]   # the timeline's frame rate, so frames land on its grid
     for k in range(3):
         lines += [" ".join("1" if f == 3 else "0" for f in range(1, 69)), f"{k} {200 * k}"]
     path.write_text("\n".join(lines) + "\n")
-    assert win.open_fap_action.isEnabled() and win.export_fap_action.isEnabled()
-    assert win.fap_player.rig is rig
-    messages = []
-    win.fap_player_bar.message.connect(messages.append)
-    assert win.fap_player_bar.open_file(path)
-    assert "3 frames" in messages[-1]
-    win.fap_player.seek(2)
-    assert rig.fap_value(3) == 400
+    c = win.timeline
+    c.seek(0.0)
+    assert c.import_animation(path) is not None
+    assert "fap:3" in c.timeline.tracks
+    c.seek(2 / 30)
+    assert rig.fap_value(3) == pytest.approx(400)
     _wait_tick(qtbot, win)
     shown = win.face_actor.mesh.points
     chin = default_face.landmark_position("2.1")
     i = int(np.argmin(np.linalg.norm(default_face.vertices - chin, axis=1)))
     assert shown[i, 1] < default_face.vertices[i, 1] - 1.0   # the viewport shows the jaw open
-    win.fap_player.stop()
-    assert rig.fap_value(3) == 0   # stop restores the face as it was before playing
-    # Export from the File menu's handler writes the current state.
-    rig.set_fap(3, 300)
-    out = tmp_path / "state.fap"
-    assert win.fap_player_bar.export_file(out)
+    out = tmp_path / "back.fap"
+    assert c.export_fap(out)
     from core.fap_file import read_fap
 
     seq = read_fap(out)
-    assert seq.values[0][2] == 300
+    assert seq.values[2][2] == pytest.approx(400)
+    assert rig.fap_value(3) == pytest.approx(400)   # exporting did not move the face on screen
+    win.undo_stack.undo()
     rig.reset_faps()
 
 
-def test_window_without_rig_disables_fap_file_actions(qtbot, settings, error_boxes):
+def test_window_without_rig_exports_no_fap_file(qtbot, settings, error_boxes, tmp_path):
     from app_helpers import make_synthetic_face
 
     from app.main_window import MainWindow
@@ -412,6 +409,10 @@ def test_window_without_rig_disables_fap_file_actions(qtbot, settings, error_box
     qtbot.addWidget(w)
     try:
         assert w.rig is None
-        assert not w.open_fap_action.isEnabled() and not w.export_fap_action.isEnabled()
+        out = tmp_path / "x.fap"
+        messages = []
+        w.timeline.message.connect(messages.append)
+        assert not w.timeline.export_fap(out) and not out.exists()
+        assert "no rig" in messages[-1]
     finally:
         w.close()

@@ -380,33 +380,26 @@ def test_new_face_retargets_editor_and_clears_history(editor, window, qtbot):
 
 # ------------------------------------------------------------------ undo machinery
 class FakeRig:
-    """The part of core.rig.FaceRig that UndoableRigEdits uses."""
+    """The part of core.rig.FaceRig that UndoableRigEdits uses: keys, set_values, parameters_changed."""
 
-    changed = Signal()
+    parameters_changed = Signal(object)
 
     def __init__(self):
-        self._values = np.zeros(68)
-        self.expressions = ((0, 0.0),)
-        self.visemes = ((0, 0.0),)
+        self._values = {"fap:3": 0.0, "fap:4": 0.0, "fap:5": 0.0, "fap:6": 0.0, "expression:fear": 0.0}
 
-    def fap_values(self):
-        return self._values.copy()
+    def parameters(self):
+        return tuple(self._values)
 
-    def set_faps(self, values):
-        for n, v in values.items():
-            self._values[n - 1] = v
-        self.changed.emit()
+    def value(self, key):
+        return self._values[key]
 
-    def set_expression(self, expression, intensity=1.0):
-        self.expressions = ((0 if expression is None else int(expression), float(intensity)),)
-        self.changed.emit()
+    def set_values(self, values):
+        from core.layer import ParameterChange
 
-    def set_viseme(self, viseme, intensity=1.0):
-        self.visemes = ((0 if viseme is None else int(viseme), float(intensity)),)
-        self.changed.emit()
-
-    def set_fap2(self, *args):
-        raise AssertionError("not used here")
+        previous = {k: self._values[k] for k, v in values.items() if self._values[k] != v}
+        self._values.update(values)
+        if previous:
+            self.parameters_changed.emit(ParameterChange({k: values[k] for k in previous}, previous, "faps"))
 
 
 def test_rig_edits_merge_per_gesture_and_undo(qtbot):
@@ -422,48 +415,42 @@ def test_rig_edits_merge_per_gesture_and_undo(qtbot):
     # A drag: one press, many values, one release -> one step.
     qtbot.mousePress(target, Qt.MouseButton.LeftButton)
     for v in (50.0, 120.0, 300.0):
-        rig.set_faps({3: v})
+        rig.set_values({"fap:3": v})
     qtbot.mouseRelease(target, Qt.MouseButton.LeftButton)
-    assert stack.count() == 1 and "FAP 3" in stack.undoText()
+    assert stack.count() == 1 and stack.undoText() == "3 open jaw"
     # Another gesture on the same slider is a new step.
     qtbot.mousePress(target, Qt.MouseButton.LeftButton)
-    rig.set_faps({3: 400.0})
+    rig.set_values({"fap:3": 400.0})
     assert stack.count() == 2
     # A preset in a new gesture.
     gestures().new()
-    rig.set_expression(3, 0.5)
-    assert stack.count() == 3 and stack.undoText() == "expression"
+    rig.set_values({"expression:fear": 0.5})
+    assert stack.count() == 3 and stack.undoText() == "fear"
     stack.undo()
-    assert rig.expressions == ((0, 0.0),)
+    assert rig.value("expression:fear") == 0.0
     stack.undo()
-    assert rig.fap_values()[2] == 300.0
+    assert rig.value("fap:3") == 300.0
     stack.undo()
-    assert rig.fap_values()[2] == 0.0
+    assert rig.value("fap:3") == 0.0
     stack.redo()
-    assert rig.fap_values()[2] == 300.0
-    # Playback is not recorded; the state after it is the new starting point.
+    assert rig.value("fap:3") == 300.0
+    # Playback is not recorded.
     with edits.suspended():
-        rig.set_faps({5: 10.0})
+        rig.set_values({"fap:5": 10.0})
     assert stack.count() == 3 and stack.index() == 1
     # A drag that comes back to where it started leaves no step (the redo history goes, as always).
     gestures().new()
-    rig.set_faps({4: 20.0})
-    rig.set_faps({4: 0.0})
+    rig.set_values({"fap:4": 20.0})
+    rig.set_values({"fap:4": 0.0})
     assert stack.count() == 1 and stack.index() == 1
     stack.undo()
-    np.testing.assert_array_equal(rig.fap_values()[[2, 3, 4]], [0.0, 0.0, 10.0])
-    # A player pauses recording while it plays.
-    class Player:
-        state_changed = Signal(bool)
-
-    player = Player()
-    edits.follow_player(player)
-    count = stack.count()
-    player.state_changed.emit(True)
-    rig.set_faps({6: 30.0})
-    rig.set_faps({6: 60.0})
-    player.state_changed.emit(False)
-    assert stack.count() == count and edits.recording
+    assert [rig.value(k) for k in ("fap:3", "fap:4", "fap:5")] == [0.0, 0.0, 10.0]
+    # Several keys changed together are one step that names how many.
+    gestures().new()
+    rig.set_values({"fap:3": 10.0, "fap:6": 5.0})
+    assert stack.undoText() == "2 parameters"
+    stack.undo()
+    assert rig.value("fap:3") == 0.0 and rig.value("fap:6") == 0.0
     edits.set_rig(None)
 
 

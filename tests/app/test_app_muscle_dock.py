@@ -36,14 +36,11 @@ def _process_until(predicate, timeout_s: float) -> bool:
 def built(qapp, default_face, deformer, tmp_path_factory):
     """(window, what the dock showed right after attach) with the muscle layer built."""
     from app.main_window import MainWindow
-    from app.undo import make_undo_stack
     from core.rig import FaceRig
 
     settings = QSettings(str(tmp_path_factory.mktemp("muscles") / "m.ini"), QSettings.Format.IniFormat)
     win = MainWindow(settings=settings, load_default=False, tools=False)
     win.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
-    if getattr(win, "undo_stack", None) is None:
-        win.undo_stack = make_undo_stack(win)
     # Software OpenGL under Xvfb: fewer pixels and no 8x MSAA make redraws several times faster.
     win.resize(900, 600)
     win.plotter.disable_anti_aliasing()
@@ -138,8 +135,13 @@ def test_layer_change_from_code_shows_without_echo(dock, win):
     assert row.slider.value() == 75 and row.spin.value() == pytest.approx(7.5)
     assert dock.rows[JAW].spin.value() == pytest.approx(3.0)
     assert edits == []  # nothing written back
-    assert win.undo_stack.count() == steps  # and nothing recorded
     assert dock.layer.forces()[("risorius", "right")] == 7.5
+    # Recorded like any rig change (the FAP sliders' rule): undo takes a script's change back too.
+    assert win.undo_stack.count() == steps + 2
+    win.undo_stack.undo()
+    win.undo_stack.undo()
+    assert dock.layer.jaw_deg == 0.0 and dock.layer.forces()[("risorius", "right")] == 0.0
+    assert row.slider.value() == 0
 
 
 def test_link_left_right_moves_the_partner(dock):

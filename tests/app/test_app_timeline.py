@@ -120,10 +120,12 @@ def _points(win) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ layout
-def test_attach_adds_dock_menus_and_supersedes_the_player(win, c):
+def test_attach_adds_dock_menus_and_the_fap_actions(win, c):
     assert win.timeline is c and c.dock.isVisible()
     assert win.dockWidgetArea(c.dock) == Qt.DockWidgetArea.BottomDockWidgetArea
-    assert not win.fap_player_dock.isVisible()
+    assert not hasattr(win, "fap_player_dock")   # the timeline plays .fap files; the player is retired
+    assert c.actions["import_animation"].shortcut().toString() == "Ctrl+Shift+O"
+    assert c.actions["export_fap"].shortcut().toString() == "Ctrl+Shift+E"
     titles = [a.text().replace("&", "") for a in win.menuBar().actions()]
     assert titles.index("File") < titles.index("Edit") < titles.index("View") < titles.index("Tools") \
         < titles.index("Help")
@@ -447,17 +449,24 @@ def test_tracks_of_faps_the_face_cannot_animate_are_skipped(qtbot, c, rig, monke
 def test_muscle_tracks_drive_the_muscle_layer_through_the_simulation_cache(qtbot, win, c, view, monkeypatch):
     from app.timeline_controller import muscle_keys
 
-    class FakeLayer:
-        """Integrates state += force · dt, so the state at a frame is a known sum."""
+    from core.layer import ValueLayer
+
+    class FakeLayer(ValueLayer):
+        """A dynamic 'muscles' layer integrating state += force · dt, so the state at a frame is a known sum."""
+
+        name = "muscles"
+        dynamic = True
 
         def __init__(self):
-            self.forces, self.jaw, self.state = {}, 0.0, 0.0
+            super().__init__(muscle_keys())
+            self.state = 0.0
 
-        def set_forces(self, forces):
-            self.forces.update(forces)
+        @property
+        def forces(self):
+            return {k: v for k, v in self._values.items() if k != "jaw"}
 
-        def set_jaw(self, degrees):
-            self.jaw = degrees
+        def offset(self, x):
+            return None
 
         def start_animation(self):
             pass
@@ -466,18 +475,20 @@ def test_muscle_tracks_drive_the_muscle_layer_through_the_simulation_cache(qtbot
             self.state += dt * sum(self.forces.values())
 
         def snapshot(self):
-            return self.state
+            return self.state, super().snapshot()
 
         def restore(self, snapshot):
-            self.state = snapshot
+            self.state = snapshot[0]
+            super().restore(snapshot[1])
 
         def relax(self, budget_s):
             pass
 
     layer = FakeLayer()
-    monkeypatch.setattr(win, "muscle_layer", layer, raising=False)
+    rig = win.rig
+    rig.add_layer(layer)
     key = muscle_keys()[0]
-    target = (key.split(":")[1], key.split(":")[2])
+    target = key
     force = Track(key, [(0.0, 0.0, "linear"), (1.0, 3.0, "linear")])
     c.push(lambda: c.timeline.replace_tracks({key: force, "jaw": Track("jaw", [(0.0, 0.0), (1.0, 8.0)])}))
     c.seek(0.5)
@@ -489,6 +500,7 @@ def test_muscle_tracks_drive_the_muscle_layer_through_the_simulation_cache(qtbot
     # Set key reads the layer's values
     c.set_key([key], 2.0)
     assert c.timeline.track(key).values[-1] == layer.forces[target]
+    rig.remove_layer("muscles")
 
 
 def test_keyed_animation_exports_to_mp4_with_the_frames_it_plays(qtbot, win, c, rig, tmp_path):
