@@ -550,3 +550,30 @@ def test_import_fap_file_adds_tracks_at_the_cursor_as_one_undo_step(win, c, tmp_
     bad = tmp_path / "bad.fap"
     bad.write_text("2.1 x 25 1\nnot a mask\n")
     assert c.import_animation(bad) is None and messages and "line" in messages[-1]
+
+
+def test_window_export_and_the_command_line_make_identical_frames(qtbot, win, c, rig, tmp_path):
+    """Same project, same frame, identical vertices: the window's export evaluates a copy of its rig
+    with core.animation.ProjectAnimation, which is what `mimica export` runs on the saved project."""
+    from core.animation import ProjectAnimation
+    from core.project import load_project, open_face, save_project
+
+    c.push(lambda: c.timeline.replace_tracks({
+        "fap:3": Track("fap:3", [(0.0, 0.0), (1.0, 600.0, "linear"), (2.0, 100.0)]),
+        "expression:joy": Track("expression:joy", [(0.0, 0.0), (1.5, 0.8)]),
+        "viseme:4": Track("viseme:4", [(0.5, 0.0), (1.0, 0.6, "step")])}))
+    c.seek(0.0)
+    rig.set_values({"fap:31": 60.0})            # a slider the timeline does not key
+    on_screen = rig.vertices().copy()
+    path = tmp_path / "same.mimica"
+    save_project(path, c.project.current_project(path))
+    project = load_project(path)
+    headless = ProjectAnimation.for_face(open_face(project), project.timeline, project.rig.values)
+    try:
+        for t in (0.0, 0.5, 1.0, 4 / 3, 2.0):
+            np.testing.assert_array_equal(c.frame_vertices(t), headless.vertices(t))
+        assert not np.array_equal(c.frame_vertices(1.0), on_screen)
+        np.testing.assert_array_equal(rig.vertices(), on_screen)   # exporting never moved the face shown
+    finally:
+        headless.close()
+        rig.set_values({"fap:31": 0.0})

@@ -1,0 +1,294 @@
+"""face_files.py
+----
+Faces in and out of the main window: loading a face file or the built-in face in the background
+(the rig is built there too, so the GUI thread never waits; a newer load supersedes an older one),
+the recent-files menu, Open / Save as / Export screenshot dialogs. Every failure is a message box
+naming the file and what to do; the face shown stays.
+
+A mixin of :class:`app.main_window.MainWindow` (it uses the window's settings, status bar, progress
+bar and ``set_face``).
+"""
+
+from __future__ import annotations
+
+import traceback
+from pathlib import Path
+from typing import Callable
+
+from PySide6.QtCore import Qt
+from PySide6.QtGui import QAction
+from PySide6.QtWidgets import QApplication, QFileDialog
+
+MAX_RECENT = 8
+#: Suffixes accepted by Open / drag-and-drop, and by Save as.
+OPEN_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
+SAVE_FILTERS = {
+    "Wavefront OBJ (*.obj)": ".obj",
+    "Stanford PLY (*.ply)": ".ply",
+    "glTF binary (*.glb)": ".glb",
+}
+OPEN_FILTER = (
+    "Face meshes (*.obj *.ply *.stl *.glb *.gltf);;Wavefront OBJ (*.obj);;Stanford PLY (*.ply);;"
+    "STL (*.stl);;glTF (*.glb *.gltf);;All files (*)"
+)
+SCREENSHOT_FILTER = "PNG image (*.png);;JPEG image (*.jpg *.jpeg)"
+
+
+def _is_mesh_save_error(exc: BaseException) -> bool:
+    from core.mesh_io import MeshSaveError
+
+    return isinstance(exc, MeshSaveError)
+
+
+def build_rig(face) -> tuple[object | None, str]:
+    """(FaceRig for ``face``, "") or (None, a message for the user saying why not).
+
+    Never raises: a face without the MPEG-4 feature points is a normal state (the user marks them
+    later), and anything unexpected is reported on stderr.
+    """
+    from app.fap_dock import NO_RIG_MESSAGE
+    from core.fap.template import TemplateError
+
+    try:
+        from core.rig import FaceRig
+    except Exception as exc:  # noqa: BLE001 - animation is optional; the viewer must still work
+        traceback.print_exc()
+        return None, f"Animation is not available in this installation ({type(exc).__name__}: {exc})."
+    try:
+        return FaceRig(face), ""
+    except ValueError as exc:  # missing/misplaced feature points: a message, not a bug
+        first = NO_RIG_MESSAGE if isinstance(exc, TemplateError) else "This face cannot be animated yet."
+        return None, f"{first}\n\nDetails: {exc}"
+    except Exception as exc:  # noqa: BLE001
+        traceback.print_exc()
+        return None, f"Could not prepare this face for animation: {type(exc).__name__}: {exc}"
+
+
+class FaceFilesMixin:
+    """Loading, recent files and the face file dialogs of the main window."""
+
+    # ------------------------------------------------------------ recent files
+    def recent_files(self) -> list[str]:
+        value = self.settings.value("recentFiles", [])
+        if value is None:
+            return []
+        if isinstance(value, str):  # QSettings flattens one-element lists on some backends
+            value = [value]
+        return [str(v) for v in value if v][:MAX_RECENT]
+
+    def _set_recent_files(self, files: list[str]) -> None:
+        self.settings.setValue("recentFiles", list(files)[:MAX_RECENT])
+        self._rebuild_recent_menu()
+
+    def add_recent_file(self, path) -> None:
+        path = str(Path(path).resolve())
+        files = [f for f in self.recent_files() if f != path]
+        self._set_recent_files([path, *files])
+
+    def _create_recent_actions(self) -> None:
+        # A fixed set of actions, updated in place: QMenu.clear() deletes
+        # actions behind Shiboken's back and crashes when an address is reused.
+        menu = self.recent_menu
+        self.recent_actions: list[QAction] = []
+        for _ in range(MAX_RECENT):
+            act = QAction(self)
+            act.setVisible(False)
+            act.triggered.connect(lambda _c=False, a=act: self.open_recent(str(a.data())))
+            menu.addAction(act)
+            self.recent_actions.append(act)
+        self._recent_empty_action = QAction("(no recent files)", self)
+        self._recent_empty_action.setEnabled(False)
+        menu.addAction(self._recent_empty_action)
+        self._recent_separator = menu.addSeparator()
+        self._recent_clear_action = QAction("Clear list", self)
+        self._recent_clear_action.triggered.connect(lambda: self._set_recent_files([]))
+        menu.addAction(self._recent_clear_action)
+
+    def _rebuild_recent_menu(self) -> None:
+        files = self.recent_files()
+        for i, act in enumerate(self.recent_actions):
+            if i < len(files):
+                act.setText(f"&{i + 1}  {Path(files[i]).name}")
+                act.setData(files[i])
+                act.setToolTip(files[i])
+                act.setStatusTip(files[i])
+            act.setVisible(i < len(files))
+        self._recent_empty_action.setVisible(not files)
+        self._recent_separator.setVisible(bool(files))
+        self._recent_clear_action.setVisible(bool(files))
+
+    def open_recent(self, path: str) -> None:
+        """Open a recent file; a missing one is dropped from the list with a message."""
+        if not Path(path).is_file():
+            self._set_recent_files([f for f in self.recent_files() if f != path])
+            self.show_error("File not found", f"{path}\n\nno longer exists and was removed from the recent files.")
+            return
+        self.load_face_file(path)
+
+    # ------------------------------------------------------------ loading
+    @property
+    def is_loading(self) -> bool:
+        return self._loading
+
+    def load_face_file(self, path, *, fallback_to_default: bool = False) -> None:
+        """Load ``path`` in the background; the path used by File ▸ Open, recent files and drops.
+
+        On success the face is shown (:meth:`set_face`), added to recent files
+        and its load notes are shown; on failure a message box explains why
+        and the current face stays.
+        """
+        path = str(path)
+
+        def loader(progress):
+            from core.mesh_io import load_face
+            from core.registration.correspondence import with_canonical_landmarks
+
+            # A canonical face saved by Build correspondence or 'mimica register' gets its landmarks back.
+            return with_canonical_landmarks(load_face(path, progress=progress))
+
+        self._fallback_to_default = fallback_to_default
+        self._start_load(path, loader, f"Loading {Path(path).name}…")
+
+    def load_default_face(self) -> None:
+        """Load the built-in default face in the background."""
+
+        def loader(progress):
+            from core.default_face import load_default_face
+
+            progress(0.0, "Building the default face…")
+            return load_default_face()
+
+        self._fallback_to_default = False
+        self._start_load("", loader, "Loading the default face…")
+
+    def _start_load(self, path: str, loader: Callable, message: str) -> None:
+        """Run ``loader(progress)`` in the background, then build the face's rig there too (seconds for
+        a 50k-vertex face), so the GUI thread never waits; a newer load supersedes this one."""
+        self._loading = True
+        self.progress_bar.setRange(0, 1000)
+        self.progress_bar.setValue(0)
+        self.progress_bar.show()
+        self.statusBar().showMessage(message)
+
+        def work(job):
+            face = loader(job.progress)
+            if job.cancelled():
+                return None
+            job.progress(None, "Preparing the face for animation…")
+            return face, build_rig(face)   # build_rig never raises
+
+        self.loads.start(work, lambda result: self._on_loaded(result, path),
+                         lambda text: self._on_load_failed(text, path), self._on_load_progress)
+
+    def _on_load_progress(self, fraction: float | None, message: str) -> None:
+        if fraction is not None:
+            self.progress_bar.setValue(int(max(0.0, min(1.0, fraction)) * 1000))
+        if message:
+            self.statusBar().showMessage(message)
+
+    def _finish_load(self) -> None:
+        self._loading = False
+        self.progress_bar.hide()
+
+    def _on_loaded(self, result, path: str) -> None:
+        self._finish_load()
+        face, (rig, rig_message) = result
+        self.set_face(face, path=path or None, rig=rig, rig_message=rig_message)
+        if path:
+            self.add_recent_file(path)
+        notes = list(getattr(face.metadata, "notes", []) or [])
+        seen, self._notes_seen = self._notes_seen, None
+        if seen is not None:  # an edited copy of the shown face: only what is new is news
+            notes = [n for n in notes if n not in seen]
+        shown = Path(path).name if path else face.metadata.name
+        if notes:
+            self.statusBar().showMessage(f"Loaded {shown} — " + "; ".join(notes), 15000)
+            if path:  # the built-in face's notes are not news: status bar only
+                self._show_notes(notes, shown)
+        elif self.rig is None and self.rig_message:
+            self.statusBar().showMessage(f"Loaded {shown} — {self.rig_message.splitlines()[0]}", 15000)
+        else:
+            self.statusBar().showMessage(f"Loaded {shown}", 5000)
+        self.load_finished.emit(True)
+
+    def _on_load_failed(self, message: str, path: str) -> None:
+        self._finish_load()
+        self._notes_seen = None
+        title = f"Could not open {Path(path).name}" if path else "Could not load the default face"
+        if self.face is None and getattr(self, "_fallback_to_default", False):
+            # Start the fallback before the (blocking) message box, so the
+            # default face is already on screen while the user reads it.
+            self.load_default_face()
+        self.load_failed.emit(message)
+        self.load_finished.emit(False)
+        self.show_error(title, message)
+
+    # ------------------------------------------------------------ file dialogs
+    def _last_dir(self) -> str:
+        return str(self.settings.value("lastDirectory", str(Path.home())))
+
+    def open_face_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Open face", self._last_dir(), OPEN_FILTER)
+        if path:
+            self.settings.setValue("lastDirectory", str(Path(path).parent))
+            self.load_face_file(path)
+
+    def save_face_dialog(self) -> None:
+        if self.face is None:
+            return
+        default = str(Path(self._last_dir()) / f"{self.face.metadata.name}.obj")
+        path, chosen = QFileDialog.getSaveFileName(self, "Save face as", default, ";;".join(SAVE_FILTERS))
+        if path:
+            if Path(path).suffix.lower() not in SAVE_FILTERS.values():
+                path += SAVE_FILTERS.get(chosen, ".obj")
+            self.settings.setValue("lastDirectory", str(Path(path).parent))
+            self.save_face_file(path)
+
+    def save_face_file(self, path) -> bool:
+        """Save the displayed face; errors become a message box. Returns success."""
+        if self.face is None:
+            return False
+        try:
+            from core.mesh_io import save_face
+
+            QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
+            try:
+                save_face(self.face, path)
+            finally:
+                QApplication.restoreOverrideCursor()
+        except Exception as exc:  # noqa: BLE001
+            if _is_mesh_save_error(exc):
+                message = str(exc)
+            else:
+                traceback.print_exc()
+                message = f"{type(exc).__name__}: {exc}"
+            self.show_error(f"Could not save {Path(path).name}", message)
+            return False
+        self.statusBar().showMessage(f"Saved {path}", 5000)
+        return True
+
+    def export_screenshot_dialog(self) -> None:
+        default = str(Path(self._last_dir()) / "mimica.png")
+        path, chosen = QFileDialog.getSaveFileName(self, "Export screenshot", default, SCREENSHOT_FILTER)
+        if path:
+            if Path(path).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+                path += ".jpg" if chosen.startswith("JPEG") else ".png"
+            try:
+                self.screenshot(path)
+            except (OSError, ValueError) as exc:
+                self.show_error("Could not export screenshot", str(exc))
+                return
+            self.statusBar().showMessage(f"Saved screenshot {path}", 5000)
+
+    def screenshot(self, path=None):
+        """Render the viewport; write it to ``path`` (png/jpg) if given. Returns the RGB image."""
+        from app.render import save_image
+
+        self.plotter.render()
+        image = self.plotter.screenshot(None, return_img=True)[..., :3]
+        if path is not None:
+            save_image(image, path)
+        return image
+
+
+__all__ = ["FaceFilesMixin", "MAX_RECENT", "OPEN_SUFFIXES", "SAVE_FILTERS", "OPEN_FILTER", "SCREENSHOT_FILTER"]

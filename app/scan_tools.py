@@ -1,0 +1,164 @@
+"""scan_tools.py
+----
+The window's tools for a user's own scan (Tools menu and the landmark dock's buttons): detect the
+MPEG-4 landmarks, build the dense correspondence (the canonical face), scale a face stored in other
+units, load or flip its texture image, rebuild the rig from corrected landmarks. Slow steps run in
+the background (``MainWindow.run_job`` / the window's loader); every failure is a message box.
+
+A mixin of :class:`app.main_window.MainWindow`: it uses the window's face, loader, status bar and
+landmark editor.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PySide6.QtWidgets import QFileDialog, QMessageBox
+
+
+class ScanToolsMixin:
+    """Landmark detection, correspondence, scale and texture tools of the main window."""
+
+    def detect_landmarks(self, fixed: dict | None = None) -> None:
+        """Detect the MPEG-4 landmarks on the current face (keeping ``fixed`` ones), in the background."""
+        if self.face is None:
+            return
+        face = self.face
+
+        def work():
+            from core.registration.pipeline import detect_landmarks
+
+            return detect_landmarks(face, fixed=fixed or None)
+
+        def done(detection):
+            if self.face is not face:
+                return  # the face changed meanwhile
+            if detection.scale_hint and self._accept_scale_hint(detection.scale_hint):
+                self._rescale_with_detection(detection)
+                return
+            self.landmark_editor.apply_detection(detection.landmarks, detection.confidence)
+            self._report_detection(detection)
+
+        what = "Re-running matching with your edits fixed…" if fixed else "Detecting landmarks…"
+        self.run_job(work, done, "Cannot detect landmarks", what)
+
+    def _accept_scale_hint(self, factor: float) -> bool:
+        """Ask whether to scale a face whose units are evidently not millimetres."""
+        width = float(np.ptp(self.face.vertices[:, 0]))
+        answer = QMessageBox.question(
+            self, "Scale the face?",
+            f"This face is {factor:.2f} times {'smaller' if factor > 1 else 'larger'} than a human face "
+            f"({width:.0f} mm wide as loaded): its file's units are probably not millimetres.\n\n"
+            f"Scale it by {factor:.3g}? Distances in mm and the muscle model need the real size; the "
+            "landmarks were found either way.",
+            QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, QMessageBox.StandardButton.Yes)
+        return answer == QMessageBox.StandardButton.Yes
+
+    def _rescale_with_detection(self, detection) -> None:
+        """Scale the face by the detection's factor, then put the detection (with its confidences) on
+        the scaled face: surface points do not change with scale."""
+        factor = detection.scale_hint
+
+        def reapply(ok: bool) -> None:
+            self.load_finished.disconnect(reapply)
+            if ok:
+                self.landmark_editor.apply_detection(detection.landmarks, detection.confidence)
+                self._report_detection(detection)
+
+        self.load_finished.connect(reapply)
+        self.scale_face(factor)
+
+    def _report_detection(self, detection) -> None:
+        low = detection.low_confidence()
+        note = f"; {len(low)} with low confidence are worth checking" if low else ""
+        self.statusBar().showMessage(
+            f"Detected {len(detection.landmarks)} landmarks in {detection.timings.get('total_s', 0):.1f} s{note}.",
+            15000)
+        if detection.report:
+            self._show_notes(detection.report, "landmark detection")
+
+    def build_correspondence(self) -> None:
+        """Register the current face to the MPEG-4 template and switch the view to the canonical face."""
+        if self.face is None:
+            return
+        face = self.face
+        landmarks = dict(face.landmarks)
+
+        def loader(progress):
+            from core.registration.pipeline import register_scan
+
+            progress(0.1, "Building the dense correspondence…")
+            registration = register_scan(face, landmarks)
+            return registration.face
+
+        self._fallback_to_default = False
+        self._start_load("", loader, "Building the canonical face from the landmarks…")
+
+    def replace_face(self, face, message: str) -> None:
+        """Show an edited copy of the current face; its rig is rebuilt in the background."""
+        self._fallback_to_default = False
+        self._notes_seen = list(self.face.metadata.notes) if self.face is not None else None
+        self._start_load(self.face_path or "", lambda progress: face, message)
+
+    def scale_face(self, factor: float) -> None:
+        """Scale the current face by ``factor`` (ValueError with a message for a bad factor)."""
+        if self.face is None:
+            return
+        face = self.face.scaled(factor)
+        face.metadata.notes.append(f"Scaled by {factor:.4g} in Mimica.")  # scaled() copied the notes
+        self.replace_face(face, f"Scaling the face by {factor:g}…")
+
+    def scale_face_dialog(self) -> None:
+        from PySide6.QtWidgets import QInputDialog
+
+        if self.face is None:
+            return
+        width = float(self.face.bounds[1, 0] - self.face.bounds[0, 0])
+        factor, ok = QInputDialog.getDouble(
+            self, "Scale face",
+            f"The face is {width:.0f} mm wide (an adult face is about 140 mm across the cheeks).\n"
+            "Scale factor (10 turns centimetres into millimetres):", 1.0, 0.001, 1000.0, 4)
+        if ok and factor != 1.0:
+            try:
+                self.scale_face(factor)
+            except ValueError as exc:
+                self.show_error("Cannot scale the face", str(exc))
+
+    def load_texture(self, path) -> None:
+        """Map the image at ``path`` onto the current face (errors in a message box)."""
+        from core.mesh_io import MeshLoadError, load_texture_image
+
+        if self.face is None:
+            return
+        try:
+            face = self.face.with_texture(load_texture_image(path))
+        except (MeshLoadError, ValueError) as exc:
+            self.show_error("Cannot load the texture", str(exc))
+            return
+        self.replace_face(face, f"Applying the texture {Path(path).name}…")
+
+    def flip_texture(self) -> None:
+        """Show the current face with its texture image upside down (an undo is flipping again)."""
+        if self.face is None:
+            return
+        if self.face.texture is None or self.face.uv is None:
+            self.show_error("Cannot flip the texture", "This face has no texture image. Load one first with "
+                            "Tools > Load texture image…")
+            return
+        self.replace_face(self.face.with_flipped_texture(), "Flipping the texture…")
+
+    def load_texture_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Load texture image", "",
+                                              "Images (*.png *.jpg *.jpeg *.bmp *.tif *.tiff);;All files (*)")
+        if path:
+            self.load_texture(path)
+
+    def rebuild_animation(self) -> None:
+        """Rebuild the animation rig (FAPs, muscles) from the current, corrected landmarks."""
+        if self.face is None:
+            return
+        self.replace_face(self.face, "Rebuilding the animation from the corrected landmarks…")
+
+
+__all__ = ["ScanToolsMixin"]
