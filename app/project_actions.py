@@ -448,7 +448,7 @@ class ProjectActions(QObject):
             with c._not_recorded():  # noqa: SLF001
                 try:
                     # Layers still building (the muscles) get their values when they join the rig.
-                    self._pending_values = project.rig.apply(rig, build_layers=False)
+                    self._pending_values = project.rig.apply(rig, slow_layers=False)
                 except ValueError as exc:
                     notes.append(f"Some rig values could not be restored: {exc}")
             if self._pending_values:

@@ -311,8 +311,14 @@ class TimelineController(QObject):
 
     # ------------------------------------------------------------ posing
     def _animatable_values(self, values: Mapping[str, float]) -> dict[str, float]:
-        """The values of parameters this rig animates and that are not simulated."""
-        owned = set(self._rig.parameters()) if self._rig is not None else set()
+        """The values of parameters this rig animates and that are not simulated (quick layers a
+        track needs are added to the rig; slow ones, the muscles, are the muscle dock's to build)."""
+        if self._rig is None:
+            return {}
+        owned = set(self._rig.parameters())
+        missing = [k for k in values if k not in owned]
+        if missing and self._rig.ensure_layers(missing, slow=False):
+            owned = set(self._rig.parameters())
         return {k: v for k, v in values.items() if k in owned and not tl.is_simulated(k)}
 
     def apply_time(self, t: float, keys: Iterable[str] | None = None) -> None:

@@ -125,18 +125,19 @@ class ValueLayer(abc.ABC):
 
 
 # ---------------------------------------------------------------- layers a rig can add on demand
-_FACTORIES: dict[str, tuple[str, Callable]] = {}  # parameter kind -> (layer name, factory(rig) -> layer)
+_FACTORIES: dict[str, tuple[str, Callable, bool]] = {}  # kind -> (layer name, factory(rig) -> layer, slow)
 
 
-def register_layer(name: str, kinds: Iterable[str], factory: Callable) -> None:
+def register_layer(name: str, kinds: Iterable[str], factory: Callable, *, slow: bool = False) -> None:
     """Let rigs build layer ``name`` when they meet a parameter of one of ``kinds``
-    (``factory(rig) -> layer``; e.g. when a project or a timeline track uses it)."""
+    (``factory(rig) -> layer``; e.g. when a project or a timeline track uses it). ``slow``: the
+    build takes seconds (the muscle model), so a GUI builds it in the background itself."""
     for kind in kinds:
-        _FACTORIES[kind] = (name, factory)
+        _FACTORIES[kind] = (name, factory, bool(slow))
 
 
-def layer_factory(kind: str) -> tuple[str, Callable] | None:
-    """(layer name, factory) registered for a parameter kind, or None."""
+def layer_factory(kind: str) -> tuple[str, Callable, bool] | None:
+    """(layer name, factory, slow) registered for a parameter kind, or None."""
     if kind not in _FACTORIES:
         P.kinds()   # the built-in kinds' modules register their layers on import
     return _FACTORIES.get(kind)

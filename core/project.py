@@ -100,14 +100,13 @@ class RigSettings:
         """Capture a ``FaceRig``'s values (every layer it has)."""
         return cls(rig.values(nondefault=True))
 
-    def apply(self, rig, *, build_layers: bool = True) -> dict[str, float]:
+    def apply(self, rig, *, slow_layers: bool = True) -> dict[str, float]:
         """Put these values on a ``FaceRig`` (everything else back to its default).
 
-        Layers the rig lacks are built first when ``build_layers`` (``rig.ensure_layers``; the muscle
-        layer takes about a second); otherwise their values are returned, not applied.
+        Layers the rig lacks are built first (``rig.ensure_layers``); with ``slow_layers=False`` the
+        slow ones (the muscle model, seconds) are not, and their values are returned, not applied.
         """
-        if build_layers:
-            rig.ensure_layers(self.values)
+        rig.ensure_layers(self.values, slow=slow_layers)
         owned = set(rig.parameters())
         pending = {k: v for k, v in self.values.items() if k not in owned}
         with rig.batch():

@@ -111,13 +111,14 @@ class FaceRig:
             self._disconnect(layer)
             self._touch(ParameterChange(layer=name))
 
-    def ensure_layers(self, keys: Iterable) -> list[str]:
+    def ensure_layers(self, keys: Iterable, *, slow: bool = True) -> list[str]:
         """Add the registered layers (``core.layer.register_layer``) that own ``keys`` but are missing;
-        returns the names of the layers added (e.g. the muscle layer for a ``muscle:`` track)."""
+        returns the names of the layers added (e.g. the muscle layer for a ``muscle:`` track).
+        ``slow=False`` skips layers whose build takes seconds (a GUI builds those in the background)."""
         added = []
         for kind in dict.fromkeys(P.parse(k).kind for k in keys):
             entry = layer_factory(kind)
-            if entry is not None and entry[0] not in self._layers:
+            if entry is not None and entry[0] not in self._layers and (slow or not entry[2]):
                 layer = entry[1](self)
                 if self._layers.get(entry[0]) is not layer:
                     self.add_layer(layer)

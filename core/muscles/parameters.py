@@ -64,6 +64,6 @@ def _layer_for(rig):
 
 register_kind(ParameterKind("muscle", _SYNTAX, _muscle_key, _muscle_describe, simulated=True, order=3))
 register_kind(ParameterKind("jaw", "jaw", _jaw_key, _jaw_describe, simulated=True, order=4))
-register_layer("muscles", ("muscle", "jaw"), _layer_for)
+register_layer("muscles", ("muscle", "jaw"), _layer_for, slow=True)
 
 __all__ = ["control_of"]
