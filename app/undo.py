@@ -8,11 +8,11 @@ The one undo stack of Mimica (a ``QUndoStack``) and its commands.
 * :class:`LandmarkMoveCommand` / :class:`LandmarkSetCommand` — landmark edits
   (one landmark / the before and after states of the landmarks a change
   touched) on a :class:`core.landmark_editing.LandmarkEditModel`.
-* :class:`UndoableRigEdits` — records every change of a
-  :class:`core.rig.FaceRig` (FAP values, expression and viseme presets) as
-  undo steps, whoever made it (FAP dock, scripts), merging per gesture. A
-  step holds only the parameters it changed, so undoing an old step never
-  reverts later, unrelated changes.
+* :class:`UndoableRigEdits` — records every parameter change of a
+  :class:`core.rig.FaceRig` (any layer: FAPs, presets, muscles, jaw, ...) as
+  undo steps, whoever made it (a dock, a script), from the rig's change
+  events, merging per gesture. A step holds only the parameters it changed,
+  so undoing an old step never reverts later, unrelated changes.
 * :func:`make_undo_actions` — Edit ▸ Undo/Redo actions ("Undo <what>") with
   the platform's standard shortcuts.
 
@@ -25,7 +25,7 @@ gesture, so callers that need separate steps call ``GestureTracker.new()``.
 
 Choices: undo history is per face: when the face is replaced the stack is
 cleared, because its commands point at the old face and rig. Playback (the
-.fap player, later the timeline) must not fill the stack: wrap it in
+timeline posing the rig) must not fill the stack: wrap it in
 ``UndoableRigEdits.suspended()`` or call ``pause()``/``resume()``.
 """
 
