@@ -50,30 +50,31 @@ def _fap_describe(key: ParamKey) -> Parameter:
                      spec.dock)
 
 
-def _expression_key(args: list[str]) -> ParamKey:
-    (word,) = split_words(args, 1, "expression keys are 'expression:<name>', e.g. 'expression:joy'")
-    try:
-        eid = tables.expression_id(word)
-    except ValueError as exc:
-        raise ParameterError(str(exc)) from None
-    if eid == 0:
-        raise ParameterError("'expression:neutral' is the absence of expression; set the other expressions to 0")
-    return ParamKey("expression", tables.expression_names()[eid])
+def _preset_key(kind: str, to_id, usage: str, neutral: str, name_of):
+    """The key parser of a preset kind: one word, a known preset, not the neutral one."""
+    def parse(args: list[str]) -> ParamKey:
+        (word,) = split_words(args, 1, usage)
+        try:
+            ident = to_id(word)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+        if ident == 0:
+            raise ParameterError(neutral)
+        return ParamKey(kind, name_of(ident))
+    return parse
+
+
+_expression_key = _preset_key(
+    "expression", tables.expression_id, "expression keys are 'expression:<name>', e.g. 'expression:joy'",
+    "'expression:neutral' is the absence of expression; set the other expressions to 0",
+    lambda i: tables.expression_names()[i])
+_viseme_key = _preset_key(
+    "viseme", tables.viseme_id, "viseme keys are 'viseme:<id>' with id 1..14, e.g. 'viseme:1' (p, b, m)",
+    "viseme 0 is silence (the neutral mouth): set the other visemes to 0 instead", str)
 
 
 def _expression_describe(key: ParamKey) -> Parameter:
     return Parameter(str(key), key.id, "", 0.0, 1.0, 0.0, "expressions")
-
-
-def _viseme_key(args: list[str]) -> ParamKey:
-    (word,) = split_words(args, 1, "viseme keys are 'viseme:<id>' with id 1..14, e.g. 'viseme:1' (p, b, m)")
-    try:
-        vid = tables.viseme_id(word)
-    except ValueError as exc:
-        raise ParameterError(str(exc)) from None
-    if vid == 0:
-        raise ParameterError("viseme 0 is silence (the neutral mouth): set the other visemes to 0 instead")
-    return ParamKey("viseme", str(vid))
 
 
 def _viseme_describe(key: ParamKey) -> Parameter:
