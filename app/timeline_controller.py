@@ -792,10 +792,13 @@ class TimelineController(QObject):
         return ProjectAnimation(self._rig.copy(), self.timeline.copy())
 
     def frame_vertices(self, t: float) -> np.ndarray:
-        """(n, 3) mm: the face at time ``t``, on a copy of the rig (the face on screen does not move)."""
-        if self._export_animation is None or self._export_animation.rig.face is not self._rig.face:
-            self._export_animation = self.animation()
-        return self._export_animation.vertices(float(t))
+        """(n, 3) mm: the face at time ``t``, on a copy of the rig (the face on screen does not move).
+        The copy is kept while the rig's values and the timeline stay as they are."""
+        state = (self._rig, self.timeline, tuple(self._rig.values().items()) if self._rig is not None else (),
+                 tuple(self.timeline.tracks.items()), self.timeline.duration, self.timeline.fps)
+        if self._export_animation is None or self._export_animation[0] != state:
+            self._export_animation = (state, self.animation())
+        return self._export_animation[1].vertices(float(t))
 
     def export_video(self, *, still: bool = False):
         """File ▸ Export video… for the timeline (``app.export_dialog.run_export_dialog``)."""
