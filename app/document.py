@@ -14,9 +14,36 @@ whose commands point at the old face and rig.
 
 from __future__ import annotations
 
+import traceback
+
 from PySide6.QtCore import QObject
 
 from app.undo import UndoableRigEdits, make_undo_stack
+
+NO_RIG_MESSAGE = "This face has no MPEG-4 feature points yet: mark them (landmark picker) to animate it."
+
+
+def build_rig(face) -> tuple[object | None, str]:
+    """(FaceRig for ``face``, "") or (None, a message for the user saying why not).
+
+    Never raises: a face without the MPEG-4 feature points is a normal state (the user marks them
+    later), and anything unexpected is reported on stderr.
+    """
+    from core.fap.template import TemplateError
+
+    try:
+        from core.rig import FaceRig
+    except Exception as exc:  # noqa: BLE001 - animation is optional; the viewer must still work
+        traceback.print_exc()
+        return None, f"Animation is not available in this installation ({type(exc).__name__}: {exc})."
+    try:
+        return FaceRig(face), ""
+    except ValueError as exc:  # missing/misplaced feature points: a message, not a bug
+        first = NO_RIG_MESSAGE if isinstance(exc, TemplateError) else "This face cannot be animated yet."
+        return None, f"{first}\n\nDetails: {exc}"
+    except Exception as exc:  # noqa: BLE001
+        traceback.print_exc()
+        return None, f"Could not prepare this face for animation: {type(exc).__name__}: {exc}"
 
 
 class Document(QObject):
@@ -49,4 +76,4 @@ class Document(QObject):
         return None if self.rig is None else self.rig.layer("muscles")
 
 
-__all__ = ["Document"]
+__all__ = ["Document", "build_rig", "NO_RIG_MESSAGE"]

@@ -19,6 +19,8 @@ from PySide6.QtCore import Qt
 from PySide6.QtGui import QAction
 from PySide6.QtWidgets import QApplication, QFileDialog
 
+from app.document import build_rig
+
 MAX_RECENT = 8
 #: Suffixes accepted by Open / drag-and-drop, and by Save as.
 OPEN_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
@@ -38,30 +40,6 @@ def _is_mesh_save_error(exc: BaseException) -> bool:
     from core.mesh_io import MeshSaveError
 
     return isinstance(exc, MeshSaveError)
-
-
-def build_rig(face) -> tuple[object | None, str]:
-    """(FaceRig for ``face``, "") or (None, a message for the user saying why not).
-
-    Never raises: a face without the MPEG-4 feature points is a normal state (the user marks them
-    later), and anything unexpected is reported on stderr.
-    """
-    from app.fap_dock import NO_RIG_MESSAGE
-    from core.fap.template import TemplateError
-
-    try:
-        from core.rig import FaceRig
-    except Exception as exc:  # noqa: BLE001 - animation is optional; the viewer must still work
-        traceback.print_exc()
-        return None, f"Animation is not available in this installation ({type(exc).__name__}: {exc})."
-    try:
-        return FaceRig(face), ""
-    except ValueError as exc:  # missing/misplaced feature points: a message, not a bug
-        first = NO_RIG_MESSAGE if isinstance(exc, TemplateError) else "This face cannot be animated yet."
-        return None, f"{first}\n\nDetails: {exc}"
-    except Exception as exc:  # noqa: BLE001
-        traceback.print_exc()
-        return None, f"Could not prepare this face for animation: {type(exc).__name__}: {exc}"
 
 
 class FaceFilesMixin:

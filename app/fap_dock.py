@@ -53,6 +53,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from app.document import NO_RIG_MESSAGE
 from app.widgets import ScrollFriendlySlider, ScrollFriendlySpinBox
 
 from core.fap import tables
@@ -63,7 +64,6 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Degrees per AU (1 AU = 1e-5 rad).
 DEG_PER_AU = math.degrees(tables.ANGLE_UNIT)
-NO_RIG_MESSAGE = "This face has no MPEG-4 feature points yet: mark them (landmark picker) to animate it."
 _TOKEN_WORDS = {"t": "top", "b": "bottom", "i": "inner", "m": "middle", "o": "outer", "lm": "left-mid", "rm": "right-mid",
                 "l": "left", "r": "right", "cornerlip": "lip corner", "midlip": "mid-lip", "eyebrow": "brow"}
 _GROUP_TITLES = {"jaw & chin": "Jaw && chin"}  # QToolButton text: '&' marks a mnemonic

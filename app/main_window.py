@@ -38,8 +38,9 @@ from PySide6.QtWidgets import (
 from app import __version__
 
 from app.error_hook import APP_NAME, ExceptionDialogHook, install_excepthook  # noqa: F401 - re-exported
+from app.document import build_rig
 from app.face_files import (  # noqa: F401 - re-exported
-    MAX_RECENT, OPEN_FILTER, OPEN_SUFFIXES, SAVE_FILTERS, SCREENSHOT_FILTER, FaceFilesMixin, build_rig)
+    MAX_RECENT, OPEN_FILTER, OPEN_SUFFIXES, SAVE_FILTERS, SCREENSHOT_FILTER, FaceFilesMixin)
 from app.face_view import MODE_LABELS, VIEW_LABELS, FaceViewMixin, _nice_ceiling  # noqa: F401 - re-exported
 from app.scan_tools import ScanToolsMixin
 

@@ -377,7 +377,7 @@ class ProjectActions(QObject):
             notes: list[str] = []
             try:
                 face = cp.open_face(project, notes)
-                from app.main_window import build_rig
+                from app.document import build_rig
 
                 rig, message = build_rig(face)
             except cp.ProjectError as exc:

@@ -42,7 +42,6 @@ import collections
 import contextlib
 import math
 import time
-import traceback
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
@@ -800,24 +799,6 @@ class TimelineController(QObject):
             self._export_animation = (state, self.animation())
         return self._export_animation[1].vertices(float(t))
 
-    def export_video(self, *, still: bool = False):
-        """File ▸ Export video… for the timeline (``app.export_dialog.run_export_dialog``)."""
-        from app.export_dialog import run_export_dialog
-
-        if self._rig is None:
-            self.message.emit("This face has no rig: nothing to export.")
-            return None
-        self.pause()
-        try:
-            audio = self.audio_path()
-        except Exception as exc:  # noqa: BLE001 - export without sound rather than not at all
-            traceback.print_exc()
-            self.message.emit(f"The speech audio could not be prepared ({exc}); exporting without sound.")
-            audio = None
-        animation = self.animation()
-        job = run_export_dialog(self.window, self.window.face, animation.vertices, self.timeline.duration,
-                                self.timeline.fps, audio, still=still, current_time_s=self.current_time)
-        return job
 
 
 def _sort_key(key: str):

@@ -25,12 +25,11 @@ selections live in the controller (the Edit menu acts on them).
 from __future__ import annotations
 
 import math
-import os
-import sys
+import traceback
 from dataclasses import dataclass, field
 
 import numpy as np
-from PySide6.QtCore import QPointF, QRectF, QSignalBlocker, QSize, Qt, QTimer, Signal
+from PySide6.QtCore import QPointF, QRectF, QSignalBlocker, QSize, Qt, Signal
 from PySide6.QtGui import (QAction, QColor, QFont, QFontMetrics, QKeySequence, QPainter, QPainterPath, QPen, QPixmap,
                            QPolygonF)
 from PySide6.QtWidgets import (
@@ -1196,9 +1195,9 @@ def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, auto
                                        "Ctrl+Shift+O", "Add a .fap or DPC control-point animation as tracks at the cursor")
     acts["export_fap"] = _action(window, "Export .&fap…", lambda: _export_fap_dialog(c), "Ctrl+Shift+E",
                                  "Write the timeline (or the current pose) as an MPEG-4 .fap animation")
-    acts["export_video"] = _action(window, "Export &video…", c.export_video, "Ctrl+E",
+    acts["export_video"] = _action(window, "Export &video…", lambda: export_video(c), "Ctrl+E",
                                    "Render the timeline to MP4 (with speech), GIF, AVI or PNG images")
-    acts["export_still"] = _action(window, "Export s&till…", lambda: c.export_video(still=True), None,
+    acts["export_still"] = _action(window, "Export s&till…", lambda: export_video(c, still=True), None,
                                    "Render the face at the timeline's current time to PNG or JPEG")
     anchor = getattr(window, "screenshot_action", None)
     for name in ("import_animation", "export_fap", "export_video", "export_still"):
@@ -1225,6 +1224,27 @@ def _import_dialog(controller: TimelineController) -> None:
                                           "Animations (*.fap *.dpc *.txt);;All files (*)")
     if path:
         controller.import_animation(path)
+
+
+def export_video(controller: TimelineController, *, still: bool = False):
+    """File ▸ Export video… / still: the export dialog for the timeline, rendered from a copy of the rig
+    (``controller.animation()``), with the speech track. Returns the export job, or None."""
+    from app.export_dialog import run_export_dialog
+
+    if controller.rig is None:
+        controller.message.emit("This face has no rig: nothing to export.")
+        return None
+    controller.pause()
+    try:
+        audio = controller.audio_path()
+    except Exception as exc:  # noqa: BLE001 - export without sound rather than not at all
+        traceback.print_exc()
+        controller.message.emit(f"The speech audio could not be prepared ({exc}); exporting without sound.")
+        audio = None
+    animation = controller.animation()
+    return run_export_dialog(controller.window, controller.window.face, animation.vertices,
+                             controller.timeline.duration, controller.timeline.fps, audio, still=still,
+                             current_time_s=controller.current_time)
 
 
 def _export_fap_dialog(controller: TimelineController) -> None:

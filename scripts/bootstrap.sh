@@ -21,6 +21,10 @@ fi
 
 stamp="$VENV/.mimica-installed${EXTRAS:+-$EXTRAS}"
 want="$(sha256sum "$ROOT/pyproject.toml" | cut -d' ' -f1)"
+# The test install includes the plain one: after test.sh, run.sh has nothing to install.
+if [ -z "$EXTRAS" ] && [ -f "$VENV/.mimica-installed-test" ] && [ "$(cat "$VENV/.mimica-installed-test")" = "$want" ]; then
+  stamp="$VENV/.mimica-installed-test"
+fi
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "Installing Mimica and its Python dependencies (first run takes a minute)"
   "$VENV/bin/python" -m pip install --quiet --upgrade pip >/dev/null 2>&1 || true

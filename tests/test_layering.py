@@ -77,3 +77,41 @@ def test_importing_core_loads_no_gui_or_vtk():
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     assert not result["errors"], f"core modules failed to import: {result['errors']}"
     assert not result["bad"], f"importing core pulled in: {result['bad']}"
+
+
+# ---------------------------------------------------------------- architecture contracts
+def _lint_imports(root: Path, config: Path) -> subprocess.CompletedProcess:
+    """Run import-linter's contracts from ``config`` on the packages found under ``root``."""
+    import os
+
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    code = "import sys; from importlinter.cli import lint_imports_command; sys.exit(lint_imports_command())"
+    return subprocess.run([sys.executable, "-c", code, "--config", str(config), "--no-cache"], cwd=root, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_architecture_contracts_hold():
+    """pyproject.toml's [tool.importlinter] contracts: core display-free and independent of app;
+    core.muscles, core.registration and core.lipsync independent; app's layers only import downwards."""
+    proc = _lint_imports(ROOT, ROOT / "pyproject.toml")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "BROKEN" not in proc.stdout and proc.stdout.count("KEPT") >= 4
+
+
+def test_architecture_contracts_catch_bad_modules(tmp_path):
+    """The same contracts on a copy of the code with three deliberate violations: each is named."""
+    import shutil
+
+    for package in ("core", "app"):
+        shutil.copytree(ROOT / package, tmp_path / package, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    (tmp_path / "core" / "bad_display.py").write_text("import PySide6.QtWidgets\n")
+    (tmp_path / "core" / "muscles" / "bad_link.py").write_text("from core.registration import icp\n")
+    with open(tmp_path / "app" / "viewport.py", "a", encoding="utf-8") as fh:
+        fh.write("\nfrom app import main_window  # an upward import\n")
+    proc = _lint_imports(tmp_path, tmp_path / "pyproject.toml")
+    out = proc.stdout
+    assert proc.returncode != 0, out
+    assert "core.bad_display -> PySide6" in out.replace("PySide6.QtWidgets", "PySide6")
+    assert "core.muscles.bad_link -> core.registration" in out.replace("core.registration.icp", "core.registration")
+    assert "app.viewport is not allowed to import app.main_window" in out
