@@ -1,0 +1,91 @@
+"""``mimica render [FACE] --out PNG``: render a face, posed by FAPs, presets or muscles, off screen."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from app.cli.common import MODES, VIEWS, CliError, load_face_or_default, parse_size, rig_values
+
+
+def run(args: argparse.Namespace) -> int:
+    """Render a face off screen to an image file."""
+    out = Path(args.out)
+    if out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise CliError(f"--out must end in .png or .jpg, got {args.out!r}")
+    if out.parent and not out.parent.exists():
+        raise CliError(f"output folder does not exist: {out.parent}")
+    face = load_face_or_default(args.face)
+    for note in getattr(face.metadata, "notes", []) or []:
+        print(f"note: {note}", file=sys.stderr)
+    from app.render import render_face_png
+
+    if args.fap or args.expression or args.viseme or args.muscles or args.jaw is not None:
+        face = face.with_vertices(posed_vertices(face, rig_values(args)))
+    try:
+        render_face_png(face, out, view=args.view, size=args.size, mode=args.mode,
+                        show_landmarks=args.landmarks)
+    except OSError as exc:
+        raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
+    print(f"wrote {out} ({args.size[0]}x{args.size[1]}, {args.view}, {args.mode})")
+    return 0
+
+
+def posed_vertices(face, values: dict[str, float]) -> np.ndarray:
+    """(n, 3) mm: ``face`` posed by parameter ``values`` (the muscle model is built and settled when
+    muscle forces or the jaw are given)."""
+    from core.fap.template import TemplateError
+    from core.muscles import SolverDiverged
+    from core.rig import FaceRig
+
+    try:
+        rig = FaceRig(face)
+    except (TemplateError, ValueError) as exc:
+        raise CliError(f"cannot animate this face: {exc}") from None
+    try:
+        rig.ensure_layers(values)
+        rig.set_values(values)
+        muscles = rig.layer("muscles")
+        start = time.perf_counter()
+        while muscles is not None and not muscles.converged:
+            muscles.relax(budget_s=1.0)
+            if time.perf_counter() - start > 60:
+                raise CliError("the muscle model did not settle within 60 s; try smaller forces")
+    except SolverDiverged as exc:
+        raise CliError(str(exc)) from None
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    return rig.vertices()
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "render", help="render a face to a PNG/JPG without a display",
+        description="Render FACE (or the default face) off screen to an image. Needs no display.",
+    )
+    p.add_argument("face", nargs="?", metavar="FACE", help="mesh file (default: the built-in default face)")
+    p.add_argument("--out", "-o", required=True, metavar="PNG", help="output image (.png or .jpg)")
+    p.add_argument("--view", choices=VIEWS, default="front", help="camera preset (default: front)")
+    p.add_argument("--size", type=parse_size, default=(1200, 900), metavar="WxH",
+                   help="image size in pixels (default: 1200x900)")
+    p.add_argument("--mode", choices=MODES, default="textured", help="display mode (default: textured)")
+    p.add_argument("--landmarks", action="store_true", help="draw landmarks with their labels")
+    anim = p.add_argument_group("MPEG-4 animation (the face needs the 64 feature points of the template)")
+    anim.add_argument("--fap", action="append", default=[], metavar="NAME=VALUE",
+                      help="low-level FAP by name or number, in FAP units, e.g. open_jaw=400 or 19=1024 "
+                           "(repeatable)")
+    anim.add_argument("--expression", metavar="NAME[:PERCENT]",
+                      help="expression preset (joy, sadness, anger, fear, disgust, surprise), e.g. joy:60")
+    anim.add_argument("--viseme", metavar="ID[:PERCENT]",
+                      help="viseme preset by id 0-14 or name (PP, FF, TH, DD, kk, CH, SS, nn, RR, aa, E, ih, oh, "
+                           "ou), e.g. 10:80")
+    bio = p.add_argument_group("muscles (thesis C's biomechanical model; the face needs its feature points)")
+    bio.add_argument("--muscles", metavar="PRESET|NAME=FORCE,...",
+                     help="a preset (discreet_smile, half_smile, sadness, disgust, kiss) or forces such as "
+                          "risorius=42,zygomatic_major:left=9 (no side = both sides)")
+    bio.add_argument("--jaw", type=float, metavar="DEG", help="jaw rotation in degrees (opens the mouth)")
+    p.set_defaults(func=run)
