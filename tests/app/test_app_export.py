@@ -14,6 +14,7 @@ from app_helpers import image_difference, image_variance, make_synthetic_face
 from PIL import Image
 
 from app import export as ex
+from app import export_sinks
 from app.export import ExportCancelled, ExportError, ExportSettings, export, export_in_subprocess, frame_times
 
 SMALL = (160, 120)
@@ -271,7 +272,7 @@ def test_encoder_failure_reports_its_messages(tmp_path, face, monkeypatch):
     fake.write_text("#!/bin/sh\ncat > /dev/null\necho 'av_interleaved_write_frame(): No space left on device' >&2\n"
                     "exit 1\n")
     fake.chmod(0o755)
-    monkeypatch.setattr(ex, "ffmpeg_exe", lambda: str(fake))
+    monkeypatch.setattr(export_sinks, "ffmpeg_exe", lambda: str(fake))
     out_dir = tmp_path / "out"
     out_dir.mkdir()
     with pytest.raises(ExportError, match="disk is full") as info:

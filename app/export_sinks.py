@@ -1,0 +1,271 @@
+"""Where exported frames go: ffmpeg encoders (MP4, AVI, GIF with a palette pass) and image writers
+(PNG/JPG stills and sequences), staged in a temporary folder and committed atomically."""
+
+from __future__ import annotations
+
+import abc
+import contextlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from app.export_plan import (
+    STILL_FORMATS, ExportError, ExportCancelled, ExportSettings, _Plan)
+
+
+# ------------------------------------------------------------------ ffmpeg
+def ffmpeg_exe() -> str:
+    """Path of the ffmpeg binary (imageio-ffmpeg's). Raises :class:`ExportError` when there is none."""
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        raise ExportError("Video export needs the imageio-ffmpeg package, which is not installed. "
+                          "Install it (pip install imageio-ffmpeg) or export a PNG sequence.") from None
+    try:
+        exe = imageio_ffmpeg.get_ffmpeg_exe()
+    except RuntimeError as exc:
+        raise ExportError(f"The video encoder (ffmpeg) was not found: {exc}. Reinstall imageio-ffmpeg, "
+                          "or export a PNG sequence.") from None
+    return exe
+
+
+def _tail(path: Path, lines: int = 8) -> str:
+    try:
+        text = Path(path).read_text(errors="replace")
+    except OSError:
+        return ""
+    kept = [line.strip() for line in text.splitlines() if line.strip()]
+    return "\n".join(kept[-lines:])
+
+
+def _ffmpeg_failure(what: str, log: Path, returncode: int | None = None, audio: Path | None = None) -> ExportError:
+    tail = _tail(log)
+    hint = ""
+    if audio is not None and str(audio) in tail:
+        hint = f" The sound file '{audio.name}' could not be read: export without sound or choose another file."
+    elif "No space left" in tail:
+        hint = " The disk is full: free some space or choose another folder."
+    elif "Permission denied" in tail:
+        hint = " Mimica is not allowed to write there: choose another folder."
+    code = f" (exit status {returncode})" if returncode not in (None, 0) else ""
+    detail = f"\nffmpeg said:\n{tail}" if tail else ""
+    return ExportError(f"Could not {what}: the encoder ffmpeg failed{code}.{hint}{detail}")
+
+
+def _wait(proc: subprocess.Popen, cancelled: Callable[[], bool]) -> int:
+    """Wait for ``proc``, polling ``cancelled`` (then kill it and raise :class:`ExportCancelled`)."""
+    while True:
+        try:
+            return proc.wait(timeout=0.05)
+        except subprocess.TimeoutExpired:
+            if cancelled():
+                proc.kill()
+                proc.wait()
+                raise ExportCancelled() from None
+
+
+class _Sink(abc.ABC):
+    """Takes (h, w, 3) uint8 frames for one output; ``finish`` completes it, ``abort`` drops it."""
+
+    @abc.abstractmethod
+    def write(self, image: np.ndarray) -> None:
+        """Add one frame."""
+
+    def finish(self, cancelled: Callable[[], bool]) -> None:
+        pass
+
+    def abort(self) -> None:
+        pass
+
+
+class _FfmpegSink(_Sink):
+    """Raw RGB frames piped into one ffmpeg process writing ``out_args``."""
+
+    def __init__(self, exe: str, size: tuple[int, int], fps: float, out_args: list[str], log: Path,
+                 *, audio_args: list[str] = (), what: str = "write the video", audio: Path | None = None):
+        width, height = size
+        self.log = log
+        self.what = what
+        self.audio = audio
+        cmd = [exe, "-hide_banner", "-nostats", "-loglevel", "error", "-y",
+               "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}", "-framerate", f"{fps:g}",
+               "-i", "pipe:0", *audio_args, *out_args]
+        self._log_file = open(log, "wb")
+        try:
+            self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                         stderr=self._log_file)
+        except OSError as exc:
+            self._log_file.close()
+            raise ExportError(f"Could not start the video encoder ffmpeg ({exe}): {exc.strerror or exc}.") from None
+
+    def write(self, image: np.ndarray) -> None:
+        try:
+            self.proc.stdin.write(memoryview(np.ascontiguousarray(image, dtype=np.uint8)).cast("B"))
+        except (BrokenPipeError, OSError):
+            returncode = self.proc.wait()
+            self._log_file.close()
+            raise _ffmpeg_failure(self.what, self.log, returncode, self.audio) from None
+
+    def finish(self, cancelled: Callable[[], bool]) -> None:
+        try:
+            self.proc.stdin.close()
+        except (BrokenPipeError, OSError):
+            pass
+        try:
+            returncode = _wait(self.proc, cancelled)
+        finally:
+            self._log_file.close()
+        if returncode != 0:
+            raise _ffmpeg_failure(self.what, self.log, returncode, self.audio)
+
+    def abort(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        with contextlib.suppress(OSError, ValueError):
+            self.proc.stdin.close()
+        self.proc.wait()
+        self._log_file.close()
+
+
+class _GifSink(_FfmpegSink):
+    """Frames into a lossless FFV1 file, then palettegen + paletteuse into the GIF (two ffmpeg passes)."""
+
+    def __init__(self, exe: str, size, fps: float, staging: Path, work: Path):
+        self.exe, self.staging, self.work = exe, staging, work
+        self.frames_file = work / "frames.mkv"
+        super().__init__(exe, size, fps, ["-c:v", "ffv1", "-f", "matroska", str(self.frames_file)],
+                         work / "ffmpeg-frames.log", what="write the GIF")
+
+    def finish(self, cancelled: Callable[[], bool]) -> None:
+        super().finish(cancelled)
+        palette = self.work / "palette.png"
+        passes = (
+            ["-i", str(self.frames_file), "-vf", "palettegen=stats_mode=full", "-update", "1", str(palette)],
+            ["-i", str(self.frames_file), "-i", str(palette), "-lavfi", "paletteuse=dither=sierra2_4a",
+             "-loop", "0", "-f", "gif", str(self.staging)],
+        )
+        for number, args in enumerate(passes, 1):
+            log = self.work / f"ffmpeg-gif-{number}.log"
+            with open(log, "wb") as fh:
+                proc = subprocess.Popen([self.exe, "-hide_banner", "-nostats", "-loglevel", "error", "-y", *args],
+                                        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=fh)
+                returncode = _wait(proc, cancelled)
+            if returncode != 0:
+                raise _ffmpeg_failure("write the GIF", log, returncode)
+
+
+class _StillSink(_Sink):
+    """One PNG/JPG written with Pillow."""
+
+    def __init__(self, staging: Path, fmt: str, quality: int):
+        self.staging, self.fmt, self.quality = staging, fmt, quality
+
+    def write(self, image: np.ndarray) -> None:
+        from PIL import Image
+
+        pil = Image.fromarray(np.ascontiguousarray(image[..., :3]))
+        try:
+            if self.fmt == "jpg":
+                pil.save(self.staging, format="JPEG", quality=int(self.quality))
+            else:
+                pil.save(self.staging, format="PNG")
+        except OSError as exc:
+            raise ExportError(f"Could not write the image: {exc.strerror or exc}.") from None
+
+
+def _make_sink(plan: _Plan, settings: ExportSettings, staging: Path, work: Path) -> _Sink:
+    fmt, quality = plan.format, int(settings.quality)
+    if fmt in STILL_FORMATS:
+        return _StillSink(staging, fmt, quality)
+    exe = ffmpeg_exe()
+    fps = float(settings.fps)
+    log = work / "ffmpeg.log"
+    audio_args: list[str] = []
+    if plan.audio is not None:
+        # Cut or pad (silence) the sound to exactly the video's length with filters: "apad + -shortest"
+        # is racy when the video arrives slowly through the pipe (ffmpeg ran the audio up to 1 s long).
+        length = f"{plan.n_frames / fps:.6f}"
+        audio_args = ["-ss", f"{float(settings.start_s):.6f}", "-i", str(plan.audio), "-map", "0:v", "-map", "1:a",
+                      "-af", f"apad=whole_dur={length},atrim=end={length}"]
+    if fmt == "mp4":
+        crf = round(35 - 20 * (quality - 1) / 99)
+        out = ["-c:v", "libx264", "-preset", "medium", "-crf", str(crf), "-pix_fmt", "yuv420p",
+               "-movflags", "+faststart"]
+        if plan.audio is not None:
+            out += ["-c:a", "aac", "-b:a", "192k"]
+        return _FfmpegSink(exe, plan.size, fps, [*out, "-f", "mp4", str(staging)], log, audio_args=audio_args,
+                           audio=plan.audio)
+    if fmt == "avi":
+        q = round(31 - 29 * (quality - 1) / 99)
+        out = ["-c:v", "mjpeg", "-q:v", str(q), "-pix_fmt", "yuvj420p"]
+        if plan.audio is not None:
+            out += ["-c:a", "pcm_s16le"]
+        return _FfmpegSink(exe, plan.size, fps, [*out, "-f", "avi", str(staging)], log, audio_args=audio_args,
+                           audio=plan.audio)
+    if fmt == "gif":
+        return _GifSink(exe, plan.size, fps, staging, work)
+    # png-sequence: ffmpeg's image2 muxer, numbered from 0, into the hidden staging folder
+    pattern = staging / plan.target.name
+    return _FfmpegSink(exe, plan.size, fps, ["-c:v", "png", "-start_number", "0", "-f", "image2", str(pattern)],
+                       log, what="write the PNG images")
+
+
+# ------------------------------------------------------------------ staging and commit
+def _make_staging(plan: _Plan) -> Path:
+    """Create the temporary output (a file, or a folder for sequences) beside the target."""
+    folder = plan.folder
+    try:
+        if plan.format == "png-sequence":
+            parent = folder if folder.is_dir() else folder.parent
+            return Path(tempfile.mkdtemp(prefix=".mimica-export-", suffix=".part", dir=parent))
+        fd, name = tempfile.mkstemp(prefix=f".{plan.target.stem}.", suffix=f".part{plan.target.suffix}", dir=folder)
+        os.close(fd)
+        return Path(name)
+    except PermissionError:
+        raise ExportError(f"Mimica is not allowed to write in '{folder if folder.is_dir() else folder.parent}'. "
+                          "Choose another folder or check its permissions.") from None
+    except OSError as exc:
+        raise ExportError(f"Cannot write in '{folder}': {exc.strerror or exc}.") from None
+
+
+def _discard(staging: Path | None) -> None:
+    if staging is None:
+        return
+    if staging.is_dir():
+        shutil.rmtree(staging, ignore_errors=True)
+    else:
+        with contextlib.suppress(OSError):
+            staging.unlink()
+
+
+def _commit(plan: _Plan, staging: Path) -> list[Path]:
+    """Move the finished staging output to its final name(s); returns the files written."""
+    try:
+        if plan.format == "png-sequence":
+            folder = plan.folder
+            folder.mkdir(exist_ok=True)
+            written = []
+            for k in range(plan.n_frames):
+                name = plan.target.name % k
+                source = staging / name
+                if not source.is_file():
+                    raise ExportError(f"The encoder wrote no image for frame {k} ({name}); the sequence is "
+                                      "incomplete.")
+                os.replace(source, folder / name)
+                written.append(folder / name)
+            shutil.rmtree(staging, ignore_errors=True)
+            return written
+        target = plan.target
+        mode = target.stat().st_mode & 0o777 if target.exists() else 0o644  # as core.mesh_io.write_atomic
+        os.chmod(staging, mode)
+        os.replace(staging, target)
+        return [target]
+    except PermissionError:
+        raise ExportError(f"Mimica is not allowed to write '{plan.target}'. Choose another name or folder.") from None
+    except OSError as exc:
+        raise ExportError(f"Could not save '{plan.target}': {exc.strerror or exc}.") from None
