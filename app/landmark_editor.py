@@ -8,7 +8,6 @@ import contextlib
 import time
 import traceback
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from PySide6.QtCore import QItemSelectionModel, QModelIndex, QObject, QSignalBlocker, Qt, QTimer, Signal
@@ -18,9 +17,6 @@ from PySide6.QtWidgets import QAbstractItemView, QFileDialog, QMessageBox
 from app import picking
 from app.undo import LandmarkMoveCommand, LandmarkSetCommand
 from core.landmark_editing import LandmarkEditModel, LandmarkFileError, LandmarkStatus
-
-if TYPE_CHECKING:  # pragma: no cover
-    from app.landmark_dock import LandmarkDock
 
 
 #: Markers within this many logical pixels of the cursor can be clicked / hovered.
@@ -44,7 +40,7 @@ class LandmarkEditor(QObject):
     #: The landmark set changed (any edit, undo, load): the rig/registration may want to know.
     landmarks_changed = Signal()
 
-    def __init__(self, plotter, dock: LandmarkDock, stack, *, status_callback=None,
+    def __init__(self, plotter, dock, stack, *, status_callback=None,
                  parent: QObject | None = None):
         super().__init__(parent)
         self.plotter = plotter

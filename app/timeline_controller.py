@@ -1,7 +1,8 @@
 """timeline_controller.py
 ----
 Ties a :class:`core.timeline.Timeline` to the window's rig, a playback clock and the undo stack.
-No widgets here: :mod:`app.timeline_dock` draws it, :mod:`app.project_actions` saves it.
+No widgets here: :mod:`app.timeline_dock` draws it, :mod:`app.project_actions` saves it; its undo
+commands are in :mod:`app.timeline_commands`, its imports, exports and speech in :mod:`app.timeline_io`.
 
 * **Posing.** :meth:`TimelineController.seek` evaluates the timeline at t and applies it to the rig
   (``core.timeline.apply_to_rig``; the muscle layer through ``MuscleSimulationCache`` when the window
@@ -42,120 +43,25 @@ import collections
 import contextlib
 import math
 import time
-from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Callable, Iterable, Mapping
 
-import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer, Signal
-from PySide6.QtGui import QUndoCommand
 
 from core import parameters as P
 from core import timeline as tl
-from core.timeline import Edit, Timeline, TimelineError, Track
+from core.timeline import Edit, Timeline, TimelineError
+
+from app.timeline_io import TimelineIO
+from app.timeline_commands import (  # noqa: F401 - re-exported
+    parameter_label, parameter_range, muscle_keys, _describe_change, TimelineEditCommand)
 
 SPEEDS = (0.25, 0.5, 1.0, 1.5, 2.0, 4.0)
 MIN_TICK_MS = 5
 FPS_WINDOW_S = 1.0  # achieved fps = frames shown during the last second
 
 
-# ------------------------------------------------------------------ parameters
-def parameter_label(key: str) -> str:
-    """Short readable name of a parameter key, e.g. "3 open jaw", "joy", "1 p b m" (``core.parameters``)."""
-    return P.label(key)
-
-
-def parameter_range(key: str, track: Track | None = None) -> tuple[float, float]:
-    """(low, high) to scale a parameter's curve in its lane: its range, or the track's span."""
-    try:
-        p = P.describe(key)
-        if math.isfinite(p.minimum) and math.isfinite(p.maximum):
-            return p.minimum, p.maximum
-    except P.ParameterError:
-        pass
-    if track is not None and len(track):
-        lo, hi = float(track.values.min()), float(track.values.max())
-        return (min(lo, 0.0), hi if hi > lo else lo + 1.0)
-    return 0.0, 1.0
-
-
-def muscle_keys() -> tuple[str, ...]:
-    """The muscle layer's 19 force keys, then ``jaw``."""
-    from core.muscles import control_keys
-
-    return tuple(P.key_of(k) for k in control_keys()) + ("jaw",)
-
-
-# ------------------------------------------------------------------ undo
-_MERGE_IDS: dict = {}  # merge key -> QUndoCommand.id() (an int; app.undo uses 1000 + n)
-
-
-def _describe_change(rows: Mapping[str, Any]) -> str:
-    keys = list(rows)
-    return parameter_label(keys[0]) if len(keys) == 1 else f"{len(keys)} parameters"
-
-
-def _merge_edits(first: Edit, second: Edit, label: str) -> Edit:
-    """One edit doing ``first`` then ``second`` (same before/after key sets, as ``Edit`` requires)."""
-    keys = list(dict.fromkeys([*first.after, *second.after]))
-    before = {k: first.before[k] if k in first.before else second.before[k] for k in keys}
-    after = {k: second.after[k] if k in second.after else first.after[k] for k in keys}
-    sb = first.settings_before if first.settings_before is not None else second.settings_before
-    sa = second.settings_after if second.settings_after is not None else first.settings_after
-    return Edit(label, before, after, sb, sa)
-
-
-class TimelineEditCommand(QUndoCommand):
-    """One undo step of the timeline: an applied ``Edit``, optionally with extra state around it.
-
-    rig_before / rig_after : {parameter key: value} put back on the rig after the edit is undone /
-    redone (auto-key: the slider change and its keys are one step). extra_undo / extra_redo :
-    callables run after the timeline part (e.g. the speech clip list of a lip-sync edit).
-    merge_key : commands with the same key in the same user gesture merge (a drag with auto-key = one step).
-    """
-
-    def __init__(self, controller: "TimelineController", edit: Edit, text: str | None = None, *,
-                 applied: bool = True, rig_before: Mapping | None = None, rig_after: Mapping | None = None,
-                 extra_undo: Callable[[], None] | None = None, extra_redo: Callable[[], None] | None = None,
-                 merge_key=None):
-        super().__init__(text or edit.label)
-        self.controller = controller
-        self.timeline = controller.timeline
-        self.edit = edit
-        self.rig_before, self.rig_after = rig_before, rig_after
-        self.extra_undo, self.extra_redo = extra_undo, extra_redo
-        self.merge_key = merge_key
-        from app.undo import gestures
-
-        self._merge_id = -1 if merge_key is None else _MERGE_IDS.setdefault(merge_key, 500_000 + len(_MERGE_IDS))
-        self.gesture = gestures().number
-        self._skip = bool(applied)
-
-    def id(self) -> int:  # noqa: A003 - Qt API
-        return self._merge_id
-
-    def redo(self) -> None:
-        if self._skip:
-            self._skip = False
-            return
-        self.controller._run_command(self.timeline, self.edit, self.rig_after, self.extra_redo)
-
-    def undo(self) -> None:
-        self.controller._run_command(self.timeline, self.edit.inverse(), self.rig_before, self.extra_undo)
-
-    def mergeWith(self, other: QUndoCommand) -> bool:  # noqa: N802 - Qt API
-        if (not isinstance(other, TimelineEditCommand) or other.merge_key != self.merge_key
-                or other.gesture != self.gesture or other.timeline is not self.timeline):
-            return False
-        self.edit = _merge_edits(self.edit, other.edit, self.edit.label)
-        if other.rig_after is not None:
-            self.rig_after = {**(self.rig_after or {}), **other.rig_after}
-        if other.rig_before is not None:
-            self.rig_before = {**other.rig_before, **(self.rig_before or {})}
-        return True
-
-
 # ------------------------------------------------------------------ controller
-class TimelineController(QObject):
+class TimelineController(TimelineIO, QObject):
     """The timeline of the window's project, its cursor and playback.
 
     Parameters
@@ -657,160 +563,12 @@ class TimelineController(QObject):
         text = "timeline duration" if fps is None else "frame rate" if duration is None else "timeline settings"
         return self.push(lambda: self.timeline.set_settings(duration, fps), text)
 
-    # ------------------------------------------------------------ lip-sync
-    def import_animation(self, path) -> Edit | None:
-        """Add a .fap or thesis B DPC file's animation as FAP (and preset) tracks from the cursor, one
-        undoable edit (``core.animation_import``; a DPC file plays at the timeline's fps). Errors and
-        notes go to ``message``."""
-        from pathlib import Path
-
-        from core.animation_import import tracks_from_dpc, tracks_from_fap
-        from core.dpc_file import read_dpc
-        from core.fap_file import read_fap
-
-        path = Path(path)
-        start = float(self.current_time)
-        try:
-            if path.suffix.lower() == ".fap":
-                tracks, notes = tracks_from_fap(read_fap(path), start_s=start)
-            else:
-                if self._rig is None:
-                    self.message.emit("This face has no rig: a DPC file needs its FAP units.")
-                    return None
-                tracks, notes = tracks_from_dpc(read_dpc(path), self._rig.fapu, fps=self.timeline.fps,
-                                                start_s=start)
-        except (ValueError, OSError) as exc:
-            self.message.emit(str(exc))
-            return None
-        if not tracks:
-            self.message.emit(f"'{path.name}' holds nothing Mimica can animate. " + " ".join(notes))
-            return None
-        tl_ = self.timeline
-        end = max(float(tr.times[-1]) for tr in tracks.values())
-        settings = None
-        if end > tl_.duration + tl.TIME_TOLERANCE:
-            settings = ((tl_.duration, tl_.fps), (float(math.ceil(end + 0.5)), tl_.fps))
-        edit = Edit(f"import {path.name}", {k: tl_.tracks.get(k) for k in tracks}, dict(tracks),
-                    settings[0] if settings else None, settings[1] if settings else None)
-        done = self.push(lambda: tl_.apply_edit(edit), f"import {path.name}")
-        if done is not None:
-            self.message.emit(f"Imported {len(tracks)} tracks from '{path.name}'. " + " ".join(notes))
-        return done
-
-    def export_fap(self, path) -> bool:
-        """Write the timeline as an MPEG-4 .fap file at its frame rate (the rig's current pose as one
-        frame when nothing is keyed). Errors go to ``message``; returns success."""
-        from core.animation import sequence_from_rig
-        from core.fap_file import FapFileError, write_fap
-
-        path = Path(path)
-        if self._rig is None:
-            self.message.emit("This face has no rig: there is no FAP animation to export.")
-            return False
-        try:
-            if self.timeline.tracks:
-                sequence = self.animation().fap_sequence(self.timeline.fps, name=path.stem or "mimica")
-            else:
-                sequence = sequence_from_rig(self._rig, fps=self.timeline.fps, name=path.stem or "mimica")
-            write_fap(path, sequence)
-        except (FapFileError, ValueError, OSError) as exc:
-            self.message.emit(f"Could not export '{path.name}': {exc}")
-            return False
-        self.message.emit(f"Wrote '{path.name}': {sequence.n_frames} frame{'s' if sequence.n_frames != 1 else ''} "
-                          f"at {sequence.fps:g} fps.")
-        return True
-
-    def add_lipsync(self, result, text: str, lang: str, *, rate_wpm: int = 175) -> Edit | None:
-        """Add a ``core.lipsync.LipSyncResult``'s tracks as one undoable edit (with its speech clip).
-
-        Keys of existing tracks inside the clip's time span are replaced, keys outside it are kept;
-        the duration grows to fit the clip (rounded up to a whole second).
-        """
-        from core.project import SpeechClip
-
-        tl_ = self.timeline
-        tracks = dict(result.tracks)
-        if not tracks:
-            self.message.emit("The lip-sync produced no tracks (empty text?).")
-            return None
-        lo = min(float(tr.times[0]) for tr in tracks.values() if len(tr))
-        hi = max(max(float(tr.times[-1]) for tr in tracks.values() if len(tr)), float(result.end_s))
-        after: dict[str, Track | None] = {}
-        for key, new in tracks.items():
-            old = tl_.tracks.get(key)
-            if old is not None and len(old):
-                keep = (old.times < lo - tl.TIME_TOLERANCE) | (old.times > hi + tl.TIME_TOLERANCE)
-                merged = new.with_keys(np.concatenate([old.times[keep], new.times]),
-                                       np.concatenate([old.values[keep], new.values]),
-                                       np.concatenate([old.codes[keep], new.codes]))
-                after[key] = merged
-            else:
-                after[key] = new
-        before = {k: tl_.tracks.get(k) for k in after}
-        settings_before = settings_after = None
-        if hi > tl_.duration + tl.TIME_TOLERANCE:
-            settings_before = (tl_.duration, tl_.fps)
-            settings_after = (float(math.ceil(hi + 0.5)), tl_.fps)
-        edit = Edit("lip-sync", before, after, settings_before, settings_after)
-        clip = SpeechClip(text=text, lang=lang, start_s=float(result.start_s), rate_wpm=int(rate_wpm))
-        speech_before = list(self.speech)
-        speech_after = [*self.speech, clip]
-
-        def set_speech(value):
-            return lambda: self._set_speech(value)
-
-        try:
-            tl_.apply_edit(edit)
-        except TimelineError as exc:
-            self.message.emit(str(exc))
-            return None
-        self._set_speech(speech_after)
-        self.undo_stack.push(TimelineEditCommand(
-            self, edit, f"lip-sync “{_shorten(text)}”", extra_undo=set_speech(speech_before),
-            extra_redo=set_speech(speech_after)))
-        return edit
-
-    def _set_speech(self, clips: list) -> None:
-        self.speech = list(clips)
-        self._audio_cache = None
-        self.speech_changed.emit()
-
-    def audio_path(self) -> Path | None:
-        """A WAV with every speech clip at its start time, time 0 = timeline 0 (None without speech;
-        ``core.animation.speech_wav``: written once per clip set)."""
-        from core.animation import speech_wav
-
-        return speech_wav(self.speech) if self.speech else None
-
-    # ------------------------------------------------------------ export
-    def animation(self):
-        """The timeline on a copy of the rig (``core.animation.ProjectAnimation``): what export renders,
-        evaluated apart from the face on screen (and from another thread) without moving it."""
-        from core.animation import ProjectAnimation
-
-        return ProjectAnimation(self._rig.copy(), self.timeline.copy())
-
-    def frame_vertices(self, t: float) -> np.ndarray:
-        """(n, 3) mm: the face at time ``t``, on a copy of the rig (the face on screen does not move).
-        The copy is kept while the rig's values and the timeline stay as they are."""
-        state = (self._rig, self.timeline, tuple(self._rig.values().items()) if self._rig is not None else (),
-                 tuple(self.timeline.tracks.items()), self.timeline.duration, self.timeline.fps)
-        if self._export_animation is None or self._export_animation[0] != state:
-            self._export_animation = (state, self.animation())
-        return self._export_animation[1].vertices(float(t))
-
-
 
 def _sort_key(key: str):
     try:
         return P.sort_key(key)
     except P.ParameterError:
         return (99, key, 0, key, "")
-
-
-def _shorten(text: str, n: int = 24) -> str:
-    text = " ".join(text.split())
-    return text if len(text) <= n else text[: n - 1] + "…"
 
 
 __all__ = ["TimelineController", "TimelineEditCommand", "SPEEDS", "parameter_label", "parameter_range",
