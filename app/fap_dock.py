@@ -5,7 +5,7 @@ The FAP dock: sliders for the MPEG-4 facial animation parameters of a
 toggles of the viewport (feature points, influence of the hovered FAP,
 displacement heat map).
 
-House rules (see the brief of issue 3):
+House rules:
 
 * widgets write through the rig's setters (``set_fap``/``set_faps``,
   ``set_expression``, ``set_viseme``, ``reset_faps``) and never keep their
@@ -28,300 +28,23 @@ runs over AU.
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
-from PySide6.QtCore import QEvent, QObject, QSignalBlocker, Qt, Signal
+from PySide6.QtCore import QSignalBlocker, Qt, Signal
 from PySide6.QtGui import QFontMetrics
 from PySide6.QtWidgets import (
-    QAbstractSpinBox,
-    QCheckBox,
-    QComboBox,
-    QDockWidget,
-    QFrame,
-    QGridLayout,
-    QGroupBox,
-    QHBoxLayout,
-    QLabel,
-    QPushButton,
-    QScrollArea,
-    QSizePolicy,
-    QSlider,
-    QSpinBox,
-    QToolButton,
-    QVBoxLayout,
-    QWidget,
-)
+    QCheckBox, QComboBox, QDockWidget, QFrame, QGridLayout, QGroupBox, QLabel, QPushButton, QScrollArea,
+    QSlider, QSpinBox, QVBoxLayout, QWidget)
 
 from app.document import NO_RIG_MESSAGE
-from app.widgets import ScrollFriendlySlider, ScrollFriendlySpinBox
 
 from core.fap import tables
+from app.fap_rows import (  # noqa: F401 - re-exported
+    FapGroup, FapRow, _feature_point_descriptions, fap_tooltip, readable_name, row_label)
 
 if TYPE_CHECKING:  # pragma: no cover
-    from core.fap.tables import FapSpec
     from core.rig import FaceRig
 
-#: Degrees per AU (1 AU = 1e-5 rad).
-DEG_PER_AU = math.degrees(tables.ANGLE_UNIT)
-_TOKEN_WORDS = {"t": "top", "b": "bottom", "i": "inner", "m": "middle", "o": "outer", "lm": "left-mid", "rm": "right-mid",
-                "l": "left", "r": "right", "cornerlip": "lip corner", "midlip": "mid-lip", "eyebrow": "brow"}
-_GROUP_TITLES = {"jaw & chin": "Jaw && chin"}  # QToolButton text: '&' marks a mnemonic
-
-
-# ------------------------------------------------------------------ naming
-def readable_name(spec: "FapSpec") -> str:
-    """A short readable name: ``open_jaw`` -> "open jaw", ``close_t_l_eyelid`` -> "close top left eyelid".
-
-    The trailing ``_o`` of the outer-lip FAPs is dropped (their group says "outer lips").
-    """
-    tokens = spec.name.split("_")
-    if len(tokens) > 1 and tokens[-1] == "o":
-        tokens = tokens[:-1]
-    return " ".join(_TOKEN_WORDS.get(t, t) for t in tokens)
-
-
-def row_label(spec: "FapSpec") -> str:
-    return f"{spec.number} {readable_name(spec)}"
-
-
-def _feature_point_descriptions() -> dict[str, str]:
-    try:
-        import resources
-
-        return {r["fp"]: r["description"] for r in resources.get_table("mpeg4/feature_points.csv")}
-    except Exception:  # noqa: BLE001 - descriptions only decorate a tooltip
-        return {}
-
-
-def _mm(value: float) -> str:
-    a = abs(value)
-    return f"{value:.3f}" if a < 0.1 else f"{value:.2f}" if a < 10 else f"{value:.1f}"
-
-
-def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = None) -> str:
-    """Rich-text tooltip: full MPEG-4 name, feature point, direction, range and unit size on this face."""
-    fp_names = fp_names if fp_names is not None else _feature_point_descriptions()
-    fps = [p for p in spec.fp.split(";") if p]
-    where = ", ".join(f"{p} ({fp_names[p].rstrip('.')})" if p in fp_names else p for p in fps)
-    lines = [f"<b>FAP {spec.number} {spec.name}</b>",
-             f"Moves feature point {where}" if not spec.is_rotation else f"Rotates about feature point {where}"]
-    sign = "−/+" if spec.bidirectional else "+"
-    lines.append(f"Positive direction: {spec.direction} ({'bidirectional' if spec.bidirectional else 'one-way'},"
-                 f" {sign})")
-    if spec.is_rotation:
-        lo, hi = spec.minimum * DEG_PER_AU, spec.maximum * DEG_PER_AU
-        lines.append(f"Range {spec.minimum:g} to {spec.maximum:g} AU = {lo:.1f}° to {hi:.1f}°")
-        lines.append(f"1 AU = 10⁻⁵ rad = {DEG_PER_AU:.5f}°; the box shows degrees, the slider AU")
-    else:
-        unit_mm = float(fapu.get(spec.unit, float("nan")))
-        lines.append(f"Range {spec.minimum:g} to {spec.maximum:g} {spec.unit}"
-                     f" = {_mm(spec.minimum * unit_mm)} to {_mm(spec.maximum * unit_mm)} mm")
-        lines.append(f"1 {spec.unit} unit = {_mm(unit_mm)} mm on this face")
-    if spec.pair is not None:
-        lines.append(f"Mirror: FAP {spec.pair} {tables.fap_spec(spec.pair).name} (moves too with Link left/right)")
-    lines.append("<i>Double-click the name or press ↺ to reset</i>")
-    return "<br>".join(lines)
-
-
-def _nice_step(span: float) -> float:
-    """A 1-2-5 step of about span / 100."""
-    raw = max(span / 100.0, 1e-12)
-    exp = math.floor(math.log10(raw))
-    for m in (1, 2, 5, 10):
-        if m * 10 ** exp >= raw:
-            return m * 10 ** exp
-    return 10 ** (exp + 1)
-
-
-# ------------------------------------------------------------------ one FAP
-class FapRow(QWidget):
-    """Name, slider, spin box and reset button of one FAP (values are in the rig)."""
-
-    edited = Signal(int, float)  # FAP number, new value in FAP units (AU for rotations)
-    reset_requested = Signal(int)
-    hover_changed = Signal(int, bool)  # FAP number, mouse entered (True) / left (False)
-    focus_changed = Signal(int, bool)  # FAP number, slider or spin box got (True) / lost (False) focus
-
-    def __init__(self, spec: "FapSpec", fapu: dict, fp_names: dict[str, str], parent: QWidget | None = None):
-        super().__init__(parent)
-        self.spec = spec
-        self.number = spec.number
-        lo, hi = int(math.floor(spec.minimum)), int(math.ceil(spec.maximum))
-
-        self.label = QLabel(row_label(spec), self)
-        self.label.setObjectName(f"fapLabel{spec.number}")
-        self.slider = ScrollFriendlySlider(Qt.Orientation.Horizontal, self)
-        self.slider.setObjectName(f"fapSlider{spec.number}")
-        self.slider.setFocusPolicy(Qt.FocusPolicy.StrongFocus)  # no focus (and no value change) by wheel
-        self.slider.setRange(lo, hi)
-        self.slider.setTracking(True)  # live: every move goes to the rig
-        step = max(1, int(_nice_step(hi - lo)))
-        self.slider.setSingleStep(step)
-        self.slider.setPageStep(step * 10)
-        self.slider.setMinimumWidth(110)
-        self.slider.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
-
-        self.spin = ScrollFriendlySpinBox(self)
-        self.spin.setObjectName(f"fapSpin{spec.number}")
-        self.spin.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
-        self.spin.setKeyboardTracking(False)  # typed numbers go to the rig on Enter / focus out
-        self.spin.setAccelerated(True)
-        self.spin.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
-        if spec.is_rotation:
-            self.spin.setDecimals(1)
-            self.spin.setRange(lo * DEG_PER_AU, hi * DEG_PER_AU)
-            self.spin.setSingleStep(0.5)
-            self.spin.setSuffix("°")
-        else:
-            self.spin.setDecimals(0)
-            self.spin.setRange(lo, hi)
-            self.spin.setSingleStep(step)
-            self.spin.setSuffix(f" {spec.unit}")
-        self.spin.setButtonSymbols(QAbstractSpinBox.ButtonSymbols.UpDownArrows)
-
-        self.reset_button = QToolButton(self)
-        self.reset_button.setObjectName(f"fapReset{spec.number}")
-        self.reset_button.setText("↺")
-        self.reset_button.setToolTip(f"Reset FAP {spec.number} to 0")
-        self.reset_button.setAutoRaise(True)
-        self.reset_button.setFocusPolicy(Qt.FocusPolicy.NoFocus)
-
-        layout = QHBoxLayout(self)
-        layout.setContentsMargins(0, 0, 0, 0)
-        layout.setSpacing(6)
-        layout.addWidget(self.label)
-        layout.addWidget(self.slider, 1)
-        layout.addWidget(self.spin)
-        layout.addWidget(self.reset_button)
-
-        tip = fap_tooltip(spec, fapu, fp_names)
-        for w in (self, self.label, self.slider, self.spin):
-            w.setToolTip(tip)
-
-        self.slider.valueChanged.connect(self._slider_moved)
-        self.spin.valueChanged.connect(self._spin_changed)
-        self.reset_button.clicked.connect(lambda: self.reset_requested.emit(self.number))
-        for w in (self.slider, self.spin):
-            w.installEventFilter(self)
-        self._value = 0.0
-
-    # ----------------------------------------------------------- values
-    @property
-    def value(self) -> float:
-        """The value this row shows (FAP units; AU for rotations)."""
-        return self._value
-
-    def show_value(self, value: float) -> None:
-        """Show ``value`` (from the rig) without emitting anything."""
-        self._value = float(value)
-        shown = value * DEG_PER_AU if self.spec.is_rotation else value
-        with QSignalBlocker(self.slider), QSignalBlocker(self.spin):
-            if self.slider.value() != round(value):
-                self.slider.setValue(int(round(value)))
-            if abs(self.spin.value() - shown) > 1e-9:
-                self.spin.setValue(shown)
-
-    def _slider_moved(self, value: int) -> None:
-        self.edited.emit(self.number, float(value))
-
-    def _spin_changed(self, shown: float) -> None:
-        value = shown / DEG_PER_AU if self.spec.is_rotation else shown
-        # Clamp rounding noise of the degree conversion into the FAP's range.
-        value = min(max(value, self.spec.minimum), self.spec.maximum)
-        self.edited.emit(self.number, float(value))
-
-    # ----------------------------------------------------------- hover / focus
-    def enterEvent(self, event) -> None:  # noqa: N802 - Qt override
-        super().enterEvent(event)
-        self.hover_changed.emit(self.number, True)
-
-    def leaveEvent(self, event) -> None:  # noqa: N802 - Qt override
-        super().leaveEvent(event)
-        self.hover_changed.emit(self.number, False)
-
-    def mouseDoubleClickEvent(self, event) -> None:  # noqa: N802 - Qt override
-        if self.label.geometry().contains(event.position().toPoint()):
-            self.reset_requested.emit(self.number)
-            event.accept()
-            return
-        super().mouseDoubleClickEvent(event)
-
-    def eventFilter(self, watched: QObject, event: QEvent) -> bool:  # noqa: N802 - Qt override
-        if event.type() in (QEvent.Type.FocusIn, QEvent.Type.FocusOut):
-            self.focus_changed.emit(self.number, event.type() == QEvent.Type.FocusIn)
-        return False
-
-
-# ------------------------------------------------------------------ a group
-class FapGroup(QWidget):
-    """A collapsible group of FAP rows with a header (arrow + title) and a Reset button."""
-
-    reset_requested = Signal(str)
-
-    def __init__(self, name: str, parent: QWidget | None = None):
-        super().__init__(parent)
-        self.name = name
-        self.rows: list[FapRow] = []
-        self.toggle = QToolButton(self)
-        self.toggle.setObjectName(f"group:{name}")
-        self.toggle.setText(_GROUP_TITLES.get(name, name.capitalize()))
-        self.toggle.setCheckable(True)
-        self.toggle.setChecked(True)
-        self.toggle.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
-        self.toggle.setArrowType(Qt.ArrowType.DownArrow)
-        self.toggle.setAutoRaise(True)
-        self.toggle.setStyleSheet("QToolButton { border: none; padding: 2px 0px; }")
-        self.toggle.setToolTip("Click to fold or unfold this group")
-        font = self.toggle.font()
-        font.setBold(True)
-        self.toggle.setFont(font)
-        self.toggle.toggled.connect(self.set_expanded)
-        self.reset_button = QToolButton(self)
-        self.reset_button.setText("Reset")
-        self.reset_button.setToolTip(f"Set the {name} FAPs to 0")
-        self.reset_button.setAutoRaise(True)
-        self.reset_button.clicked.connect(lambda: self.reset_requested.emit(self.name))
-
-        header = QHBoxLayout()
-        header.setContentsMargins(0, 0, 0, 0)
-        header.addWidget(self.toggle)
-        header.addStretch(1)
-        header.addWidget(self.reset_button)
-        line = QFrame(self)
-        line.setFrameShape(QFrame.Shape.HLine)
-        line.setFrameShadow(QFrame.Shadow.Sunken)
-
-        self.body = QWidget(self)
-        self.body_layout = QVBoxLayout(self.body)
-        self.body_layout.setContentsMargins(4, 0, 0, 4)
-        self.body_layout.setSpacing(2)
-
-        layout = QVBoxLayout(self)
-        layout.setContentsMargins(0, 0, 0, 0)
-        layout.setSpacing(2)
-        layout.addLayout(header)
-        layout.addWidget(line)
-        layout.addWidget(self.body)
-
-    @property
-    def numbers(self) -> list[int]:
-        return [r.number for r in self.rows]
-
-    def add_row(self, row: FapRow) -> None:
-        self.rows.append(row)
-        self.body_layout.addWidget(row)
-        self.toggle.setText(f"{_GROUP_TITLES.get(self.name, self.name.capitalize())}  ({len(self.rows)})")
-
-    @property
-    def expanded(self) -> bool:
-        return self.toggle.isChecked()
-
-    def set_expanded(self, expanded: bool) -> None:
-        with QSignalBlocker(self.toggle):
-            self.toggle.setChecked(bool(expanded))
-        self.toggle.setArrowType(Qt.ArrowType.DownArrow if expanded else Qt.ArrowType.RightArrow)
-        self.body.setVisible(bool(expanded))
 
 
 # ------------------------------------------------------------------ the dock

@@ -1,6 +1,6 @@
 """muscle_dock.py
 ----
-The muscle dock (thesis C's interface, issue 4): one slider per muscle *per side* and the jaw
+The muscle dock (thesis C's interface): one slider per muscle *per side* and the jaw
 angle, driving a :class:`core.muscles.MuscleLayer` on the window's :class:`core.rig.FaceRig`.
 
 * Rows: the 9 linear muscles as pairs (the name spans two lines, "left" and "right" below each
@@ -37,7 +37,8 @@ angle, driving a :class:`core.muscles.MuscleLayer` on the window's :class:`core.
 * The muscles can be drawn in the viewport ("Show muscles", :mod:`app.muscle_view`).
 
 The layer takes seconds to build, so :func:`attach_muscle_dock` builds it on a worker thread
-(``QThreadPool``) and re-builds it when the window's face changes.
+(:mod:`app.jobs`) and re-builds it when the window's face changes. The widgets are built in
+:mod:`app.muscle_dock_ui`, the solver loops run in :mod:`app.muscle_simulation`.
 """
 
 from __future__ import annotations
@@ -45,74 +46,24 @@ from __future__ import annotations
 import contextlib
 import time
 import traceback
-from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
-from PySide6.QtCore import QEvent, QObject, QRunnable, QSignalBlocker, Qt, QThreadPool, QTimer, Signal, Slot
+from PySide6.QtCore import QEvent, QObject, QSignalBlocker, Qt, QTimer, Signal
 from PySide6.QtGui import QKeySequence
-from PySide6.QtWidgets import (
-    QAbstractSpinBox,
-    QCheckBox,
-    QComboBox,
-    QDockWidget,
-    QFileDialog,
-    QFrame,
-    QGridLayout,
-    QGroupBox,
-    QHBoxLayout,
-    QLabel,
-    QMessageBox,
-    QProgressBar,
-    QPushButton,
-    QScrollArea,
-    QSizePolicy,
-    QSlider,
-    QToolButton,
-    QVBoxLayout,
-    QWidget,
-)
+from PySide6.QtWidgets import QDockWidget, QLabel, QMessageBox, QWidget
 
-from app.widgets import ScrollFriendlySlider, ScrollFriendlySpinBox
+from app.jobs import JobRunner
+from app.muscle_dock_ui import JAW, ControlRow, MuscleDockLayout, _preset_title
+from app.muscle_simulation import (  # noqa: F401 - the tests tune these
+    ANIMATION_INTERVAL_MS, ANIMATION_S, RELAX_BUDGET_S, MuscleSimulationMixin)
 
 if TYPE_CHECKING:  # pragma: no cover
     from core.muscles import MuscleLayer
 
-#: Wall-clock budget of one quasi-static update (s): well under a frame with the redraw.
-RELAX_BUDGET_S = 0.02
-#: When the window's redraw is slow (software OpenGL), the budget grows to half the last redraw
-#: time, up to this (s): the solve then keeps a third of the time instead of a few percent.
-MAX_RELAX_BUDGET_S = 0.1
-#: Animation frame interval (ms) and the longest step one frame may integrate (s).
-ANIMATION_INTERVAL_MS = 33
-MAX_FRAME_S = 0.25
-#: How long Animate / Rest play the dynamics (s) before the quasi-static solve takes over.
-ANIMATION_S = 1.0
-#: Slider steps per unit (force units and degrees): 0.1 resolution.
-SLIDER_SCALE = 10
-FORCE_SUFFIX = " u"
-JAW = ("jaw", None)
-FILE_FILTER = "Mimica force sets (*.json);;All files (*)"
 BUILDING_MESSAGE = "Building the muscle model…"
 NO_FACE_MESSAGE = "No face loaded yet."
 NO_RIG_MESSAGE = ("The muscles need the face's MPEG-4 feature points: mark them (landmark picker), "
                   "then the muscle model is built.")
-
-
-def _side_text(side: str | None) -> str:
-    return "" if side is None else side
-
-
-def _preset_title(name: str) -> str:
-    return name.replace("_", " ").capitalize()
-
-
-def _force_unit_dyn() -> float | None:
-    try:
-        from core.muscles.model import load_params
-
-        return float(load_params().force_unit)
-    except Exception:  # noqa: BLE001 - decorates a tooltip only
-        return None
 
 
 def _face_signature(face) -> tuple:
@@ -130,123 +81,11 @@ def _face_signature(face) -> tuple:
 
 
 # ------------------------------------------------------------------ one control
-class ControlRow(QObject):
-    """Slider, spin box and reset button of one control (a muscle side, the orbicularis, the jaw).
-
-    The widgets are laid out by the dock's grid; the value lives in the layer.
-    """
-
-    edited = Signal(object, float)  # key, new value (force units or degrees)
-    reset_requested = Signal(object)  # key
-
-    def __init__(self, key: tuple, minimum: float, maximum: float, suffix: str, tooltip: str,
-                 parent: QWidget, *, side_text: str = ""):
-        super().__init__(parent)
-        self.key = key
-        self.minimum, self.maximum = float(minimum), float(maximum)
-        tag = "_".join(str(k) for k in key if k is not None)
-        self.side_label = QLabel(side_text, parent)
-        self.side_label.setObjectName(f"muscleSide_{tag}")
-        self.side_label.setStyleSheet("QLabel { color: #6b7280; }")
-        self.slider = ScrollFriendlySlider(Qt.Orientation.Horizontal, parent)
-        self.slider.setObjectName(f"muscleSlider_{tag}")
-        self.slider.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
-        self.slider.setRange(round(self.minimum * SLIDER_SCALE), round(self.maximum * SLIDER_SCALE))
-        self.slider.setSingleStep(SLIDER_SCALE // 2)
-        self.slider.setPageStep(SLIDER_SCALE * 5)
-        self.slider.setTracking(True)
-        self.slider.setMinimumWidth(100)
-        self.slider.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
-        self.spin = ScrollFriendlySpinBox(parent)
-        self.spin.setObjectName(f"muscleSpin_{tag}")
-        self.spin.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
-        self.spin.setKeyboardTracking(False)
-        self.spin.setAccelerated(True)
-        self.spin.setDecimals(1)
-        self.spin.setRange(self.minimum, self.maximum)
-        self.spin.setSingleStep(0.5)
-        self.spin.setSuffix(suffix)
-        self.spin.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
-        self.spin.setButtonSymbols(QAbstractSpinBox.ButtonSymbols.UpDownArrows)
-        self.reset_button = QToolButton(parent)
-        self.reset_button.setObjectName(f"muscleReset_{tag}")
-        self.reset_button.setText("↺")
-        self.reset_button.setAutoRaise(True)
-        self.reset_button.setFocusPolicy(Qt.FocusPolicy.NoFocus)
-        self.reset_button.setToolTip("Reset to 0")
-        for w in (self.side_label, self.slider, self.spin):
-            w.setToolTip(tooltip)
-        self._value = 0.0
-        self.slider.valueChanged.connect(lambda v: self.edited.emit(self.key, v / SLIDER_SCALE))
-        self.spin.valueChanged.connect(self._spin_changed)
-        self.reset_button.clicked.connect(lambda: self.reset_requested.emit(self.key))
-
-    @property
-    def value(self) -> float:
-        """The value this row shows."""
-        return self._value
-
-    def show_value(self, value: float) -> None:
-        """Show ``value`` (from the layer) without emitting anything."""
-        self._value = float(value)
-        with QSignalBlocker(self.slider), QSignalBlocker(self.spin):
-            tick = round(self._value * SLIDER_SCALE)
-            if self.slider.value() != tick:
-                self.slider.setValue(tick)
-            if abs(self.spin.value() - self._value) > 1e-9:
-                self.spin.setValue(self._value)
-
-    def _spin_changed(self, value: float) -> None:
-        self.edited.emit(self.key, min(max(float(value), self.minimum), self.maximum))
-
-    def widgets(self) -> list[QWidget]:
-        return [self.side_label, self.slider, self.spin, self.reset_button]
 
 
 # ------------------------------------------------------------------ building off the GUI thread
-class _BuildSignals(QObject):
-    built = Signal(int, object)  # generation, MuscleLayer
-    failed = Signal(int, str)  # generation, message
-
-
-class _BuildTask(QRunnable):
-    """``MuscleLayer(face, level=level)`` on a worker thread; the result comes back by signal."""
-
-    def __init__(self, generation: int, face, level: int, signals: _BuildSignals,
-                 wanted: Callable[[int], bool], template_dense=None):
-        super().__init__()
-        self.generation, self.face, self.level, self.signals, self.wanted = generation, face, level, signals, wanted
-        self.template_dense = template_dense
-        self.setAutoDelete(True)
-
-    def run(self) -> None:  # worker thread
-        gen = self.generation
-        if not self.wanted(gen):
-            return
-        try:
-            from core.muscles import MuscleLayer
-
-            layer = MuscleLayer(self.face, level=self.level, template_dense=self.template_dense)
-        except ValueError as exc:  # the face does not fit the model: a message, not a bug
-            self._emit(self.signals.failed, gen, f"The muscle model cannot be built for this face: {exc}")
-            return
-        except Exception as exc:  # noqa: BLE001 - reported in the dock, traceback on stderr
-            traceback.print_exc()
-            self._emit(self.signals.failed, gen, f"Could not build the muscle model: {type(exc).__name__}: {exc}")
-            return
-        if self.wanted(gen):
-            self._emit(self.signals.built, gen, layer)
-
-    @staticmethod
-    def _emit(signal, *args) -> None:
-        try:
-            signal.emit(*args)
-        except RuntimeError:  # the dock went away while we were building
-            pass
-
-
 # ------------------------------------------------------------------ the dock
-class MuscleDock(QDockWidget):
+class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
     """The muscle dock (see the module docstring).
 
     Parameters
@@ -283,13 +122,7 @@ class MuscleDock(QDockWidget):
         self._view_dirty = True
         self._layer_face = None  # the face self.layer was built for (kept for re-use)
         self._layer_signature: tuple | None = None  # its landmarks and vertices when built
-        self._generation = 0
-        self._latest = [0]  # read by worker threads
-        self._pool = QThreadPool(self)
-        self._pool.setMaxThreadCount(1)
-        self._build_signals = _BuildSignals()
-        self._build_signals.built.connect(self._on_built)
-        self._build_signals.failed.connect(self._on_build_failed)
+        self._builds = JobRunner(self, supersede=True)   # a newer face's build supersedes the older one
         self._animating = False
         self._anim_elapsed = 0.0
         self._anim_last = 0.0
@@ -312,206 +145,6 @@ class MuscleDock(QDockWidget):
         self._build_ui()
         self.set_layer(None, NO_FACE_MESSAGE)
 
-    # ============================================================ UI
-    def _build_ui(self) -> None:
-        root = QWidget(self)
-        root.setObjectName("muscleDockContents")
-        outer = QVBoxLayout(root)
-        outer.setContentsMargins(6, 6, 6, 6)
-        outer.setSpacing(6)
-
-        self.message_label = QLabel(root)
-        self.message_label.setObjectName("muscleMessage")
-        self.message_label.setWordWrap(True)
-        self.message_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
-        self.message_label.setStyleSheet("QLabel { color: #e0a030; }")
-        outer.addWidget(self.message_label)
-        self.busy_bar = QProgressBar(root)
-        self.busy_bar.setRange(0, 0)  # indeterminate: the build reports no progress
-        self.busy_bar.setTextVisible(False)
-        self.busy_bar.setMaximumHeight(8)
-        self.busy_bar.hide()
-        outer.addWidget(self.busy_bar)
-
-        outer.addWidget(self._build_presets(root))
-        outer.addWidget(self._build_controls(root))
-        outer.addWidget(self._build_playback(root))
-
-        self.scroll = QScrollArea(root)
-        self.scroll.setObjectName("muscleScroll")
-        self.scroll.setWidgetResizable(True)
-        self.scroll.setFrameShape(QFrame.Shape.NoFrame)
-        self.scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
-        self.scroll.setWidget(self._build_rows())
-        outer.addWidget(self.scroll, 1)
-        outer.addStretch(0)
-        self._outer = outer
-        self.setWidget(root)
-
-    def _build_presets(self, parent: QWidget) -> QGroupBox:
-        from core.muscles import preset_names
-
-        box = QGroupBox("Force sets", parent)
-        grid = QGridLayout(box)
-        grid.setContentsMargins(6, 4, 6, 4)
-        grid.setHorizontalSpacing(6)
-        grid.setVerticalSpacing(4)
-        self.preset_combo = QComboBox(box)
-        self.preset_combo.setObjectName("musclePresetCombo")
-        for name in preset_names():
-            self.preset_combo.addItem(_preset_title(name), name)
-        self.preset_combo.setToolTip("Thesis C's test expressions (§5.2–5.6)")
-        self.apply_button = QPushButton("Apply", box)
-        self.apply_button.setObjectName("musclePresetApply")
-        self.apply_button.setToolTip("Set the forces (and jaw) of the chosen expression")
-        self.apply_button.clicked.connect(lambda: self.apply_preset(self.preset_combo.currentData()))
-        self.save_button = QPushButton("Save…", box)
-        self.save_button.setObjectName("muscleSave")
-        self.save_button.setToolTip("Save the current forces and jaw angle as a JSON force set")
-        self.save_button.clicked.connect(self.save_dialog)
-        self.open_button = QPushButton("Open…", box)
-        self.open_button.setObjectName("muscleOpen")
-        self.open_button.setToolTip("Load a JSON force set")
-        self.open_button.clicked.connect(self.open_dialog)
-        grid.addWidget(QLabel("Expression", box), 0, 0)
-        grid.addWidget(self.preset_combo, 0, 1)
-        grid.addWidget(self.apply_button, 0, 2)
-        grid.addWidget(self.save_button, 0, 3)
-        grid.addWidget(self.open_button, 0, 4)
-        grid.setColumnStretch(1, 1)
-        return box
-
-    def _build_controls(self, parent: QWidget) -> QWidget:
-        w = QWidget(parent)
-        row = QHBoxLayout(w)
-        row.setContentsMargins(0, 0, 0, 0)
-        row.setSpacing(10)
-        self.link_check = QCheckBox("Link left/right", w)
-        self.link_check.setObjectName("muscleLink")
-        self.link_check.setToolTip("Moving one side of a muscle moves the other side to the same force")
-        self.show_check = QCheckBox("Show muscles", w)
-        self.show_check.setObjectName("muscleShow")
-        self.show_check.setToolTip("Draw the muscles on the face, grey at rest to red at full force")
-        self.show_check.toggled.connect(self.set_muscles_visible)
-        self.reset_all_button = QPushButton("Reset all", w)
-        self.reset_all_button.setObjectName("muscleResetAll")
-        self.reset_all_button.setToolTip("Every force and the jaw to 0, the face at rest at once")
-        self.reset_all_button.clicked.connect(self.reset_all)
-        row.addWidget(self.link_check)
-        row.addWidget(self.show_check)
-        row.addStretch(1)
-        row.addWidget(self.reset_all_button)
-        return w
-
-    def _build_playback(self, parent: QWidget) -> QWidget:
-        w = QWidget(parent)
-        row = QHBoxLayout(w)
-        row.setContentsMargins(0, 0, 0, 0)
-        row.setSpacing(6)
-        self.animate_button = QPushButton("▶ Animate", w)
-        self.animate_button.setObjectName("muscleAnimate")
-        self.animate_button.setToolTip("Play the transition from rest to the current forces in real time "
-                                       "(thesis C's Execute)")
-        self.animate_button.clicked.connect(self.animate)
-        self.stop_button = QPushButton("■ Stop", w)
-        self.stop_button.setObjectName("muscleStop")
-        self.stop_button.setToolTip("Stop the animation where it is")
-        self.stop_button.clicked.connect(self.stop)
-        self.rest_button = QPushButton("Rest", w)
-        self.rest_button.setObjectName("muscleRest")
-        self.rest_button.setToolTip("Every force and the jaw to 0, relaxing back in real time "
-                                    "(thesis C's Initialise; Reset all does it at once)")
-        self.rest_button.clicked.connect(self.rest)
-        self.status_label = QLabel(w)
-        self.status_label.setObjectName("muscleStatus")
-        self.status_label.setStyleSheet("QLabel { color: #6b7280; }")
-        self.status_label.setToolTip("State of the tissue simulation")
-        self.status_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
-        row.addWidget(self.animate_button)
-        row.addWidget(self.stop_button)
-        row.addWidget(self.rest_button)
-        row.addWidget(self.status_label, 1)
-        return w
-
-    def _build_rows(self) -> QWidget:
-        from core.muscles import muscle_specs
-
-        try:
-            from core.muscles.muscles import jaw_range
-
-            jaw_lo, jaw_hi = jaw_range()
-        except Exception:  # noqa: BLE001 - the contract does not export it; thesis-like default
-            jaw_lo, jaw_hi = 0.0, 25.0
-        unit_dyn = _force_unit_dyn()
-        unit_note = (f"Thesis force units: 1 u = {unit_dyn:g} dyn at the muscle's mobile end (per reference node)"
-                     if unit_dyn else "Thesis force units")
-        body = QWidget()
-        body.setObjectName("muscleRows")
-        grid = QGridLayout(body)
-        grid.setContentsMargins(0, 0, 4, 0)
-        grid.setHorizontalSpacing(6)
-        grid.setVerticalSpacing(1)
-        r = 0
-        for spec in muscle_specs():
-            tip = (f"<b>{spec.label}</b><br>{spec.description}<br>Range {spec.minimum:g} to {spec.maximum:g} u"
-                   f"<br><i>{unit_note}</i>")
-            name = QLabel(spec.label, body)
-            name.setObjectName(f"muscleName_{spec.name}")
-            name.setWordWrap(True)
-            name.setToolTip(tip)
-            name.setSizePolicy(QSizePolicy.Policy.Preferred, QSizePolicy.Policy.Preferred)
-            self.name_labels[spec.name] = name
-            sides = ("left", "right") if spec.paired else (None,)
-            grid.addWidget(name, r, 0, len(sides), 1, Qt.AlignmentFlag.AlignVCenter)
-            for side in sides:
-                side_tip = tip
-                if side is not None:
-                    side_tip += ("<br>Sides are the face's own: its left is on the right of the screen "
-                                 "in the front view.")
-                row = ControlRow((spec.name, side), spec.minimum, spec.maximum, FORCE_SUFFIX, side_tip, body,
-                                 side_text=_side_text(side))
-                self._add_row(grid, r, row)
-                r += 1
-            if spec.paired:
-                line = QFrame(body)
-                line.setFrameShape(QFrame.Shape.HLine)
-                line.setStyleSheet("QFrame { color: #3a3c40; }")
-                grid.addWidget(line, r, 0, 1, 5)
-                r += 1
-        jaw_tip = ("<b>Jaw opening</b><br>Rotates the lower lip and chin about an axis behind the ears "
-                   f"(thesis C §3.4).<br>Range {jaw_lo:g}° to {jaw_hi:g}°")
-        name = QLabel("Jaw opening", body)
-        name.setObjectName("muscleName_jaw")
-        name.setToolTip(jaw_tip)
-        self.name_labels["jaw"] = name
-        grid.addWidget(name, r, 0)
-        self._add_row(grid, r, ControlRow(JAW, jaw_lo, jaw_hi, "°", jaw_tip, body))
-        r += 1
-        grid.setRowStretch(r, 1)
-        grid.setColumnStretch(2, 1)
-        # One width for the name column (long names wrap onto the pair's two lines) and the spins.
-        metrics = name.fontMetrics()
-        grid.setColumnMinimumWidth(0, metrics.horizontalAdvance("Levator labii sup. ") + 4)
-        for label in self.name_labels.values():
-            label.setMaximumWidth(metrics.horizontalAdvance("Levator labii sup. alaeque") + 4)
-        spin_w = max(row.spin.sizeHint().width() for row in self.rows.values())
-        for row in self.rows.values():
-            row.spin.setFixedWidth(spin_w)
-        return body
-
-    def _add_row(self, grid: QGridLayout, r: int, row: ControlRow) -> None:
-        for c, w in enumerate(row.widgets(), start=1):
-            grid.addWidget(w, r, c)
-        row.edited.connect(self._row_edited)
-        row.reset_requested.connect(self.reset_control)
-        self.rows[row.key] = row
-
-    def _set_controls_enabled(self, enabled: bool) -> None:
-        for w in (self.preset_combo, self.apply_button, self.save_button, self.open_button, self.link_check,
-                  self.reset_all_button, self.animate_button, self.rest_button, self.show_check):
-            w.setEnabled(enabled)
-        self.stop_button.setEnabled(enabled and self._animating)
-        self.scroll.setEnabled(enabled)
 
     # ============================================================ messages
     def show_message(self, message: str) -> None:
@@ -592,17 +225,15 @@ class MuscleDock(QDockWidget):
         window = self.window_
         if window is None:
             return
-        face, rig = getattr(window, "face", None), getattr(window, "rig", None)
-        self._generation += 1
-        self._latest[0] = self._generation
-        self._pool.clear()  # builds still queued are for an older face
+        face, rig = window.document.face, window.document.rig
+        self._builds.cancel()  # builds still running are for an older face
         if face is None:
             self._release_layer()
             self.set_layer(None, NO_FACE_MESSAGE)
             return
         if rig is None:
             self._release_layer()
-            reason = getattr(window, "rig_message", "") or NO_RIG_MESSAGE
+            reason = window.document.rig_message or NO_RIG_MESSAGE
             self.set_layer(None, f"Muscles are not available for this face.\n\n{reason}")
             return
         signature = _face_signature(face)
@@ -615,9 +246,17 @@ class MuscleDock(QDockWidget):
         self._release_layer()
         self.set_layer(None, BUILDING_MESSAGE)
         self._layer_face, self._layer_signature = face, signature
-        latest = self._latest
-        self._pool.start(_BuildTask(self._generation, face, self.level, self._build_signals,
-                                    wanted=lambda g: g == latest[0], template_dense=self._shared_template(rig)))
+        level, template = self.level, self._shared_template(rig)
+
+        def build(job):
+            from core.muscles import MuscleLayer
+
+            try:
+                return MuscleLayer(face, level=level, template_dense=template)
+            except ValueError as exc:  # the face does not fit the model: a message, not a bug
+                raise ValueError(f"The muscle model cannot be built for this face: {exc}") from None
+
+        self._builds.start(build, self._on_built, self._on_build_failed)
 
     def _shared_template(self, rig):
         """The rig's densified template when it is the one the layer needs: the layer then skips
@@ -639,21 +278,15 @@ class MuscleDock(QDockWidget):
             self.set_layer(None, "")
         self._layer_face = None
 
-    @Slot(int, object)
-    def _on_built(self, generation: int, layer) -> None:
-        if generation != self._generation:
-            return
-        rig = getattr(self.window_, "rig", None)
+    def _on_built(self, layer) -> None:
+        rig = self.window_.document.rig
         if rig is None:  # cannot happen for the latest generation; be safe
             self.build_for_window()
             return
         self.set_layer(layer, "", rig=rig)
         self._status_bar("Muscle model ready", 4000)
 
-    @Slot(int, str)
-    def _on_build_failed(self, generation: int, message: str) -> None:
-        if generation != self._generation:
-            return
+    def _on_build_failed(self, message: str) -> None:
         self._layer_face = None
         self.set_layer(None, message)
         self._status_bar(message.splitlines()[0])
@@ -664,9 +297,7 @@ class MuscleDock(QDockWidget):
 
     def shutdown(self) -> None:
         """Stop timers and ignore running builds (the window is closing)."""
-        self._generation += 1
-        self._latest[0] = self._generation
-        self._pool.clear()
+        self._builds.cancel()
         self.stop(relax=False)
         self._relax_timer.stop()
         if self.view is not None:
@@ -864,210 +495,6 @@ class MuscleDock(QDockWidget):
         if self._edit("rest", lambda: (layer.set_forces(zero), layer.set_jaw(0.0))):
             self._relax_timer.stop()
             self._play(from_rest=False)
-
-    # ============================================================ files
-    def _last_dir(self) -> str:
-        settings = getattr(self.window_, "settings", None)
-        if settings is None:
-            return str(Path.home())
-        return str(settings.value("muscles/lastDirectory", settings.value("lastDirectory", str(Path.home()))))
-
-    def _remember_dir(self, path: str) -> None:
-        settings = getattr(self.window_, "settings", None)
-        if settings is not None:
-            settings.setValue("muscles/lastDirectory", str(Path(path).parent))
-
-    def save_dialog(self) -> None:
-        if self.layer is None:
-            return
-        default = str(Path(self._last_dir()) / "forces.json")
-        path, _ = QFileDialog.getSaveFileName(self, "Save force set", default, FILE_FILTER)
-        if path:
-            if not Path(path).suffix:
-                path += ".json"
-            self._remember_dir(path)
-            self.save_force_file(path)
-
-    def open_dialog(self) -> None:
-        if self.layer is None:
-            return
-        path, _ = QFileDialog.getOpenFileName(self, "Open force set", self._last_dir(), FILE_FILTER)
-        if path:
-            self._remember_dir(path)
-            self.open_force_file(path)
-
-    def save_force_file(self, path) -> bool:
-        """Write the current forces and jaw to ``path`` (JSON); errors become a warning box."""
-        from core.muscles import ForceSet, save_force_set
-
-        layer = self.layer
-        if layer is None:
-            return False
-        force_set = ForceSet(dict(layer.forces()), jaw_deg=float(layer.jaw_deg), name=Path(path).stem)
-        try:
-            save_force_set(path, force_set)
-        except (OSError, ValueError) as exc:
-            QMessageBox.warning(self, f"Could not save {Path(path).name}", str(exc))
-            return False
-        self._status_bar(f"Saved the force set {path}", 5000)
-        return True
-
-    def open_force_file(self, path) -> bool:
-        """Load a force set from ``path`` and apply it; a bad file leaves the forces untouched."""
-        from core.muscles import ForceFileError, load_force_set
-
-        layer = self.layer
-        if layer is None:
-            return False
-        try:
-            force_set = load_force_set(path)
-        except (ForceFileError, OSError) as exc:
-            QMessageBox.warning(self, f"Could not open {Path(path).name}", str(exc))
-            return False
-        ok = self._edit(f"open force set {Path(path).name}", lambda: layer.apply(force_set))
-        if ok:
-            self._status_bar(f"Loaded the force set {Path(path).name}", 5000)
-        return ok
-
-    # ============================================================ quasi-static solve
-    @property
-    def settling(self) -> bool:
-        """True while the relax timer runs."""
-        return self._relax_timer.isActive()
-
-    @property
-    def animating(self) -> bool:
-        return self._animating
-
-    def relax_budget(self) -> float:
-        """Seconds for the next ``layer.relax`` call (see the module docstring)."""
-        last = getattr(self.window_, "last_tick_ms", None)
-        if not last:
-            return RELAX_BUDGET_S
-        redraw_s = sum(last) / 1000.0
-        return min(max(RELAX_BUDGET_S, 0.5 * redraw_s), MAX_RELAX_BUDGET_S)
-
-    def _start_relax(self) -> None:
-        if self.layer is None or self._animating:
-            return
-        if not self._relax_timer.isActive():
-            self.relax_ticks = 0
-            self._relax_timer.start()
-
-    @Slot()
-    def _relax_tick(self) -> None:
-        from core.muscles import SolverDiverged
-
-        layer = self.layer
-        if layer is None or self._animating:
-            self._relax_timer.stop()
-            return
-        try:
-            report = layer.relax(budget_s=self.relax_budget())
-        except SolverDiverged as exc:
-            self._diverged(exc)
-            return
-        self.last_relax = report
-        self.relax_ticks += 1
-        if report.converged:
-            self._relax_timer.stop()
-            if self._edit_started is not None:
-                self.last_settle_s = time.perf_counter() - self._edit_started
-                self._edit_started = None
-            self._update_status(converged=True)
-            self.settled.emit()
-        else:
-            self._update_status(converged=False, residual=report.residual)
-
-    def _update_status(self, *, converged: bool, residual: float | None = None) -> None:
-        layer = self.layer
-        if layer is None:
-            self.set_status("")
-            return
-        if not converged:
-            text = "settling…" if residual is None else f"settling… residual {100.0 * residual:.1f} %"
-        else:
-            state = self.state()
-            at_rest = bool(state) and not any(state[0]) and state[1] == 0.0
-            text = "at rest" if at_rest else "equilibrium"
-        self.set_status(text)
-
-    def _diverged(self, exc: Exception) -> None:
-        self._relax_timer.stop()
-        self._anim_timer.stop()
-        self._animating = False
-        self.stop_button.setEnabled(False)
-        self._edit_started = None
-        message = str(exc) or "The simulation diverged; the last good state was kept."
-        self.set_status(f"⚠ {message.splitlines()[0]}")
-        self.status_label.setToolTip(message)
-        self._status_bar(f"Muscle simulation stopped: {message.splitlines()[0]}", 15000)
-        self._sync_from_layer()
-        self._view_dirty = True
-        if self.view is not None and self.view.visible:
-            self._update_view()
-
-    # ============================================================ dynamics playback
-    def animate(self) -> None:
-        """Play the transition from rest to the current forces in wall-clock time."""
-        self._play(from_rest=True)
-
-    def _play(self, *, from_rest: bool) -> None:
-        from core.muscles import SolverDiverged
-
-        layer = self.layer
-        if layer is None:
-            return
-        self._relax_timer.stop()
-        self._animating = True  # before the layer emits: no relax may start meanwhile
-        try:
-            if from_rest:
-                # start_animation plays from the *current* pose: put the tissue at rest first,
-                # keeping the controls (reset() zeroes them, apply() puts them back).
-                force_set = layer.force_set()
-                layer.reset()
-                layer.apply(force_set)
-            layer.start_animation()
-        except SolverDiverged as exc:
-            self._diverged(exc)
-            return
-        self._anim_elapsed = 0.0
-        self._anim_last = time.perf_counter()
-        self.stop_button.setEnabled(True)
-        self.set_status("animating… 0.00 s")
-        self._anim_timer.start()
-
-    @Slot()
-    def _anim_tick(self) -> None:
-        from core.muscles import SolverDiverged
-
-        layer = self.layer
-        if layer is None or not self._animating:
-            self._anim_timer.stop()
-            return
-        now = time.perf_counter()
-        dt = min(now - self._anim_last, MAX_FRAME_S)
-        self._anim_last = now
-        if dt <= 0.0:
-            return
-        try:
-            layer.advance(dt)
-        except SolverDiverged as exc:
-            self._diverged(exc)
-            return
-        self._anim_elapsed += dt
-        self.set_status(f"animating… {self._anim_elapsed:.2f} s")
-        if self._anim_elapsed >= self.animation_s:
-            self.stop()
-
-    def stop(self, *, relax: bool = True) -> None:
-        """End the animation (the quasi-static solve then finishes the pose unless ``relax`` is False)."""
-        was = self._animating
-        self._anim_timer.stop()
-        self._animating = False
-        self.stop_button.setEnabled(False)
-        if was and relax and self.layer is not None:
-            self._start_relax()
 
 
 # ------------------------------------------------------------------ window integration

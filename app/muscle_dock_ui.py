@@ -1,0 +1,326 @@
+"""The muscle dock's widgets: presets and force-set files, link and show toggles, Animate / Rest /
+Stop, and the grid of per-side rows (a muscle's two sides together, then the orbicularis oris and
+the jaw), built once; and the force-set file dialogs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import (
+    QCheckBox, QComboBox, QFileDialog, QFrame, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QMessageBox,
+    QProgressBar, QPushButton, QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
+
+from app.parameter_row import ParameterControls
+
+
+#: Slider steps per unit (force units and degrees): 0.1 resolution.
+SLIDER_SCALE = 10
+FORCE_SUFFIX = " u"
+JAW = ("jaw", None)
+FILE_FILTER = "Mimica force sets (*.json);;All files (*)"
+
+
+def _side_text(side: str | None) -> str:
+    return "" if side is None else side
+
+
+def _preset_title(name: str) -> str:
+    return name.replace("_", " ").capitalize()
+
+
+def _force_unit_dyn() -> float | None:
+    try:
+        from core.muscles.model import load_params
+
+        return float(load_params().force_unit)
+    except Exception:  # noqa: BLE001 - decorates a tooltip only
+        return None
+
+
+class ControlRow(ParameterControls):
+    """Slider, spin box and reset button of one control (a muscle side, the orbicularis, the jaw),
+    with the side's label; the dock's grid lays the widgets out, the value lives in the layer."""
+
+    def __init__(self, key: tuple, minimum: float, maximum: float, suffix: str, tooltip: str,
+                 parent: QWidget, *, side_text: str = ""):
+        tag = "_".join(str(k) for k in key if k is not None)
+        super().__init__(key, minimum, maximum, parent, suffix=suffix, slider_scale=SLIDER_SCALE,
+                         slider_step=SLIDER_SCALE // 2, decimals=1, spin_step=0.5, name=f"muscle_{tag}")
+        self.side_label = QLabel(side_text, parent)
+        self.side_label.setObjectName(f"muscleSide_{tag}")
+        self.side_label.setStyleSheet("QLabel { color: #6b7280; }")
+        for w in (self.side_label, self.slider, self.spin):
+            w.setToolTip(tooltip)
+
+    def widgets(self) -> list[QWidget]:
+        return [self.side_label, *super().widgets()]
+
+
+class MuscleDockLayout:
+    """The widget-building and file-dialog half of :class:`app.muscle_dock.MuscleDock` (a mixin)."""
+
+    # ============================================================ UI
+    def _build_ui(self) -> None:
+        root = QWidget(self)
+        root.setObjectName("muscleDockContents")
+        outer = QVBoxLayout(root)
+        outer.setContentsMargins(6, 6, 6, 6)
+        outer.setSpacing(6)
+
+        self.message_label = QLabel(root)
+        self.message_label.setObjectName("muscleMessage")
+        self.message_label.setWordWrap(True)
+        self.message_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.message_label.setStyleSheet("QLabel { color: #e0a030; }")
+        outer.addWidget(self.message_label)
+        self.busy_bar = QProgressBar(root)
+        self.busy_bar.setRange(0, 0)  # indeterminate: the build reports no progress
+        self.busy_bar.setTextVisible(False)
+        self.busy_bar.setMaximumHeight(8)
+        self.busy_bar.hide()
+        outer.addWidget(self.busy_bar)
+
+        outer.addWidget(self._build_presets(root))
+        outer.addWidget(self._build_controls(root))
+        outer.addWidget(self._build_playback(root))
+
+        self.scroll = QScrollArea(root)
+        self.scroll.setObjectName("muscleScroll")
+        self.scroll.setWidgetResizable(True)
+        self.scroll.setFrameShape(QFrame.Shape.NoFrame)
+        self.scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self.scroll.setWidget(self._build_rows())
+        outer.addWidget(self.scroll, 1)
+        outer.addStretch(0)
+        self._outer = outer
+        self.setWidget(root)
+
+    def _build_presets(self, parent: QWidget) -> QGroupBox:
+        from core.muscles import preset_names
+
+        box = QGroupBox("Force sets", parent)
+        grid = QGridLayout(box)
+        grid.setContentsMargins(6, 4, 6, 4)
+        grid.setHorizontalSpacing(6)
+        grid.setVerticalSpacing(4)
+        self.preset_combo = QComboBox(box)
+        self.preset_combo.setObjectName("musclePresetCombo")
+        for name in preset_names():
+            self.preset_combo.addItem(_preset_title(name), name)
+        self.preset_combo.setToolTip("Thesis C's test expressions (§5.2–5.6)")
+        self.apply_button = QPushButton("Apply", box)
+        self.apply_button.setObjectName("musclePresetApply")
+        self.apply_button.setToolTip("Set the forces (and jaw) of the chosen expression")
+        self.apply_button.clicked.connect(lambda: self.apply_preset(self.preset_combo.currentData()))
+        self.save_button = QPushButton("Save…", box)
+        self.save_button.setObjectName("muscleSave")
+        self.save_button.setToolTip("Save the current forces and jaw angle as a JSON force set")
+        self.save_button.clicked.connect(self.save_dialog)
+        self.open_button = QPushButton("Open…", box)
+        self.open_button.setObjectName("muscleOpen")
+        self.open_button.setToolTip("Load a JSON force set")
+        self.open_button.clicked.connect(self.open_dialog)
+        grid.addWidget(QLabel("Expression", box), 0, 0)
+        grid.addWidget(self.preset_combo, 0, 1)
+        grid.addWidget(self.apply_button, 0, 2)
+        grid.addWidget(self.save_button, 0, 3)
+        grid.addWidget(self.open_button, 0, 4)
+        grid.setColumnStretch(1, 1)
+        return box
+
+    def _build_controls(self, parent: QWidget) -> QWidget:
+        w = QWidget(parent)
+        row = QHBoxLayout(w)
+        row.setContentsMargins(0, 0, 0, 0)
+        row.setSpacing(10)
+        self.link_check = QCheckBox("Link left/right", w)
+        self.link_check.setObjectName("muscleLink")
+        self.link_check.setToolTip("Moving one side of a muscle moves the other side to the same force")
+        self.show_check = QCheckBox("Show muscles", w)
+        self.show_check.setObjectName("muscleShow")
+        self.show_check.setToolTip("Draw the muscles on the face, grey at rest to red at full force")
+        self.show_check.toggled.connect(self.set_muscles_visible)
+        self.reset_all_button = QPushButton("Reset all", w)
+        self.reset_all_button.setObjectName("muscleResetAll")
+        self.reset_all_button.setToolTip("Every force and the jaw to 0, the face at rest at once")
+        self.reset_all_button.clicked.connect(self.reset_all)
+        row.addWidget(self.link_check)
+        row.addWidget(self.show_check)
+        row.addStretch(1)
+        row.addWidget(self.reset_all_button)
+        return w
+
+    def _build_playback(self, parent: QWidget) -> QWidget:
+        w = QWidget(parent)
+        row = QHBoxLayout(w)
+        row.setContentsMargins(0, 0, 0, 0)
+        row.setSpacing(6)
+        self.animate_button = QPushButton("▶ Animate", w)
+        self.animate_button.setObjectName("muscleAnimate")
+        self.animate_button.setToolTip("Play the transition from rest to the current forces in real time "
+                                       "(thesis C's Execute)")
+        self.animate_button.clicked.connect(self.animate)
+        self.stop_button = QPushButton("■ Stop", w)
+        self.stop_button.setObjectName("muscleStop")
+        self.stop_button.setToolTip("Stop the animation where it is")
+        self.stop_button.clicked.connect(self.stop)
+        self.rest_button = QPushButton("Rest", w)
+        self.rest_button.setObjectName("muscleRest")
+        self.rest_button.setToolTip("Every force and the jaw to 0, relaxing back in real time "
+                                    "(thesis C's Initialise; Reset all does it at once)")
+        self.rest_button.clicked.connect(self.rest)
+        self.status_label = QLabel(w)
+        self.status_label.setObjectName("muscleStatus")
+        self.status_label.setStyleSheet("QLabel { color: #6b7280; }")
+        self.status_label.setToolTip("State of the tissue simulation")
+        self.status_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+        row.addWidget(self.animate_button)
+        row.addWidget(self.stop_button)
+        row.addWidget(self.rest_button)
+        row.addWidget(self.status_label, 1)
+        return w
+
+    def _build_rows(self) -> QWidget:
+        from core.muscles import muscle_specs
+
+        try:
+            from core.muscles.muscles import jaw_range
+
+            jaw_lo, jaw_hi = jaw_range()
+        except Exception:  # noqa: BLE001 - the contract does not export it; thesis-like default
+            jaw_lo, jaw_hi = 0.0, 25.0
+        unit_dyn = _force_unit_dyn()
+        unit_note = (f"Thesis force units: 1 u = {unit_dyn:g} dyn at the muscle's mobile end (per reference node)"
+                     if unit_dyn else "Thesis force units")
+        body = QWidget()
+        body.setObjectName("muscleRows")
+        grid = QGridLayout(body)
+        grid.setContentsMargins(0, 0, 4, 0)
+        grid.setHorizontalSpacing(6)
+        grid.setVerticalSpacing(1)
+        r = 0
+        for spec in muscle_specs():
+            tip = (f"<b>{spec.label}</b><br>{spec.description}<br>Range {spec.minimum:g} to {spec.maximum:g} u"
+                   f"<br><i>{unit_note}</i>")
+            name = QLabel(spec.label, body)
+            name.setObjectName(f"muscleName_{spec.name}")
+            name.setWordWrap(True)
+            name.setToolTip(tip)
+            name.setSizePolicy(QSizePolicy.Policy.Preferred, QSizePolicy.Policy.Preferred)
+            self.name_labels[spec.name] = name
+            sides = ("left", "right") if spec.paired else (None,)
+            grid.addWidget(name, r, 0, len(sides), 1, Qt.AlignmentFlag.AlignVCenter)
+            for side in sides:
+                side_tip = tip
+                if side is not None:
+                    side_tip += ("<br>Sides are the face's own: its left is on the right of the screen "
+                                 "in the front view.")
+                row = ControlRow((spec.name, side), spec.minimum, spec.maximum, FORCE_SUFFIX, side_tip, body,
+                                 side_text=_side_text(side))
+                self._add_row(grid, r, row)
+                r += 1
+            if spec.paired:
+                line = QFrame(body)
+                line.setFrameShape(QFrame.Shape.HLine)
+                line.setStyleSheet("QFrame { color: #3a3c40; }")
+                grid.addWidget(line, r, 0, 1, 5)
+                r += 1
+        jaw_tip = ("<b>Jaw opening</b><br>Rotates the lower lip and chin about an axis behind the ears "
+                   f"(thesis C §3.4).<br>Range {jaw_lo:g}° to {jaw_hi:g}°")
+        name = QLabel("Jaw opening", body)
+        name.setObjectName("muscleName_jaw")
+        name.setToolTip(jaw_tip)
+        self.name_labels["jaw"] = name
+        grid.addWidget(name, r, 0)
+        self._add_row(grid, r, ControlRow(JAW, jaw_lo, jaw_hi, "°", jaw_tip, body))
+        r += 1
+        grid.setRowStretch(r, 1)
+        grid.setColumnStretch(2, 1)
+        # One width for the name column (long names wrap onto the pair's two lines) and the spins.
+        metrics = name.fontMetrics()
+        grid.setColumnMinimumWidth(0, metrics.horizontalAdvance("Levator labii sup. ") + 4)
+        for label in self.name_labels.values():
+            label.setMaximumWidth(metrics.horizontalAdvance("Levator labii sup. alaeque") + 4)
+        spin_w = max(row.spin.sizeHint().width() for row in self.rows.values())
+        for row in self.rows.values():
+            row.spin.setFixedWidth(spin_w)
+        return body
+
+    def _add_row(self, grid: QGridLayout, r: int, row: ControlRow) -> None:
+        for c, w in enumerate(row.widgets(), start=1):
+            grid.addWidget(w, r, c)
+        row.edited.connect(self._row_edited)
+        row.reset_requested.connect(self.reset_control)
+        self.rows[row.key] = row
+
+    def _set_controls_enabled(self, enabled: bool) -> None:
+        for w in (self.preset_combo, self.apply_button, self.save_button, self.open_button, self.link_check,
+                  self.reset_all_button, self.animate_button, self.rest_button, self.show_check):
+            w.setEnabled(enabled)
+        self.stop_button.setEnabled(enabled and self._animating)
+        self.scroll.setEnabled(enabled)
+
+    # ============================================================ files
+    def _last_dir(self) -> str:
+        settings = getattr(self.window_, "settings", None)
+        if settings is None:
+            return str(Path.home())
+        return str(settings.value("muscles/lastDirectory", settings.value("lastDirectory", str(Path.home()))))
+
+    def _remember_dir(self, path: str) -> None:
+        settings = getattr(self.window_, "settings", None)
+        if settings is not None:
+            settings.setValue("muscles/lastDirectory", str(Path(path).parent))
+
+    def save_dialog(self) -> None:
+        if self.layer is None:
+            return
+        default = str(Path(self._last_dir()) / "forces.json")
+        path, _ = QFileDialog.getSaveFileName(self, "Save force set", default, FILE_FILTER)
+        if path:
+            if not Path(path).suffix:
+                path += ".json"
+            self._remember_dir(path)
+            self.save_force_file(path)
+
+    def open_dialog(self) -> None:
+        if self.layer is None:
+            return
+        path, _ = QFileDialog.getOpenFileName(self, "Open force set", self._last_dir(), FILE_FILTER)
+        if path:
+            self._remember_dir(path)
+            self.open_force_file(path)
+
+    def save_force_file(self, path) -> bool:
+        """Write the current forces and jaw to ``path`` (JSON); errors become a warning box."""
+        from core.muscles import ForceSet, save_force_set
+
+        layer = self.layer
+        if layer is None:
+            return False
+        force_set = ForceSet(dict(layer.forces()), jaw_deg=float(layer.jaw_deg), name=Path(path).stem)
+        try:
+            save_force_set(path, force_set)
+        except (OSError, ValueError) as exc:
+            QMessageBox.warning(self, f"Could not save {Path(path).name}", str(exc))
+            return False
+        self._status_bar(f"Saved the force set {path}", 5000)
+        return True
+
+    def open_force_file(self, path) -> bool:
+        """Load a force set from ``path`` and apply it; a bad file leaves the forces untouched."""
+        from core.muscles import ForceFileError, load_force_set
+
+        layer = self.layer
+        if layer is None:
+            return False
+        try:
+            force_set = load_force_set(path)
+        except (ForceFileError, OSError) as exc:
+            QMessageBox.warning(self, f"Could not open {Path(path).name}", str(exc))
+            return False
+        ok = self._edit(f"open force set {Path(path).name}", lambda: layer.apply(force_set))
+        if ok:
+            self._status_bar(f"Loaded the force set {Path(path).name}", 5000)
+        return ok
