@@ -40,7 +40,8 @@ from app.document import NO_RIG_MESSAGE
 
 from core.fap import tables
 from app.fap_rows import (  # noqa: F401 - re-exported
-    FapGroup, FapRow, _feature_point_descriptions, fap_tooltip, readable_name, row_label)
+    FapGroup, FapRow, _feature_point_descriptions, fap_tooltip, row_label)
+from core.fap.parameters import readable_name  # noqa: F401 - re-exported
 
 if TYPE_CHECKING:  # pragma: no cover
     from core.rig import FaceRig
