@@ -32,15 +32,13 @@ not see the user's edits halfway through.
 
 from __future__ import annotations
 
-import queue
-import threading
-import traceback
+import math
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import shiboken6
-from PySide6.QtCore import QObject, QSettings, Qt, QTimer, Signal, Slot
+from PySide6.QtCore import QSettings, Qt
 from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
@@ -61,21 +59,14 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from app.export import (
-    AUDIO_FORMATS,
-    STILL_FORMATS,
-    ExportCancelled,
-    ExportError,
-    ExportResult,
-    ExportSettings,
-    export_frame_times,
-    export_in_subprocess,
-)
+from app.export import AUDIO_FORMATS, STILL_FORMATS, ExportError, ExportResult, ExportSettings, export_frame_times
+from app.export_job import (  # noqa: F401 - re-exported
+    ExportJob)
+from app.export_job import (  # noqa: F401 - re-exported
+    PREFETCH)
 
 __all__ = ["ExportJob", "ExportDialog", "start_export", "run_export_dialog", "PREFETCH"]
 
-#: Frames the GUI-thread frame source may run ahead of the renderer.
-PREFETCH = 3
 #: (format, label, file-dialog filter) in menu order.
 FORMAT_CHOICES = (
     ("mp4", "MP4 video (H.264)", "MP4 video (*.mp4)"),
@@ -91,141 +82,6 @@ FPS_PRESETS = (24.0, 25.0, 30.0, 60.0)
 VIEW_CHOICES = (("current", "Current view"), ("front", "Front"), ("side", "Side"),
                 ("three-quarter", "Three-quarter"))
 MODE_CHOICES = (("textured", "Textured"), ("shaded", "Shaded"), ("wireframe", "Wireframe"), ("points", "Points"))
-#: Jobs still running (a job must outlive the function that started it).
-_RUNNING: set = set()
-
-
-# ------------------------------------------------------------------ job
-class ExportJob(QObject):
-    """One export in the background; create, connect, :meth:`start`.
-
-    Parameters
-    ----------
-    face : Face
-        The face (fixed topology) whose vertices animate.
-    frame_vertices : callable
-        ``frame_vertices(t) -> (n, 3)`` mm.
-    settings : ExportSettings
-    evaluate_in : "gui" or "worker"
-        Thread that calls ``frame_vertices`` (see the module docstring).
-    """
-
-    progress = Signal(int, int)  # frames done, total
-    finished = Signal(object)  # ExportResult
-    failed = Signal(str)  # user-facing message
-    cancelled = Signal()
-    _frames_wanted = Signal()
-
-    def __init__(self, face, frame_vertices: Callable[[float], np.ndarray], settings: ExportSettings, *,
-                 evaluate_in: str = "gui", parent: QObject | None = None):
-        super().__init__(parent)
-        if evaluate_in not in ("gui", "worker"):
-            raise ValueError(f"evaluate_in must be 'gui' or 'worker', got {evaluate_in!r}")
-        self.face = face
-        self.frame_vertices = frame_vertices
-        self.settings = settings
-        self.evaluate_in = evaluate_in
-        self.result: ExportResult | None = None
-        self.error: str | None = None
-        self._cancel = threading.Event()
-        self._done = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._queue: queue.Queue = queue.Queue(maxsize=PREFETCH)
-        self._times = np.zeros(0)
-        self._next = 0
-        self._frames_wanted.connect(self._pump, Qt.ConnectionType.QueuedConnection)
-
-    # ------------------------------------------------------------ control
-    def start(self) -> None:
-        """Start the export (returns at once). Bad settings are reported through ``failed``."""
-        if self._thread is not None:
-            raise RuntimeError("an ExportJob runs once; create a new one")
-        try:
-            self._times = export_frame_times(self.settings)
-        except ExportError as exc:
-            self.error = str(exc)
-            self._done.set()
-            QTimer.singleShot(0, lambda: self.failed.emit(self.error))
-            return
-        _RUNNING.add(self)
-        self._thread = threading.Thread(target=self._run, name="mimica-export", daemon=True)
-        self._thread.start()
-        if self.evaluate_in == "gui":
-            self._pump()
-
-    def cancel(self) -> None:
-        """Ask the export to stop; ``cancelled`` follows once the partial output is removed."""
-        self._cancel.set()
-
-    @property
-    def is_running(self) -> bool:
-        return self._thread is not None and not self._done.is_set()
-
-    @property
-    def is_cancelling(self) -> bool:
-        return self._cancel.is_set() and not self._done.is_set()
-
-    # ------------------------------------------------------------ GUI-thread frame source
-    @Slot()
-    def _pump(self) -> None:
-        """Compute the next frame's vertices (GUI thread) while the prefetch queue has room."""
-        if self._cancel.is_set() or self._done.is_set() or self._next >= len(self._times):
-            return
-        if self._queue.full():
-            return  # the worker asks again after taking a frame
-        t = float(self._times[self._next])
-        try:
-            item = np.array(self.frame_vertices(t), dtype=np.float64)
-        except Exception as exc:  # noqa: BLE001 - becomes the job's failure message
-            traceback.print_exc()
-            item = ExportError(f"The animation could not be computed at t = {t:.3f} s: {exc}")
-        self._queue.put(item)
-        self._next += 1
-        if not isinstance(item, Exception) and not self._queue.full():
-            QTimer.singleShot(0, self._pump)  # one frame per event-loop pass keeps the window live
-
-    def _take(self, t: float) -> np.ndarray:
-        """Worker side of the GUI-thread source: the next queued frame (in time order)."""
-        while True:
-            if self._cancel.is_set():
-                raise ExportCancelled()
-            try:
-                item = self._queue.get(timeout=0.05)
-                break
-            except queue.Empty:
-                continue
-        self._frames_wanted.emit()
-        if isinstance(item, Exception):
-            raise item
-        return item
-
-    # ------------------------------------------------------------ worker thread
-    def _run(self) -> None:
-        source = self._take if self.evaluate_in == "gui" else self.frame_vertices
-        try:
-            result = export_in_subprocess(self.face, source, self.settings,
-                                          progress=lambda done, total: self.progress.emit(done, total),
-                                          cancelled=self._cancel.is_set)
-        except ExportCancelled:
-            self._finish()
-            self.cancelled.emit()
-        except ExportError as exc:
-            self.error = str(exc)
-            self._finish()
-            self.failed.emit(self.error)
-        except Exception as exc:  # noqa: BLE001 - a bug; the user still gets a message
-            traceback.print_exc()
-            self.error = f"The export failed: {type(exc).__name__}: {exc}"
-            self._finish()
-            self.failed.emit(self.error)
-        else:
-            self.result = result
-            self._finish()
-            self.finished.emit(result)
-
-    def _finish(self) -> None:
-        self._done.set()
-        _RUNNING.discard(self)
 
 
 # ------------------------------------------------------------------ dialog
@@ -250,11 +106,14 @@ class ExportDialog(QDialog):
         Display mode preselected (the window's).
     camera : dict, optional
         The window's camera (:func:`app.export.camera_state`); adds "Current view".
+    content_end_s : float, optional
+        Where the animation's content ends (its last key, or the end of its speech): when it ends
+        before ``duration_s``, the range 0 – content end is preselected (still editable).
     """
 
     def __init__(self, parent: QWidget | None = None, *, duration_s: float, fps: float, default_path,
                  has_audio: bool = False, still: bool = False, current_time_s: float = 0.0,
-                 mode: str = "textured", camera: dict | None = None):
+                 mode: str = "textured", camera: dict | None = None, content_end_s: float | None = None):
         super().__init__(parent)
         self.setWindowTitle("Export still image" if still else "Export animation")
         self.duration_s = max(float(duration_s), 0.0)
@@ -314,6 +173,14 @@ class ExportDialog(QDialog):
         self.start_spin = self._time_spin(0.0)
         self.end_spin = self._time_spin(self.duration_s)
         self.whole_radio.setChecked(True)
+        frame = 1.0 / max(float(fps), 1.0)
+        if content_end_s is not None and 0.0 <= content_end_s < self.duration_s - frame:
+            # The animation ends early: export what there is (the end frame included), not seconds of
+            # a still face. The whole timeline stays one click away.
+            end = min(self.duration_s, math.ceil((float(content_end_s) + frame) / frame - 1e-9) * frame)
+            self.end_spin.setValue(max(end, frame))
+            self.part_radio.setChecked(True)
+            self.part_radio.setToolTip(f"The animation's last key is at {content_end_s:.2f} s")
         range_box = QVBoxLayout()
         range_box.addWidget(self.whole_radio)
         part_row = QHBoxLayout()
@@ -629,7 +496,7 @@ def start_export(parent: QWidget | None, face, frame_vertices: Callable[[float],
 
 def run_export_dialog(window, face, frame_vertices: Callable[[float], np.ndarray], duration_s: float, fps: float,
                       audio_path=None, *, still: bool = False, current_time_s: float = 0.0,
-                      evaluate_in: str = "gui") -> ExportJob | None:
+                      evaluate_in: str = "gui", content_end_s: float | None = None) -> ExportJob | None:
     """Ask what to export (:class:`ExportDialog`), then export it with progress (:func:`start_export`).
 
     ``window`` is the main window (its plotter gives "Current view" and its display mode is
@@ -655,7 +522,8 @@ def run_export_dialog(window, face, frame_vertices: Callable[[float], np.ndarray
     mode = getattr(window, "view_mode", "textured")
     dialog = ExportDialog(window, duration_s=duration_s, fps=fps, default_path=folder / name,
                           has_audio=audio_path is not None, still=still, current_time_s=current_time_s,
-                          mode=mode if isinstance(mode, str) else "textured", camera=camera)
+                          mode=mode if isinstance(mode, str) else "textured", camera=camera,
+                          content_end_s=content_end_s)
     try:
         if dialog.exec() != QDialog.DialogCode.Accepted:
             return None

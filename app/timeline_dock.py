@@ -395,7 +395,7 @@ def export_video(controller: TimelineController, *, still: bool = False):
     animation = controller.animation()
     return run_export_dialog(controller.window, controller.window.face, animation.vertices,
                              controller.timeline.duration, controller.timeline.fps, audio, still=still,
-                             current_time_s=controller.current_time)
+                             current_time_s=controller.current_time, content_end_s=controller.content_end(audio))
 
 
 def _export_fap_dialog(controller: TimelineController) -> None:

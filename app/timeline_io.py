@@ -140,6 +140,17 @@ class TimelineIO:
         self._audio_cache = None
         self.speech_changed.emit()
 
+    def content_end(self, audio_path: Path | None = None) -> float | None:
+        """Seconds where the animation's content ends: its last key, or the end of its speech
+        (``audio_path``'s length); None without keys or speech."""
+        ends = [float(track.times[-1]) for track in self.timeline.tracks.values() if len(track)]
+        if audio_path is not None:
+            import wave
+
+            with wave.open(str(audio_path), "rb") as w:
+                ends.append(w.getnframes() / float(w.getframerate()))
+        return max(ends) if ends else None
+
     def audio_path(self) -> Path | None:
         """A WAV with every speech clip at its start time, time 0 = timeline 0 (None without speech;
         ``core.animation.speech_wav``: written once per clip set)."""

@@ -381,7 +381,7 @@ def test_dialog_validates_and_builds_settings(qtbot, tmp_path):
 
 
 def test_run_export_dialog_from_the_window(qtbot, window, tmp_path, monkeypatch, error_boxes):
-    from app import export_dialog
+    from app import export_dialog, export_job
     from app.export_dialog import ExportDialog, run_export_dialog
 
     face = window.face
@@ -405,7 +405,7 @@ def test_run_export_dialog_from_the_window(qtbot, window, tmp_path, monkeypatch,
         pass
     assert imageio_ffmpeg.count_frames_and_secs(str(out / "from_window.mp4"))[0] == 12
     qtbot.waitUntil(lambda: "from_window.mp4" in window.statusBar().currentMessage(), timeout=5000)
-    assert not error_boxes and not export_dialog._RUNNING
+    assert not error_boxes and not export_job._RUNNING
 
     def refuse(dialog):
         dialog.path_edit.setText(str(tmp_path / "nope" / "x.mp4"))
@@ -426,3 +426,23 @@ def test_run_export_dialog_from_the_window(qtbot, window, tmp_path, monkeypatch,
     qtbot.waitUntil(lambda: bool(error_boxes), timeout=5000)
     assert error_boxes[-1][0] == "Export failed" and "rig exploded" in error_boxes[-1][1]
     assert leftovers(out) == ["from_window.mp4"]  # the failed export left nothing, the good one stays
+
+
+def test_dialog_defaults_to_where_the_animation_ends(qtbot, tmp_path):
+    """An animation whose last key is at 2.3 s on a 10 s timeline: the range 0 – 2.3 s (the last frame
+    included) is preselected; the whole timeline is one click away; no content end keeps 'whole'."""
+    from app.export_dialog import ExportDialog
+
+    dialog = ExportDialog(None, duration_s=10.0, fps=30, default_path=tmp_path / "take.mp4", content_end_s=2.3)
+    qtbot.addWidget(dialog)
+    assert dialog.part_radio.isChecked()
+    start, end = dialog.range_s()
+    assert start == 0.0 and end == pytest.approx(2.3 + 1 / 30, abs=1e-3)   # the box shows ms
+    dialog.whole_radio.setChecked(True)
+    assert dialog.range_s() == (0.0, 10.0)
+    plain = ExportDialog(None, duration_s=10.0, fps=30, default_path=tmp_path / "take.mp4", content_end_s=None)
+    qtbot.addWidget(plain)
+    assert plain.whole_radio.isChecked() and plain.range_s() == (0.0, 10.0)
+    filled = ExportDialog(None, duration_s=10.0, fps=30, default_path=tmp_path / "take.mp4", content_end_s=10.0)
+    qtbot.addWidget(filled)
+    assert filled.whole_radio.isChecked()
