@@ -48,20 +48,28 @@ class Job(QRunnable):
 
     def progress(self, fraction: float | None = None, message: str = "") -> None:
         if not self.cancelled():
-            self.signals.progress.emit(self.generation, None if fraction is None else float(fraction), str(message))
+            self._emit(self.signals.progress, self.generation, None if fraction is None else float(fraction),
+                       str(message))
 
     def run(self) -> None:  # worker thread
         try:
             result = self.work(self)
         except Exception as exc:  # noqa: BLE001 - every failure becomes a message
             if isinstance(exc, self._user_errors):   # input errors speak to the user
-                self.signals.failed.emit(self.generation, str(exc))
+                self._emit(self.signals.failed, self.generation, str(exc))
                 return
             traceback.print_exc()
-            self.signals.failed.emit(self.generation, f"Unexpected error: {type(exc).__name__}: {exc}")
+            self._emit(self.signals.failed, self.generation, f"Unexpected error: {type(exc).__name__}: {exc}")
             return
         if not self.cancelled():
-            self.signals.done.emit(self.generation, result)
+            self._emit(self.signals.done, self.generation, result)
+
+    @staticmethod
+    def _emit(signal, *args) -> None:
+        try:
+            signal.emit(*args)
+        except RuntimeError:  # the runner (and its window) went away while the job ran
+            pass
 
 
 class JobRunner(QObject):

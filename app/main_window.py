@@ -561,6 +561,8 @@ def run_gui(face_path: str | None = None, argv: list[str] | None = None, *, demo
     hook = install_excepthook()
     window = MainWindow(path=face_path) if face_path else MainWindow()
     hook.parent = window
+    if window.document.project is not None:
+        window.document.project.ask_on_close = True   # unsaved changes: Save / Discard / Cancel on close
     if demo:
         def start_demo(ok: bool) -> None:
             window.load_finished.disconnect(start_demo)

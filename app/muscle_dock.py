@@ -296,8 +296,10 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
         return self.layer is None and self.message_label.text() == BUILDING_MESSAGE
 
     def shutdown(self) -> None:
-        """Stop timers and ignore running builds (the window is closing)."""
+        """Stop timers and drop running builds (the window is closing). A build still running is
+        waited for: a worker must not outlive the window (nor the interpreter) it reports to."""
         self._builds.cancel()
+        self._builds.wait(10_000)
         self.stop(relax=False)
         self._relax_timer.stop()
         if self.view is not None:

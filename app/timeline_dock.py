@@ -363,6 +363,7 @@ def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, auto
                              autosave_ms=AUTOSAVE_MS if autosave_ms is None else autosave_ms)
     c.project = project
     window.timeline = controller
+    window.document.timeline, window.document.project = controller, project
     if check_recovery:
         project.check_startup_recovery_when_ready()
     return controller

@@ -282,3 +282,40 @@ def test_closing_with_unsaved_work_autosaves_instead_of_blocking(qtbot, qapp, de
     assert not answers.calls and target.is_file()
     assert cp.load_project(target).timeline.track("fap:3").values.tolist() == [300.0]
     w.deleteLater()
+
+
+def test_closing_with_unsaved_changes_asks_save_discard_cancel(qtbot, settings, error_boxes, default_face, deformer,
+                                                              tmp_path, monkeypatch):
+    """As the window run by `mimica` does (ask_on_close): a modified project asks before closing;
+    Cancel keeps the window and the work, Discard closes; an unmodified one closes without asking."""
+    from PySide6.QtWidgets import QMessageBox
+
+    from app.main_window import MainWindow
+    from core.rig import FaceRig
+
+    answers, asked = [QMessageBox.StandardButton.Cancel, QMessageBox.StandardButton.Discard], []
+
+    def question(parent, title, text, *args, **kwargs):
+        asked.append(text)
+        return answers.pop(0)
+
+    monkeypatch.setattr(QMessageBox, "question", question)
+    w = MainWindow(settings=settings, load_default=False)
+    qtbot.addWidget(w)
+    w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
+    w.show()
+    project = w.document.project
+    project.ask_on_close = True
+    w.rig.set_values({"fap:3": 200.0})
+    c = w.timeline
+    c.set_key(["fap:3"])
+    assert project.is_modified
+    assert not w.close()                       # Cancel: still open, nothing lost
+    assert w.isVisible() and "fap:3" in c.timeline.tracks and "before closing" in asked[0]
+    assert w.close()                           # Discard
+    assert len(asked) == 2
+    clean = MainWindow(settings=settings, load_default=False)
+    qtbot.addWidget(clean)
+    clean.document.project.ask_on_close = True
+    clean.show()
+    assert clean.close() and len(asked) == 2   # nothing to save: no question
