@@ -505,21 +505,21 @@ def run_export_dialog(window, face, frame_vertices: Callable[[float], np.ndarray
     """
     from app.export import camera_state
 
-    plotter = getattr(window, "plotter", None)
+    plotter = window.plotter
     camera = None
     if plotter is not None:
         try:
             camera = camera_state(plotter)
         except Exception:  # noqa: BLE001 - a closed viewport: presets only
             camera = None
-    settings_store = getattr(window, "settings", None)
+    settings_store = window.settings
     if not isinstance(settings_store, QSettings):
         settings_store = None
     folder = Path.home()
     if settings_store is not None:
         folder = Path(str(settings_store.value("exportDirectory", settings_store.value("lastDirectory", folder))))
     name = "mimica_still.png" if still else "mimica.mp4"
-    mode = getattr(window, "view_mode", "textured")
+    mode = window.view_mode
     dialog = ExportDialog(window, duration_s=duration_s, fps=fps, default_path=folder / name,
                           has_audio=audio_path is not None, still=still, current_time_s=current_time_s,
                           mode=mode if isinstance(mode, str) else "textured", camera=camera,

@@ -287,7 +287,7 @@ def attach_landmark_editor(window) -> LandmarkEditor:
 
     dock = LandmarkDock(window)
     window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, dock)
-    fap_dock = getattr(window, "fap_dock", None)
+    fap_dock = window.fap_dock
     if fap_dock is not None:
         window.tabifyDockWidget(fap_dock, dock)
 
@@ -306,7 +306,7 @@ def attach_landmark_editor(window) -> LandmarkEditor:
     toggle.setShortcut(QKeySequence("Ctrl+Shift+L"))
     toggle.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
     window.addAction(toggle)
-    view_menu = getattr(window, "view_menu", None)
+    view_menu = window.view_menu
     if view_menu is not None:
         view_menu.addAction(toggle)
         landmark_menu = view_menu.addMenu("Landmark &editing")
@@ -315,13 +315,13 @@ def attach_landmark_editor(window) -> LandmarkEditor:
     window.landmark_dock_action = toggle
 
     def hide_scene_landmarks() -> None:
-        actor = getattr(window, "face_actor", None)
+        actor = window.face_actor
         if actor is not None and editor.active and actor.landmarks_visible:
             actor.set_landmarks_visible(False)
 
     def show_scene_landmarks() -> None:
-        actor = getattr(window, "face_actor", None)
-        action = getattr(window, "landmarks_action", None)
+        actor = window.face_actor
+        action = window.landmarks_action
         if actor is not None:
             actor.set_landmarks_visible(action is not None and action.isChecked())
             # The scene's markers were placed before the edits: re-place them from the face.
@@ -336,24 +336,24 @@ def attach_landmark_editor(window) -> LandmarkEditor:
         editor.request_render()
 
     def on_face(face) -> None:
-        editor.set_face(face, getattr(window, "face_actor", None))
+        editor.set_face(face, window.face_actor)
         hide_scene_landmarks()
-        if getattr(window, "rig", None) is None and face is not None:
+        if window.document.rig is None and face is not None:
             dock.raise_()  # nothing to animate: correcting landmarks is what this face needs
 
     dock.visibilityChanged.connect(on_visibility)
     window.face_changed.connect(on_face)
-    landmarks_action = getattr(window, "landmarks_action", None)
+    landmarks_action = window.landmarks_action
     if landmarks_action is not None:
         landmarks_action.toggled.connect(lambda _on: hide_scene_landmarks())
-    if getattr(window, "face", None) is not None:
-        editor.set_face(window.face, getattr(window, "face_actor", None))
+    if window.document.face is not None:
+        editor.set_face(window.face, window.face_actor)
     editor.set_active(False)
 
     def initial_tab() -> None:
         # After the layout exists (a tab raised earlier is ignored): FAPs for an animatable face,
         # the landmarks for a face that cannot be animated yet.
-        no_rig = getattr(window, "face", None) is not None and getattr(window, "rig", None) is None
+        no_rig = window.document.face is not None and window.document.rig is None
         (dock if no_rig or fap_dock is None else fap_dock).raise_()
         on_visibility(_dock_showing(dock))
 

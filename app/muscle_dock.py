@@ -206,7 +206,7 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
                 pass
 
     def _make_view(self) -> None:
-        plotter = getattr(self.window_, "plotter", None)
+        plotter = (self.window_.plotter if self.window_ is not None else None)
         layer = self.layer
         triangles = getattr(getattr(layer, "model", None), "triangles", None)
         if plotter is None or layer is None or triangles is None:
@@ -366,10 +366,10 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
 
     def _render(self) -> None:
         window = self.window_
-        plotter = getattr(window, "plotter", None)
+        plotter = window.plotter
         if plotter is None or getattr(plotter, "_closed", False) or not plotter.isVisible():
             return
-        alive = getattr(window, "_viewport_alive", None)
+        alive = window._viewport_alive
         if callable(alive) and not alive():
             return
         plotter.render()
@@ -527,7 +527,7 @@ def attach_muscle_dock(window, *, level: int = 3) -> MuscleDock:
     """
     dock = MuscleDock(window, level=level)
     window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, dock)
-    fap_dock = getattr(window, "fap_dock", None)
+    fap_dock = window.fap_dock
     if fap_dock is not None:
         window.tabifyDockWidget(fap_dock, dock)
         fap_dock.raise_()
@@ -537,14 +537,14 @@ def attach_muscle_dock(window, *, level: int = 3) -> MuscleDock:
     toggle.setShortcut(QKeySequence("Ctrl+Shift+M"))
     toggle.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
     window.addAction(toggle)
-    view_menu = getattr(window, "view_menu", None)
+    view_menu = window.view_menu
     if view_menu is not None:
         view_menu.addAction(toggle)
     window.muscle_dock = dock
     window.muscle_dock_action = toggle
     dock._close_watcher = _CloseWatcher(dock, window)  # noqa: SLF001
     window.face_changed.connect(lambda _face: dock.build_for_window())
-    if getattr(window, "face", None) is not None:
+    if window.document.face is not None:
         dock.build_for_window()
     return dock
 

@@ -263,13 +263,13 @@ class MuscleDockLayout:
 
     # ============================================================ files
     def _last_dir(self) -> str:
-        settings = getattr(self.window_, "settings", None)
+        settings = (self.window_.settings if self.window_ is not None else None)
         if settings is None:
             return str(Path.home())
         return str(settings.value("muscles/lastDirectory", settings.value("lastDirectory", str(Path.home()))))
 
     def _remember_dir(self, path: str) -> None:
-        settings = getattr(self.window_, "settings", None)
+        settings = (self.window_.settings if self.window_ is not None else None)
         if settings is not None:
             settings.setValue("muscles/lastDirectory", str(Path(path).parent))
 

@@ -36,7 +36,7 @@ class MuscleSimulationMixin:
 
     def relax_budget(self) -> float:
         """Seconds for the next ``layer.relax`` call (see the module docstring)."""
-        last = getattr(self.window_, "last_tick_ms", None)
+        last = (self.window_.last_tick_ms if self.window_ is not None else None)
         if not last:
             return RELAX_BUDGET_S
         redraw_s = sum(last) / 1000.0

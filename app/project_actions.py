@@ -52,7 +52,7 @@ _UNTITLED = itertools.count(1)
 
 
 def default_state_dir(window) -> Path:
-    settings = getattr(window, "settings", None)
+    settings = window.settings
     if isinstance(settings, QSettings) and settings.fileName():
         return Path(settings.fileName()).resolve().parent / "autosave"
     return cp.default_state_dir()
@@ -92,7 +92,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         self._pending: tuple | None = None
         self._pending_values: dict[str, float] = {}  # opened values of layers not built yet
         self._closed = False
-        self._had_face = getattr(window, "face", None) is not None
+        self._had_face = window.document.face is not None
 
         self._create_actions()
         self.stack.cleanChanged.connect(self._on_stack_changed)
@@ -166,7 +166,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         # The first face of a session (the start-up load) is not an edit; replacing it is.
         if not self._applying_face and self._had_face:
             self._dirty = True
-        self._had_face = getattr(self.window, "face", None) is not None
+        self._had_face = self.window.document.face is not None
         self.update_title()
 
     def _mark_clean(self) -> None:
@@ -182,7 +182,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             return cp.FaceRef.default_face()
         if self._face_ref is not None and self._face_ref[0] == id(face) and Path(self._face_ref[1].path).is_file():
             return self._face_ref[1]
-        source = getattr(self.window, "face_path", None)
+        source = self.window.document.face_path
         if source and Path(source).is_file():
             ref = cp.FaceRef.for_file(source)
         else:
@@ -329,7 +329,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             same = getattr(face.metadata, "source", None) == "built-in"
         else:
             known = self._face_ref[1] if self._face_ref is not None and self._face_ref[0] == id(face) else None
-            shown = getattr(self.window, "face_path", None)
+            shown = self.window.document.face_path
             same = ((known is not None and known.path is not None and Path(known.path) == Path(ref.path)
                      and known.sha256 == ref.sha256)
                     or (shown is not None and Path(shown).is_file() and Path(shown).resolve() == Path(ref.path)
@@ -347,7 +347,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         self._generation += 1
         generation = self._generation
         self._pending = (project, path, dirty, offer_recovery)
-        status = getattr(self.window, "statusBar", None)
+        status = self.window.statusBar
         if status is not None:
             self.window.statusBar().showMessage("Opening the project: loading its face and preparing the rig…")
         relay = self._relay
@@ -493,7 +493,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             self.window.settings.setValue("projectDirectory", str(path.resolve().parent))
         self._mark_clean()
         self._autosaved = None
-        status = getattr(self.window, "statusBar", None)
+        status = self.window.statusBar
         if status is not None:
             self.window.statusBar().showMessage(f"Saved {path}", 5000)
         return True
@@ -530,7 +530,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         return False
 
     def _warn(self, title: str, message: str) -> None:
-        status = getattr(self.window, "statusBar", None)
+        status = self.window.statusBar
         if status is not None:
             first = message.splitlines()[0] if message else title
             self.window.statusBar().showMessage(first[:140], 8000)

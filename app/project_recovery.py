@@ -56,7 +56,7 @@ class ProjectRecoveryMixin:
         except Exception as exc:  # noqa: BLE001 - an autosave must never take the session down
             if not isinstance(exc, (cp.ProjectError, OSError)):
                 traceback.print_exc()
-            status = getattr(self.window, "statusBar", None)
+            status = self.window.statusBar
             if status is not None:
                 self.window.statusBar().showMessage(f"Autosave failed: {exc}", 10000)
             return None

@@ -125,10 +125,10 @@ class TimelineController(TimelineIO, QObject):
         self._frame_stamps: collections.deque = collections.deque()
         self.achieved_fps = 0.0
         self.frames_shown = 0
-        face_changed = getattr(window, "face_changed", None)
+        face_changed = window.face_changed
         if face_changed is not None:
             face_changed.connect(self._on_face_changed)
-        self.set_rig(getattr(window, "rig", None))
+        self.set_rig(window.document.rig)
 
     # ------------------------------------------------------------ wiring
     @property
@@ -147,7 +147,7 @@ class TimelineController(TimelineIO, QObject):
             self.apply_time(self.current_time)
 
     def _on_face_changed(self, _face=None) -> None:
-        self.set_rig(getattr(self.window, "rig", None))
+        self.set_rig(self.window.document.rig)
 
     def set_timeline(self, timeline: Timeline, *, time: float = 0.0) -> None:
         """Replace the timeline (new / opened project): stops playback, clears selections."""
@@ -166,7 +166,7 @@ class TimelineController(TimelineIO, QObject):
 
     def _rig_recorder(self):
         """The window's UndoableRigEdits (None if it has none)."""
-        rec = getattr(self.window, "rig_edits", None)
+        rec = self.window.document.rig_edits
         if rec is not None:
             return rec
         try:

@@ -290,7 +290,7 @@ def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, auto
     dock.raise_()
     window.resizeDocks([dock], [300], Qt.Orientation.Vertical)
 
-    status = getattr(window, "statusBar", None)
+    status = window.statusBar
     if status is not None:
         controller.message.connect(lambda text: window.statusBar().showMessage(text, 8000))
 
@@ -324,7 +324,7 @@ def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, auto
     for name in ("set_key", "auto_key", "copy_keys", "paste_keys", "delete_keys", "select_all_keys"):
         edit.addAction(acts[name])
 
-    view = getattr(window, "view_menu", None) or _menu(window, "&View")
+    view = window.view_menu or _menu(window, "&View")
     toggle = dock.toggleViewAction()
     toggle.setText("&Timeline")
     toggle.setShortcut(QKeySequence("Ctrl+Shift+T"))
@@ -350,7 +350,7 @@ def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, auto
                                    "Render the timeline to MP4 (with speech), GIF, AVI or PNG images")
     acts["export_still"] = _action(window, "Export s&till…", lambda: export_video(c, still=True), None,
                                    "Render the face at the timeline's current time to PNG or JPEG")
-    anchor = getattr(window, "screenshot_action", None)
+    anchor = window.screenshot_action
     for name in ("import_animation", "export_fap", "export_video", "export_still"):
         if anchor is not None and anchor in file_menu.actions():
             file_menu.insertAction(anchor, acts[name])
