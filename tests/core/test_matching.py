@@ -105,7 +105,8 @@ def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
     """A depth raster with a rectangular opening (rows 35-50, cols 25-55, 20 mm deep): the upper
     inner-lip points land on row 34, the lower ones on row 51, spread between the opening's ends;
     a closed mouth (no opening) leaves them alone."""
-    from core.registration.matching import FrontalRaster, _mouth_opening_pass
+    from core.registration.matching import FrontalRaster
+    from core.registration.mouth_passes import _mouth_opening_pass
 
     tpl = get_template("a48")
     names = tpl.detected
@@ -145,7 +146,7 @@ def test_steep_points_are_the_lateral_sides(model):
 
 
 def test_lower_inner_lip_collapsed_on_the_outer_lip_goes_back_to_the_seam(model):
-    from core.registration.matching import _lip_order_pass
+    from core.registration.mouth_passes import _lip_order_pass
 
     tpl = get_template("a48")
     pos = template_positions(model, "a48")

@@ -1,0 +1,232 @@
+"""Mouth passes of the matcher: the lips kept in order top to bottom, the inner lip points of an
+open mouth found on the opening's depth step, the lower lip brought back to its seam."""
+
+from __future__ import annotations
+
+import numpy as np
+from .rasters import FrontalRaster
+
+
+def _lip_order_pass(template, search, out, peak, model_px, skip):
+    """A lower inner-lip point found on (or below) the lower outer lip goes back above it.
+
+    On a pressed, closed mouth there is no opening and the lower-lip patch fits the lower outer
+    lip's edge as well; the inner point then collapses onto the outer one. The inner point is kept
+    at least half the model's inner-to-outer lip height above the outer point, at the model's
+    offset below the upper outer lip (the lips touch: it is the seam)."""
+    base = template.base
+    names = template.detected
+    loop = [template.index(n) for n in base.mouth if n in names]
+    if len(loop) < 4:
+        return
+    corners = {loop[0], loop[len(loop) // 2]}
+    upper = {template.index(n) for n in base.upper_lip_points if n in names}
+    lower = {template.index(n) for n in base.lower_lip_points if n in names}
+    lower_in = [i for i in loop if i not in corners and i not in upper]
+    upper_out = [i for i in upper if i not in loop and np.all(np.isfinite(out[i]))]
+    lower_out = [i for i in lower if i not in loop and np.all(np.isfinite(out[i]))]
+    if not upper_out or not lower_out:
+        return
+    for k in lower_in:
+        if skip[k] or not np.all(np.isfinite(out[k])):
+            continue
+        o = min(lower_out, key=lambda i: abs(model_px[i, 0] - model_px[k, 0]))
+        u = min(upper_out, key=lambda i: abs(model_px[i, 0] - model_px[k, 0]))
+        gap = model_px[o, 1] - model_px[k, 1]        # rows grow downwards
+        if gap <= 1 or out[k, 1] <= out[o, 1] - 0.5 * gap:
+            continue
+        row = min(out[u, 1] + (model_px[k, 1] - model_px[u, 1]), out[o, 1] - 0.5 * gap)
+        hit = search.nearest_covered((out[k, 0], row))
+        if np.all(np.isfinite(hit)):
+            out[k], peak[k] = hit, 0.0
+
+
+OPENING_STEP_MM = 3.0     # a depth step this large between neighbouring pixel rows is an occluding edge
+
+
+OPENING_MIN_MM = 1.5      # a mouth opening narrower than this is treated as closed
+
+
+HOLE_MM = 3.0             # uncovered rows this tall between two lip rows: an unscanned opening
+
+
+def _mouth_opening_pass(template, raster: FrontalRaster, out, peak, model_px, scale, skip, search=None):
+    """Inner-lip points put on the edges of the mouth opening, when the scan shows one.
+
+    Seen from the front an open mouth is an occluding edge: along a vertical line through the mouth
+    the surface steps back by several mm (lip -> teeth or mouth cavity) or ends (a hole) just below
+    the upper lip, and steps forward again just above the lower lip. The patch search alone
+    confuses the lips (the lower-lip patch also fits the upper lip); the depth profile does not.
+
+    - columns: each inner-lip point keeps the model's horizontal fraction between the two mouth
+      corners (the corners are found reliably; the patch search drifts along the lip);
+    - rows: the column is scanned downwards from the philtrum (half-way between the bottom of the
+      nose 9.15 and the model's upper lip, shifted with the nose) -- the first step back is the
+      upper lip's inner edge -- and upwards from the chin (``JAW_POINTS``) -- the first step back
+      seen from below is the lower lip's inner edge. The order upper outer > upper inner >
+      opening > lower inner > lower outer follows by construction; outer-lip points found on the
+      wrong side of the opening are searched again (patch search) on their own side.
+
+    With no step in a column, or an opening narrower than ``OPENING_MIN_MM`` (closed mouth), the
+    points keep their patch-search estimates."""
+    depth = raster.depth
+    if depth is None:
+        return
+    base = template.base
+    names = template.detected
+    if not all(n in names for n in base.mouth) or NOSE_BOTTOM not in names:
+        return
+    ok = lambda i: bool(np.all(np.isfinite(out[i])))   # noqa: E731
+    loop = [template.index(n) for n in base.mouth]
+    c0, c1 = loop[0], loop[len(loop) // 2]                  # the two corners
+    jaw = [template.index(n) for n in JAW_POINTS if n in names and ok(template.index(n))]
+    nose = template.index(NOSE_BOTTOM)
+    if not (ok(c0) and ok(c1) and ok(nose) and jaw):
+        return
+    upper_set = {template.index(n) for n in base.upper_lip_points if n in names}
+    upper_in = [i for i in loop if i not in (c0, c1) and i in upper_set]
+    lower_in = [i for i in loop if i not in (c0, c1) and i not in upper_set]
+    upper_out = [i for i in upper_set if i not in loop]
+    lower_out = [template.index(n) for n in base.lower_lip_points if n in names and template.index(n) not in loop]
+    px = raster.pixel
+    Hh, W = depth.shape
+    mid_model = np.mean([model_px[i, 1] for i in upper_in])
+    top = int(round(out[nose, 1] + 0.5 * (mid_model - model_px[nose, 1])))
+    bottom = int(round(np.median([out[i, 1] for i in jaw])))   # the chin, below the lower lip
+    top, bottom = max(top, 0), min(bottom, Hh - 1)
+    if bottom - top < 4:
+        return
+    span_model = model_px[c1, 0] - model_px[c0, 0]
+    if abs(span_model) < 1:
+        return
+    def opening_edges(c):
+        """(last row above, first row below) the opening in column c (absolute rows), or None."""
+        if not 0 <= c < W:
+            return None
+        zcol = depth[top:bottom + 1, c]
+        rows = np.nonzero(np.isfinite(zcol))[0]
+        if len(rows) < 2:
+            return None
+        z = zcol[rows]
+        a, b = rows[:-1], rows[1:]               # consecutive covered rows (a above b)
+        hole = (b - a - 1) * px >= HOLE_MM       # a hole in the scan (open mouth not scanned)
+        back_down = a[(z[1:] < z[:-1] - OPENING_STEP_MM) | hole]   # last rows before a step back
+        back_up = b[(z[:-1] < z[1:] - OPENING_STEP_MM) | hole]     # first rows after a step forward
+        if not len(back_down) or not len(back_up):
+            return None
+        r_up, r_lo = int(back_down[0]), int(back_up[-1])
+        if (r_lo - r_up - 1) * px < OPENING_MIN_MM:
+            return None
+        return top + r_up, top + r_lo
+
+    # The opening's horizontal extent (through its middle) stands for the corners when found: the
+    # corner points sit on the outer lip contour and drift outwards when the mouth rounds.
+    ends = (out[c0, 0], out[c1, 0])
+    c_mid = int(round((out[c0, 0] + out[c1, 0]) / 2))
+    mid = opening_edges(c_mid)
+    if mid is not None:
+        row = (mid[0] + mid[1]) // 2
+        cols = np.nonzero(np.isfinite(depth[row]))[0]
+        z = depth[row, cols]
+        fwd_right = cols[1:][(z[1:] > z[:-1] + OPENING_STEP_MM) & (cols[1:] > c_mid)]   # lip in front, right
+        fwd_left = cols[:-1][(z[:-1] > z[1:] + OPENING_STEP_MM) & (cols[:-1] < c_mid)]
+        if len(fwd_right) and len(fwd_left):
+            lo_c, hi_c = int(fwd_left[-1]), int(fwd_right[0])
+            width = abs(out[c1, 0] - out[c0, 0])
+            if 0.3 * width <= hi_c - lo_c <= 1.2 * width:
+                ends = (lo_c, hi_c) if out[c0, 0] < out[c1, 0] else (hi_c, lo_c)
+    edges = {}
+    for k in upper_in + lower_in:
+        if skip[k]:
+            continue
+        frac = (model_px[k, 0] - model_px[c0, 0]) / span_model
+        c = int(round(ends[0] + frac * (ends[1] - ends[0])))
+        found = opening_edges(c)
+        if found is None:
+            continue
+        r_up, r_lo = found
+        edges[k] = (c, r_up, r_lo)
+        out[k] = (float(c), float(r_up if k in upper_in else r_lo))
+        peak[k] = max(peak[k], 0.5)
+    if search is None or not edges:
+        return
+    # The jaw below the lower lip: a chin point found less than half its model distance below the
+    # lower lip's inner edge (the patch search latched onto the lip) is searched again lower down.
+    if mid is not None:
+        lower_mid = min(lower_in, key=lambda i: abs(model_px[i, 0] - model_px[c0, 0] - span_model / 2))
+        for k in [template.index(n) for n in JAW_POINTS if n in names]:
+            if skip[k] or not ok(k):
+                continue
+            gap = model_px[k, 1] - model_px[lower_mid, 1]
+            if gap <= 0 or out[k, 1] >= mid[1] + 0.5 * gap:
+                continue
+            lo_row, hi_row = mid[1] + 0.5 * gap, mid[1] + 1.2 * gap
+            best, val = search.search(k, (out[k, 0], (lo_row + hi_row) / 2), max(2, int(round(0.05 * scale / px))),
+                                      int(np.ceil((hi_row - lo_row) / 2)), pull_px=(out[k, 0], (lo_row + hi_row) / 2))
+            if best is not None and lo_row <= best[1] <= hi_row:
+                out[k], peak[k] = best, val
+            else:
+                out[k] = search.nearest_covered((out[k, 0], (lo_row + hi_row) / 2))
+    # Outer-lip points on the wrong side of the opening: search again on their own side.
+    r = max(2, int(round(0.05 * scale / px)))
+    for group, side in ((upper_out, "upper"), (lower_out, "lower")):
+        for k in group:
+            if skip[k] or not ok(k):
+                continue
+            near = min(edges, key=lambda i: abs(edges[i][0] - out[k, 0]))
+            c, r_up, r_lo = edges[near]
+            gap = abs(model_px[k, 1] - model_px[near, 1])           # the lip's height on the model
+            if side == "upper" and out[k, 1] >= r_up:
+                lo_row, hi_row, pred = top, r_up - 1, r_up - gap
+            elif side == "lower" and out[k, 1] <= r_lo:
+                lo_row, hi_row, pred = r_lo + 1, bottom, r_lo + gap
+            else:
+                continue
+            if hi_row - lo_row < 2:
+                continue
+            best, val = search.search(k, (out[k, 0], (lo_row + hi_row) / 2), r, int(np.ceil((hi_row - lo_row) / 2)),
+                                      pull_px=(out[k, 0], pred))
+            if best is not None and lo_row <= best[1] <= hi_row:
+                out[k], peak[k] = best, val
+            else:
+                out[k] = (out[k, 0], float(np.clip(pred, lo_row, hi_row)))
+
+
+JAW_POINTS = ("2.10", "2.1", "2.11", "2.12")
+
+
+NOSE_BOTTOM = "9.15"
+
+
+def _lower_lip_pass(template, search, out, peak, model_px, r, scale_px, skip):
+    """Lower-lip points searched below their upper-lip partner, pulled to where the jaw went.
+
+    An open mouth shows two lip bands; the lower-lip patches also fit the upper lip, and the
+    structure of the other mouth points does not tell which (they move together). The jaw
+    (chin points, found reliably) does: the lower lip moves down with it, by about 1-2x the chin's
+    displacement, and it is never above the upper lip."""
+    names = template.detected
+    jaw = [template.index(n) for n in JAW_POINTS if n in names and np.all(np.isfinite(out[template.index(n)]))]
+    upper = [template.index(n) for n in template.base.upper_lip_points if n in names]
+    lower = [template.index(n) for n in template.base.lower_lip_points if n in names]
+    if not jaw or not upper or not lower:
+        return
+    jaw_disp = np.median(out[jaw] - model_px[jaw], axis=0)
+    drop = max(float(jaw_disp[1]), 0.0)          # rows grow downwards
+    for k in sorted(lower, key=lambda i: model_px[i, 1]):   # inner lip first (higher up)
+        if skip[k]:
+            continue
+        u = min(upper, key=lambda i: abs(model_px[i, 0] - model_px[k, 0]) + 0.01 * abs(model_px[i, 1] - model_px[k, 1]))
+        if not np.all(np.isfinite(out[u])):
+            continue
+        top = float(out[u, 1]) + 1.0
+        above = [i for i in lower if i != k and model_px[i, 1] < model_px[k, 1] - 1
+                 and abs(model_px[i, 0] - model_px[k, 0]) < 0.05 * scale_px and np.all(np.isfinite(out[i]))]
+        if above:  # the outer lower lip is below the inner one
+            top = max(top, max(float(out[i, 1]) for i in above) + 1.0)
+        bottom = max(top + 1.0, model_px[k, 1] + 2.5 * drop + r)
+        pred = model_px[k] + np.array([jaw_disp[0], 1.5 * drop])
+        cx = model_px[k, 0] + jaw_disp[0]
+        best, val = search.search(k, (cx, (top + bottom) / 2), r, int(np.ceil((bottom - top) / 2)), pull_px=pred)
+        if best is not None:
+            out[k], peak[k] = best, val
