@@ -16,7 +16,7 @@ MUSCLE_GAP_S = 0.8
 
 def demo_timeline(speech_end_s: float):
     """(Timeline, speech start s) of the showcase; ``speech_end_s`` is when the lip-sync clip ends."""
-    from core.muscles import preset
+    from core.layers.muscles import preset
     from core.timeline import Timeline
 
     tracks: dict[str, list[tuple[float, float, str]]] = {}
@@ -43,7 +43,7 @@ def demo_project():
     """(default Face, Project) of the showcase, lip-sync included."""
     from core.default_face import load_default_face
     from core.lipsync import lipsync_tracks
-    from core.project import FaceRef, Project, SpeechClip
+    from core.formats.project import FaceRef, Project, SpeechClip
 
     speech = lipsync_tracks(SENTENCE, "en", start_s=SPEECH_START_S, blinks=True, seed=7)
     timeline = demo_timeline(speech.end_s)

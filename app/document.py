@@ -29,7 +29,7 @@ def build_rig(face) -> tuple[object | None, str]:
     Never raises: a face without the MPEG-4 feature points is a normal state (the user marks them
     later), and anything unexpected is reported on stderr.
     """
-    from core.fap.template import TemplateError
+    from core.layers.fap.template import TemplateError
 
     try:
         from core.rig import FaceRig

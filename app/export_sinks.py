@@ -261,7 +261,7 @@ def _commit(plan: _Plan, staging: Path) -> list[Path]:
             shutil.rmtree(staging, ignore_errors=True)
             return written
         target = plan.target
-        mode = target.stat().st_mode & 0o777 if target.exists() else 0o644  # as core.mesh_io.write_atomic
+        mode = target.stat().st_mode & 0o777 if target.exists() else 0o644  # as core.formats.mesh_io.write_atomic
         os.chmod(staging, mode)
         os.replace(staging, target)
         return [target]

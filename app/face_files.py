@@ -37,7 +37,7 @@ SCREENSHOT_FILTER = "PNG image (*.png);;JPEG image (*.jpg *.jpeg)"
 
 
 def _is_mesh_save_error(exc: BaseException) -> bool:
-    from core.mesh_io import MeshSaveError
+    from core.formats.mesh_io import MeshSaveError
 
     return isinstance(exc, MeshSaveError)
 
@@ -118,7 +118,7 @@ class FaceFilesMixin:
         path = str(path)
 
         def loader(progress):
-            from core.mesh_io import load_face
+            from core.formats.mesh_io import load_face
             from core.registration.correspondence import with_canonical_landmarks
 
             # A canonical face saved by Build correspondence or 'mimica register' gets its landmarks back.
@@ -227,7 +227,7 @@ class FaceFilesMixin:
         if self.face is None:
             return False
         try:
-            from core.mesh_io import save_face
+            from core.formats.mesh_io import save_face
 
             QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
             try:

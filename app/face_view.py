@@ -61,7 +61,7 @@ class FaceViewMixin:
                 actor.show_scalars(scalars, cmap="YlOrRd", clim=(0.0, _nice_ceiling(float(scalars.max()))),
                                    title="Displacement (mm)", fmt="%.1f")
             else:
-                from core.fap.tables import fap_spec
+                from core.layers.fap.tables import fap_spec
 
                 actor.show_scalars(scalars, cmap="PuBu", clim=(0.0, 1.0), title=f"FAP {number} influence",
                                    fmt="%.1f")

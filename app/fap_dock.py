@@ -38,10 +38,10 @@ from PySide6.QtWidgets import (
 
 from app.document import NO_RIG_MESSAGE
 
-from core.fap import tables
+from core.layers.fap import tables
 from app.fap_rows import (  # noqa: F401 - re-exported
     FapGroup, FapRow, _feature_point_descriptions, fap_tooltip, row_label)
-from core.fap.parameters import readable_name  # noqa: F401 - re-exported
+from core.layers.fap.parameters import readable_name  # noqa: F401 - re-exported
 
 if TYPE_CHECKING:  # pragma: no cover
     from core.rig import FaceRig
@@ -257,7 +257,7 @@ class FapDock(QDockWidget):
         """Drive ``rig`` (None: no animation for this face; ``message`` says why)."""
         if self.rig is not None:
             try:
-                self.rig.changed.disconnect(self._on_rig_changed)
+                self.rig.parameters_changed.disconnect(self._on_parameters_changed)
             except (ValueError, RuntimeError):
                 pass
         self.rig = rig
@@ -265,7 +265,9 @@ class FapDock(QDockWidget):
         self._clear_groups()
         if rig is not None:
             self._build_groups(rig)
-            rig.changed.connect(self._on_rig_changed)
+            # Only parameter changes move the widgets (a muscle settling step does not), and only the
+            # rows the change names.
+            rig.parameters_changed.connect(self._on_parameters_changed)
         enabled = rig is not None
         for w in (self.expression_combo, self.expression_slider, self.expression_spin, self.viseme_combo,
                   self.viseme_slider, self.viseme_spin, self.link_check, self.reset_all_button,
@@ -285,6 +287,33 @@ class FapDock(QDockWidget):
         self.message_label.setText(message)
         self.message_label.setVisible(bool(message))
 
+    def _on_parameters_changed(self, change) -> None:
+        """The rows of the FAPs in ``change`` and, when a preset changed, the preset boxes."""
+        rig = self.rig
+        if rig is None:
+            return
+        self._syncing = True
+        try:
+            presets = False
+            for key, value in change.values.items():
+                kind, _, ident = key.partition(":")
+                if kind == "fap":
+                    row = self.rows.get(int(ident))
+                    if row is not None and row.value != value:
+                        row.show_value(value)
+                elif kind in ("expression", "viseme"):
+                    presets = True
+            if presets:
+                self._show_presets()
+        finally:
+            self._syncing = False
+
+    def _show_presets(self) -> None:
+        eid, eint = self.rig.expression
+        self._show_preset(self.expression_combo, self.expression_slider, self.expression_spin, eid, eint)
+        vid, vint = self.rig.viseme
+        self._show_preset(self.viseme_combo, self.viseme_slider, self.viseme_spin, vid, vint)
+
     def _on_rig_changed(self, force: bool = False) -> None:
         """Every widget to the rig's values, emitting nothing (``force``: rows that think
         they already show the value too, e.g. after the rig refused an edit)."""
@@ -297,10 +326,7 @@ class FapDock(QDockWidget):
             for n, row in self.rows.items():
                 if force or row.value != values[n - 1]:
                     row.show_value(values[n - 1])
-            eid, eint = rig.expression
-            self._show_preset(self.expression_combo, self.expression_slider, self.expression_spin, eid, eint)
-            vid, vint = rig.viseme
-            self._show_preset(self.viseme_combo, self.viseme_slider, self.viseme_spin, vid, vint)
+            self._show_presets()
         finally:
             self._syncing = False
 

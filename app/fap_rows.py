@@ -10,11 +10,11 @@ from PySide6.QtCore import QEvent, QObject, QSignalBlocker, Qt, Signal
 from PySide6.QtWidgets import QFrame, QHBoxLayout, QLabel, QToolButton, QVBoxLayout, QWidget
 
 from app.parameter_row import ParameterControls
-from core.fap import tables
-from core.fap.parameters import fap_label as row_label
+from core.layers.fap import tables
+from core.layers.fap.parameters import fap_label as row_label
 
 if TYPE_CHECKING:  # pragma: no cover
-    from core.fap.tables import FapSpec
+    from core.layers.fap.tables import FapSpec
 
 #: Degrees per AU (1 AU = 1e-5 rad).
 DEG_PER_AU = math.degrees(tables.ANGLE_UNIT)

@@ -88,7 +88,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
 
         self._loading = False
         # Loads (a newer one wins) and other background work (detection) on separate runners.
-        from core.mesh_io import MeshLoadError
+        from core.formats.mesh_io import MeshLoadError
 
         self.loads = JobRunner(self, supersede=True, user_errors=(MeshLoadError,))
         self.jobs = JobRunner(self)
@@ -428,7 +428,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         import tempfile
 
         from app.demo import demo_project
-        from core.project import save_project
+        from core.formats.project import save_project
 
         _face, project = demo_project()
         path = Path(tempfile.mkdtemp(prefix="mimica-demo-")) / "demo.mimica"

@@ -1,7 +1,7 @@
 """muscle_dock.py
 ----
 The muscle dock (thesis C's interface): one slider per muscle *per side* and the jaw
-angle, driving a :class:`core.muscles.MuscleLayer` on the window's :class:`core.rig.FaceRig`.
+angle, driving a :class:`core.layers.muscles.MuscleLayer` on the window's :class:`core.rig.FaceRig`.
 
 * Rows: the 9 linear muscles as pairs (the name spans two lines, "left" and "right" below each
   other, so the two sides of a muscle sit together and every slider has the full width), then the
@@ -58,7 +58,7 @@ from app.muscle_simulation import (  # noqa: F401 - the tests tune these
     ANIMATION_INTERVAL_MS, ANIMATION_S, RELAX_BUDGET_S, MuscleSimulationMixin)
 
 if TYPE_CHECKING:  # pragma: no cover
-    from core.muscles import MuscleLayer
+    from core.layers.muscles import MuscleLayer
 
 BUILDING_MESSAGE = "Building the muscle model…"
 NO_FACE_MESSAGE = "No face loaded yet."
@@ -249,7 +249,7 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
         level, template = self.level, self._shared_template(rig)
 
         def build(job):
-            from core.muscles import MuscleLayer
+            from core.layers.muscles import MuscleLayer
 
             try:
                 return MuscleLayer(face, level=level, template_dense=template)
@@ -266,7 +266,7 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
         if dense is None:
             return None
         try:
-            from core.fap.template import load_template
+            from core.layers.fap.template import load_template
 
             return dense if self.level == len(load_template().steps) else None
         except Exception:  # noqa: BLE001 - an optimisation only
@@ -377,7 +377,7 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
     # ============================================================ widgets -> layer
     def state(self) -> tuple:
         """(forces in ``control_keys()`` order, jaw degrees): what an undo step restores."""
-        from core.muscles import control_keys
+        from core.layers.muscles import control_keys
 
         layer = self.layer
         if layer is None:
@@ -387,7 +387,7 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
 
     def _guarded(self, call) -> bool:
         """Run a layer call; bad values and a diverged solver become messages. Returns success."""
-        from core.muscles import SolverDiverged
+        from core.layers.muscles import SolverDiverged
 
         try:
             call()
@@ -463,8 +463,8 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
             self._edit("reset all muscles", layer.reset)
 
     def apply_preset(self, name: str | None) -> bool:
-        """Apply one of ``core.muscles.preset_names()`` (one undo step)."""
-        from core.muscles import preset
+        """Apply one of ``core.layers.muscles.preset_names()`` (one undo step)."""
+        from core.layers.muscles import preset
 
         layer = self.layer
         if layer is None or not name:
@@ -485,7 +485,7 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
 
     def rest(self) -> None:
         """Forces and jaw to 0, relaxing back with the dynamics (animated; see the module docstring)."""
-        from core.muscles import control_keys
+        from core.layers.muscles import control_keys
 
         layer = self.layer
         if layer is None:

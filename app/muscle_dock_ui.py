@@ -31,7 +31,7 @@ def _preset_title(name: str) -> str:
 
 def _force_unit_dyn() -> float | None:
     try:
-        from core.muscles.model import load_params
+        from core.layers.muscles.model import load_params
 
         return float(load_params().force_unit)
     except Exception:  # noqa: BLE001 - decorates a tooltip only
@@ -97,7 +97,7 @@ class MuscleDockLayout:
         self.setWidget(root)
 
     def _build_presets(self, parent: QWidget) -> QGroupBox:
-        from core.muscles import preset_names
+        from core.layers.muscles import preset_names
 
         box = QGroupBox("Force sets", parent)
         grid = QGridLayout(box)
@@ -182,10 +182,10 @@ class MuscleDockLayout:
         return w
 
     def _build_rows(self) -> QWidget:
-        from core.muscles import muscle_specs
+        from core.layers.muscles import muscle_specs
 
         try:
-            from core.muscles.muscles import jaw_range
+            from core.layers.muscles.muscles import jaw_range
 
             jaw_lo, jaw_hi = jaw_range()
         except Exception:  # noqa: BLE001 - the contract does not export it; thesis-like default
@@ -294,7 +294,7 @@ class MuscleDockLayout:
 
     def save_force_file(self, path) -> bool:
         """Write the current forces and jaw to ``path`` (JSON); errors become a warning box."""
-        from core.muscles import ForceSet, save_force_set
+        from core.layers.muscles import ForceSet, save_force_set
 
         layer = self.layer
         if layer is None:
@@ -310,7 +310,7 @@ class MuscleDockLayout:
 
     def open_force_file(self, path) -> bool:
         """Load a force set from ``path`` and apply it; a bad file leaves the forces untouched."""
-        from core.muscles import ForceFileError, load_force_set
+        from core.layers.muscles import ForceFileError, load_force_set
 
         layer = self.layer
         if layer is None:

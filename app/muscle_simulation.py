@@ -51,7 +51,7 @@ class MuscleSimulationMixin:
 
     @Slot()
     def _relax_tick(self) -> None:
-        from core.muscles import SolverDiverged
+        from core.layers.muscles import SolverDiverged
 
         layer = self.layer
         if layer is None or self._animating:
@@ -108,7 +108,7 @@ class MuscleSimulationMixin:
         self._play(from_rest=True)
 
     def _play(self, *, from_rest: bool) -> None:
-        from core.muscles import SolverDiverged
+        from core.layers.muscles import SolverDiverged
 
         layer = self.layer
         if layer is None:
@@ -134,7 +134,7 @@ class MuscleSimulationMixin:
 
     @Slot()
     def _anim_tick(self) -> None:
-        from core.muscles import SolverDiverged
+        from core.layers.muscles import SolverDiverged
 
         layer = self.layer
         if layer is None or not self._animating:

@@ -1,6 +1,6 @@
 """muscle_view.py
 ----
-The muscles of a :class:`core.muscles.MuscleLayer` drawn in the viewport: every linear muscle as
+The muscles of a :class:`core.layers.muscles.MuscleLayer` drawn in the viewport: every linear muscle as
 a thick line from its mobile end P (at the lips) to its fixed end R, and the orbicularis oris as
 its ring, coloured by activation (grey at 0 → red at the muscle's maximum force).
 
@@ -269,7 +269,7 @@ def layer_segments(layer) -> list[tuple]:
     segments = list(layer.muscle_segments())
     ring_fn = getattr(layer, "muscle_ring", None)
     if callable(ring_fn):
-        from core.muscles import control_keys
+        from core.layers.muscles import control_keys
 
         ring, act = ring_fn()
         ring = np.asarray(ring, float)

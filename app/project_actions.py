@@ -1,10 +1,10 @@
 """project_actions.py
 ----
-File ▸ New / Open… / Save / Save As… for Mimica projects (``.mimica``, :mod:`core.project`), the
+File ▸ New / Open… / Save / Save As… for Mimica projects (``.mimica``, :mod:`core.formats.project`), the
 window title, autosave and crash recovery.
 
 * A project is the face (the built-in default face is stored by name; a face from a file by its
-  path; a face that exists only in memory is written beside the project by ``core.project.embed_face``),
+  path; a face that exists only in memory is written beside the project by ``core.formats.project.embed_face``),
   its landmarks, the rig's values, the timeline, the speech clips and the view: camera
   (position, focal point, up, view angle), display mode, landmarks shown, FAP-dock overlays, and the
   timeline's cursor / loop / speed / "show all" / folded groups.
@@ -13,10 +13,10 @@ window title, autosave and crash recovery.
   is loaded and its rig built on a worker thread (seconds for a 50k-vertex face), then shown. The rig
   values are applied *after* the cursor is placed, so values the user set by hand on tracked
   parameters come back exactly as saved. A corrupt file, a file from a newer Mimica or a missing
-  face file shows ``core.project``'s message in a warning and leaves the open project untouched.
+  face file shows ``core.formats.project``'s message in a warning and leaves the open project untouched.
 * Modified = the undo stack is not at its clean index, or something not on the stack changed (a
   different face, a recovered autosave). The title is ``<project>[*] — <face> — Mimica``.
-* Autosave every 3 minutes (when modified since the last one) through ``core.project.write_autosave``:
+* Autosave every 3 minutes (when modified since the last one) through ``core.formats.project.write_autosave``:
   beside a saved project, or ``<state dir>/untitled-<pid>-<n>.mimica.autosave`` for an untitled one.
   Saving deletes the autosave. After opening a project whose autosave is newer, and at start-up for
   untitled autosaves left by a Mimica process that is no longer running, a question offers to
@@ -42,7 +42,7 @@ from PySide6.QtCore import QEvent, QObject, QSettings, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox
 
-from core import project as cp
+from core.formats import project as cp
 from core.timeline import Timeline
 from app.project_recovery import ProjectRecoveryMixin
 
@@ -191,7 +191,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         return ref
 
     def current_project(self, target: Path | None = None) -> cp.Project:
-        """The open project as a :class:`core.project.Project` (``target``: where it will be written)."""
+        """The open project as a :class:`core.formats.project.Project` (``target``: where it will be written)."""
         w = self.window
         if w.face is None:
             raise cp.ProjectError("there is no face to save yet; wait until it is loaded")
@@ -303,7 +303,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         return self.open_project(path)
 
     def open_project(self, path, *, ask: bool = True) -> bool:
-        """Open ``path``. Errors -> a warning with core.project's message; the open project stays.
+        """Open ``path``. Errors -> a warning with core.formats.project's message; the open project stays.
 
         Returns True when the project is open (False when refused, cancelled, or still loading its face
         in the background — ``project_opened`` is emitted when done).

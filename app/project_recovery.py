@@ -12,7 +12,7 @@ from pathlib import Path
 from PySide6.QtCore import QTimer
 from PySide6.QtWidgets import QMessageBox
 
-from core import project as cp
+from core.formats import project as cp
 
 
 def _pid_alive(pid: int) -> bool:

@@ -127,7 +127,7 @@ class ScanToolsMixin:
 
     def load_texture(self, path) -> None:
         """Map the image at ``path`` onto the current face (errors in a message box)."""
-        from core.mesh_io import MeshLoadError, load_texture_image
+        from core.formats.mesh_io import MeshLoadError, load_texture_image
 
         if self.face is None:
             return

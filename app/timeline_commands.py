@@ -35,7 +35,7 @@ def parameter_range(key: str, track: Track | None = None) -> tuple[float, float]
 
 def muscle_keys() -> tuple[str, ...]:
     """The muscle layer's 19 force keys, then ``jaw``."""
-    from core.muscles import control_keys
+    from core.layers.muscles import control_keys
 
     return tuple(P.key_of(k) for k in control_keys()) + ("jaw",)
 

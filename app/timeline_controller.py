@@ -27,7 +27,7 @@ commands are in :mod:`app.timeline_commands`, its imports, exports and speech in
   ``start + elapsed × speed`` from a ``QElapsedTimer``, snapped to the frame grid; frames that are
   late are dropped, never slowed down. ``fps_measured`` reports the frames actually shown per
   second. Speeds 0.25×–4×.
-* **Speech.** Lip-sync clips (:class:`core.project.SpeechClip`) live here with the timeline; their
+* **Speech.** Lip-sync clips (:class:`core.formats.project.SpeechClip`) live here with the timeline; their
   audio is mixed into one WAV aligned with timeline time 0 (:meth:`TimelineController.audio_path`),
   which is what video export wants. Audio is not played back in the app: this PySide6 build has no
   QtMultimedia.
@@ -103,7 +103,7 @@ class TimelineController(TimelineIO, QObject):
         self.selected_keys: dict[str, set[float]] = {}
         self.selected_tracks: set[str] = set()
         self.clipboard: tl.Clipboard | None = None
-        self.speech: list = []  # core.project.SpeechClip
+        self.speech: list = []  # core.formats.project.SpeechClip
         self._auto_key = False
         self._auto_key_paused_recorder = None
         self._applying = 0

@@ -6,7 +6,7 @@ dock, the project actions, the Edit / View / Tools menu items and the face chang
 :class:`app.main_window.MainWindow`.
 
 Track view (:class:`TrackView`)
-    Rows are grouped like the docks: the FAP dock's groups (``core.fap.tables.DOCK_GROUPS``), then
+    Rows are grouped like the docks: the FAP dock's groups (``core.layers.fap.tables.DOCK_GROUPS``), then
     expressions, visemes and muscles. A group header shows a summary of its tracks' keys and folds
     with a click. By default only parameters with a track are listed; "Show all" lists every
     parameter the face can animate (select such a row and press K to start its track).

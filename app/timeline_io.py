@@ -25,13 +25,13 @@ class TimelineIO:
     # ------------------------------------------------------------ lip-sync
     def import_animation(self, path) -> Edit | None:
         """Add a .fap or thesis B DPC file's animation as FAP (and preset) tracks from the cursor, one
-        undoable edit (``core.animation_import``; a DPC file plays at the timeline's fps). Errors and
+        undoable edit (``core.formats.animation_import``; a DPC file plays at the timeline's fps). Errors and
         notes go to ``message``."""
         from pathlib import Path
 
-        from core.animation_import import tracks_from_dpc, tracks_from_fap
-        from core.dpc_file import read_dpc
-        from core.fap_file import read_fap
+        from core.formats.animation_import import tracks_from_dpc, tracks_from_fap
+        from core.formats.dpc_file import read_dpc
+        from core.formats.fap_file import read_fap
 
         path = Path(path)
         start = float(self.current_time)
@@ -66,7 +66,7 @@ class TimelineIO:
         """Write the timeline as an MPEG-4 .fap file at its frame rate (the rig's current pose as one
         frame when nothing is keyed). Errors go to ``message``; returns success."""
         from core.animation import sequence_from_rig
-        from core.fap_file import FapFileError, write_fap
+        from core.formats.fap_file import FapFileError, write_fap
 
         path = Path(path)
         if self._rig is None:
@@ -91,7 +91,7 @@ class TimelineIO:
         Keys of existing tracks inside the clip's time span are replaced, keys outside it are kept;
         the duration grows to fit the clip (rounded up to a whole second).
         """
-        from core.project import SpeechClip
+        from core.formats.project import SpeechClip
 
         tl_ = self.timeline
         tracks = dict(result.tracks)

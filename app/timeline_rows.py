@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 from PySide6.QtGui import QColor
 
-from core.fap import tables
+from core.layers.fap import tables
 
 from app.timeline_controller import TimelineController, muscle_keys, parameter_label
 

@@ -27,9 +27,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from core.default_face import load_default_face  # noqa: E402
-from core.muscles import MuscleLayer, preset  # noqa: E402
-from core.muscles import kernels  # noqa: E402
-from core.muscles.solver import State  # noqa: E402
+from core.layers.muscles import MuscleLayer, preset  # noqa: E402
+from core.layers.muscles import kernels  # noqa: E402
+from core.layers.muscles.solver import State  # noqa: E402
 
 
 def true_error(layer, x_ref, rest) -> float:

@@ -30,8 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from core.default_face import load_default_face  # noqa: E402
-from core.fap import tables  # noqa: E402
-from core.fap.fat import lid_contact  # noqa: E402
+from core.layers.fap import tables  # noqa: E402
+from core.layers.fap.fat import lid_contact  # noqa: E402
 from core.rig import FaceRig  # noqa: E402
 from core.timeline import INTERPOLATIONS, Timeline, apply_to_rig  # noqa: E402
 

@@ -14,10 +14,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .fap import tables
-from .fap_file import FapSequence
-from .rig import FaceRig
-from .timeline import MuscleSimulationCache, Timeline, apply_to_rig, is_simulated
+from core.layers.fap import tables
+from core.formats.fap_file import FapSequence
+from core.rig import FaceRig
+from core.timeline import MuscleSimulationCache, Timeline, apply_to_rig, is_simulated
 
 __all__ = ["ProjectAnimation", "mix_speech", "speech_wav", "sequence_from_rig"]
 
@@ -113,13 +113,13 @@ def _intensity63(weight: float) -> int:
 
 # ---------------------------------------------------------------- speech
 def mix_speech(clips: Sequence) -> tuple[np.ndarray, int] | None:
-    """((n,) int16 samples, rate Hz) of every speech clip (``core.project.SpeechClip``) at its start
+    """((n,) int16 samples, rate Hz) of every speech clip (``core.formats.project.SpeechClip``) at its start
     time, time 0 = timeline 0; None without clips.
 
     One policy for clips synthesised at different rates: each is resampled (linear interpolation)
     to the first clip's rate, so nothing is dropped and nothing fails.
     """
-    from . import lipsync
+    from core import lipsync
 
     pieces, rate = [], None
     for clip in clips:
@@ -142,7 +142,7 @@ def mix_speech(clips: Sequence) -> tuple[np.ndarray, int] | None:
 def speech_wav(clips: Sequence, folder: str | Path | None = None) -> Path | None:
     """A WAV of :func:`mix_speech` (named by the clips, so it is written once per clip set); None
     without clips. ``folder``: the lip-sync cache by default."""
-    from . import lipsync
+    from core import lipsync
 
     mixed = mix_speech(clips)
     if mixed is None:

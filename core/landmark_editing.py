@@ -36,7 +36,7 @@ Choices the thesis leaves open, written down here:
   (``face.set_landmark``), so anything that reads ``face.landmarks`` sees the
   corrected set at once.
 
-Files: JSON uses the mimica-landmarks format of :mod:`core.landmarks_io`
+Files: JSON uses the mimica-landmarks format of :mod:`core.formats.landmarks_io`
 with two extra per-landmark keys, ``status`` and ``confidence`` (ignored by
 readers that do not know them). CSV has the header
 ``name,x,y,z,status,confidence`` (x/y/z in mm on the neutral face); its
@@ -59,8 +59,8 @@ import numpy as np
 from psygnal import Signal
 
 from core.face import Face, SurfacePoint
-from core.landmarks_io import FORMAT_NAME, FORMAT_VERSION, POSITION_MISMATCH_MM, LandmarkFileError, load_landmarks
-from core.mesh_io import write_atomic, write_reporting_errors
+from core.formats.landmarks_io import FORMAT_NAME, FORMAT_VERSION, POSITION_MISMATCH_MM, LandmarkFileError, load_landmarks
+from core.formats.mesh_io import write_atomic, write_reporting_errors
 
 __all__ = [
     "LandmarkStatus", "LandmarkState", "LandmarkEditModel", "LandmarkEditError", "LandmarkFileError",

@@ -29,7 +29,7 @@ from typing import Any, Callable, Iterable, Mapping, Protocol, runtime_checkable
 import numpy as np
 from psygnal import Signal
 
-from . import parameters as P
+from core import parameters as P
 
 __all__ = ["ParameterChange", "RigLayer", "ValueLayer", "register_layer", "layer_factory", "fresh_signals"]
 

@@ -16,7 +16,7 @@ line all name parameters this way.
 Each family (a :class:`ParameterKind`) is registered by the module that animates it (its rig
 layer) with :func:`register_kind`; :func:`describe` gives a parameter's label, unit, range and
 default, :func:`check_value` validates a value (never clamps). The built-in kinds are defined in
-``core.fap.parameters`` and ``core.muscles.parameters`` and load on first use.
+``core.layers.fap.parameters`` and ``core.layers.muscles.parameters`` and load on first use.
 """
 
 from __future__ import annotations
@@ -82,8 +82,8 @@ class ParameterKind:
 _KINDS: dict[str, ParameterKind] = {}
 #: Where the built-in kinds are registered (imported on first use, so ``core.parameters`` itself
 #: depends on no layer).
-_BUILTIN = {"fap": "core.fap.parameters", "expression": "core.fap.parameters", "viseme": "core.fap.parameters",
-            "muscle": "core.muscles.parameters", "jaw": "core.muscles.parameters"}
+_BUILTIN = {"fap": "core.layers.fap.parameters", "expression": "core.layers.fap.parameters", "viseme": "core.layers.fap.parameters",
+            "muscle": "core.layers.muscles.parameters", "jaw": "core.layers.muscles.parameters"}
 
 
 def register_kind(kind: ParameterKind) -> None:

@@ -15,7 +15,7 @@ The FAP values that drive the FAT are the *effective* values: the user's low-lev
 the active expression (FAP 2) and viseme (FAP 1) presets scaled by their intensities. Several
 FAPs acting on one point add their displacements (linear superposition, as in the MPEG-4
 players and thesis A's "combine FAT entries like keyframes"), except the eyelids (see
-``core.fap.fat.lid_contact``).
+``core.layers.fap.fat.lid_contact``).
 
 Every parameter of every layer is reachable by its canonical key (``core.parameters``):
 ``rig.value(key)``, ``rig.set_values({key: value})``, ``rig.parameters()``. The whole state is
@@ -39,12 +39,12 @@ from typing import Callable, Iterable, Mapping
 import numpy as np
 from psygnal import Signal
 
-from . import parameters as P
-from .face import Face
-from .fap import tables
-from .fap.fat import FapDeformer
-from .fap.layer import FapLayer, fraction, mix_from
-from .layer import ParameterChange, RigLayer, layer_factory
+from core import parameters as P
+from core.face import Face
+from core.layers.fap import tables
+from core.layers.fap.fat import FapDeformer
+from core.layers.fap.layer import FapLayer, fraction, mix_from
+from core.layer import ParameterChange, RigLayer, layer_factory
 
 N_FAPS = tables.N_FAPS
 

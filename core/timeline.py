@@ -38,7 +38,7 @@ from typing import Any, Iterable, Mapping, Protocol, Sequence
 import numpy as np
 from psygnal import Signal
 
-from . import parameters as P
+from core import parameters as P
 
 INTERPOLATIONS = ("step", "linear", "smooth")
 STEP, LINEAR, SMOOTH = 0, 1, 2
@@ -627,7 +627,7 @@ def apply_at(timeline: Timeline, t: float, rig, simulation: "MuscleSimulationCac
 
 # ====================================================================== simulated layers
 class SimulatedLayer(Protocol):
-    """The dynamic layer contract (core.muscles.MuscleLayer)."""
+    """The dynamic layer contract (core.layers.muscles.MuscleLayer)."""
 
     def set_values(self, values: Mapping[str, float]) -> None: ...
 

@@ -92,7 +92,7 @@ def _lint_imports(root: Path, config: Path) -> subprocess.CompletedProcess:
 
 def test_architecture_contracts_hold():
     """pyproject.toml's [tool.importlinter] contracts: core display-free and independent of app;
-    core.muscles, core.registration and core.lipsync independent; app's layers only import downwards."""
+    core.layers.muscles, core.registration and core.lipsync independent; app's layers only import downwards."""
     proc = _lint_imports(ROOT, ROOT / "pyproject.toml")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "BROKEN" not in proc.stdout and proc.stdout.count("KEPT") >= 4
@@ -106,12 +106,12 @@ def test_architecture_contracts_catch_bad_modules(tmp_path):
         shutil.copytree(ROOT / package, tmp_path / package, ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
     (tmp_path / "core" / "bad_display.py").write_text("import PySide6.QtWidgets\n")
-    (tmp_path / "core" / "muscles" / "bad_link.py").write_text("from core.registration import icp\n")
+    (tmp_path / "core" / "layers" / "muscles" / "bad_link.py").write_text("from core.registration import icp\n")
     with open(tmp_path / "app" / "viewport.py", "a", encoding="utf-8") as fh:
         fh.write("\nfrom app import main_window  # an upward import\n")
     proc = _lint_imports(tmp_path, tmp_path / "pyproject.toml")
     out = proc.stdout
     assert proc.returncode != 0, out
     assert "core.bad_display -> PySide6" in out.replace("PySide6.QtWidgets", "PySide6")
-    assert "core.muscles.bad_link -> core.registration" in out.replace("core.registration.icp", "core.registration")
+    assert "core.layers.muscles.bad_link -> core.registration" in out.replace("core.registration.icp", "core.registration")
     assert "app.viewport is not allowed to import app.main_window" in out

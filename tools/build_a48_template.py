@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from core.default_face.store import load_default_face  # noqa: E402
-from core.fap.template import base_positions, load_template  # noqa: E402
+from core.layers.fap.template import base_positions, load_template  # noqa: E402
 
 OUTLINE = ["11.1", "11.3", "a48.temple_l", "10.9", "10.7", "2.13", "2.11", "2.1", "2.12", "2.14", "10.8",
            "10.10", "a48.temple_r", "11.2"]

@@ -37,7 +37,7 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def load_face_or_default(path: str | None):
-    """The face at ``path`` (via ``core.mesh_io``) or the default face; raises :class:`CliError`."""
+    """The face at ``path`` (via ``core.formats.mesh_io``) or the default face; raises :class:`CliError`."""
     if path is None:
         try:
             from core.default_face import load_default_face
@@ -50,7 +50,7 @@ def load_face_or_default(path: str | None):
     if p.is_dir():
         raise CliError(f"{path} is a directory, not a face file")
     try:
-        from core.mesh_io import MeshLoadError, load_face
+        from core.formats.mesh_io import MeshLoadError, load_face
     except ImportError as exc:
         raise CliError(f"mesh loading is not available ({exc})") from None
     try:
@@ -133,7 +133,7 @@ def parse_muscle_forces(text: str):
 
     A paired muscle without a side gets the force on both sides.
     """
-    from core.muscles import ForceSet, control_keys, preset, preset_names
+    from core.layers.muscles import ForceSet, control_keys, preset, preset_names
 
     text = text.strip()
     if text in preset_names():
@@ -163,7 +163,7 @@ def parse_muscle_forces(text: str):
 
 def open_project(path: str):
     """(Project, its face) of a .mimica file; load notes go to stderr; CliError otherwise."""
-    from core.project import ProjectError, load_project, open_face
+    from core.formats.project import ProjectError, load_project, open_face
 
     p = Path(path)
     if not p.is_file():
@@ -228,7 +228,7 @@ def run_batch(files: list[Path], work, what: str) -> int:
 
 def with_texture(scan, args: argparse.Namespace):
     """``scan`` with the image of ``--texture`` (flipped with ``--flip-texture``), if given."""
-    from core.mesh_io import MeshLoadError, load_texture_image
+    from core.formats.mesh_io import MeshLoadError, load_texture_image
 
     try:
         if args.texture:

@@ -19,7 +19,7 @@ VIDEO_SUFFIXES = (".mp4", ".gif", ".avi", ".png", ".jpg")
 def run(args: argparse.Namespace) -> int:
     """Render or write a project's animation."""
     from core.animation import ProjectAnimation, speech_wav
-    from core.fap_file import FapFileError, write_fap
+    from core.formats.fap_file import FapFileError, write_fap
 
     out = Path(args.out)
     suffix = out.suffix.lower()

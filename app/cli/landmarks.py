@@ -12,7 +12,7 @@ from app.cli.common import (TEMPLATES, CliError, add_texture_options, load_face_
 
 def run(args: argparse.Namespace) -> int:
     """Detect the template's landmarks on each scan and save them as landmark JSON."""
-    from core.landmarks_io import LandmarkFileError, save_landmarks
+    from core.formats.landmarks_io import LandmarkFileError, save_landmarks
     from core.registration.pipeline import detect_landmarks
 
     files = scan_files(args.scan)

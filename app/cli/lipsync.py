@@ -15,7 +15,7 @@ def run(args: argparse.Namespace) -> int:
     """Text -> visemes (+ blinks) on a new project for the default face."""
     from core.default_face import load_default_face
     from core.lipsync import lipsync_tracks
-    from core.project import FaceRef, Project, ProjectError, SpeechClip, save_project
+    from core.formats.project import FaceRef, Project, ProjectError, SpeechClip, save_project
     from core.timeline import Timeline
 
     out = Path(args.out)

@@ -11,8 +11,8 @@ from app.cli.common import (TEMPLATES, CliError, add_texture_options, load_face_
 
 def run(args: argparse.Namespace) -> int:
     """Build the canonical face of each scan from its landmarks (dense correspondence)."""
-    from core.landmarks_io import LandmarkFileError, load_landmarks
-    from core.mesh_io import MeshSaveError, save_face
+    from core.formats.landmarks_io import LandmarkFileError, load_landmarks
+    from core.formats.mesh_io import MeshSaveError, save_face
     from core.registration.pipeline import register_scan
 
     files = scan_files(args.scan)

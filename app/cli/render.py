@@ -38,8 +38,8 @@ def run(args: argparse.Namespace) -> int:
 def posed_vertices(face, values: dict[str, float]) -> np.ndarray:
     """(n, 3) mm: ``face`` posed by parameter ``values`` (the muscle model is built and settled when
     muscle forces or the jaw are given)."""
-    from core.fap.template import TemplateError
-    from core.muscles import SolverDiverged
+    from core.layers.fap.template import TemplateError
+    from core.layers.muscles import SolverDiverged
     from core.rig import FaceRig
 
     try:

@@ -5,9 +5,9 @@
 Regenerate the committed copy with ``python -m core.default_face``.
 """
 
-from .build import GRID_SPACING, TEXTURE_SIZE, feature_point_layout, generate_face
-from .params import FaceLayout, FaceParameters
-from .store import default_face_path, load_default_face, save_default_face
+from core.default_face.build import GRID_SPACING, TEXTURE_SIZE, feature_point_layout, generate_face
+from core.default_face.params import FaceLayout, FaceParameters
+from core.default_face.store import default_face_path, load_default_face, save_default_face
 
 __all__ = [
     "FaceLayout", "FaceParameters", "generate_face", "feature_point_layout", "load_default_face",

@@ -3,7 +3,7 @@
 import argparse
 import time
 
-from . import FaceParameters, generate_face, save_default_face
+from core.default_face import FaceParameters, generate_face, save_default_face
 
 
 def main() -> None:

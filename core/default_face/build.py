@@ -24,11 +24,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..face import Face, FaceMetadata, SurfacePoint
-from .mouth import MouthInterior
-from .params import FaceLayout, FaceParameters
-from .shape import OUTLINE_T, FaceShape
-from .texture import atlas_map, eye_atlas_centre, mouth_atlas, paint_texture
+from core.face import Face, FaceMetadata, SurfacePoint
+from core.default_face.mouth import MouthInterior
+from core.default_face.params import FaceLayout, FaceParameters
+from core.default_face.shape import OUTLINE_T, FaceShape
+from core.default_face.texture import atlas_map, eye_atlas_centre, mouth_atlas, paint_texture
 
 GRID_SPACING = 0.645  # mm: gives ~50k vertices over the face, like the thesis's scans
 TEXTURE_SIZE = (640, 480)  # (width, height) pixels, the Vivid 910 colour image

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .params import FaceLayout
-from .shape import OUTLINE_T, FaceShape, _smooth_max, _smoothstep
+from core.default_face.params import FaceLayout
+from core.default_face.shape import OUTLINE_T, FaceShape, _smooth_max, _smoothstep
 
 JAW_DROP = 25.0            # mm, how far the lower face may move down with the jaw
 JAW_BACK = 0.3             # mm the lower face may move back per mm down (the jaw rotates)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from .params import FaceLayout
+from core.default_face.params import FaceLayout
 
 LID_THICKNESS = 1.3  # mm, skin of the lid margin in front of the eyeball
 OUTLINE_T = 0.95  # the scan stops where |x| reaches this fraction of the outline half-width (steep sides)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..face import Face, FaceMetadata, SurfacePoint
+from core.face import Face, FaceMetadata, SurfacePoint
 
 _RESOURCE = "default_face/default_face.npz"
 
@@ -48,7 +48,7 @@ def load_default_face() -> Face:
     """The built-in face (from the committed NPZ; generated if that file is missing)."""
     path = default_face_path()
     if not path.exists():
-        from .build import generate_face
+        from core.default_face.build import generate_face
 
         return generate_face()
     with np.load(path) as data:

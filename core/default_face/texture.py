@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .params import FaceLayout
-from .shape import _smoothstep
+from core.default_face.params import FaceLayout
+from core.default_face.shape import _smoothstep
 
 # Skin colours (sRGB) from very light to very dark, interpolated by skin_tone.
 _SKIN_TONES = np.array([[240, 205, 185], [224, 178, 148], [190, 138, 102], [140, 94, 64], [92, 60, 42]], float)

@@ -27,12 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..mesh_io import write_atomic
-from ..timeline import Track
-from .coarticulation import blink_tracks, viseme_curves, viseme_tracks
-from .espeak import (LanguageError, Phoneme, SpeechError, Synthesis, VOICES, espeak_version, synthesize,
+from core.formats.mesh_io import write_atomic
+from core.timeline import Track
+from core.lipsync.coarticulation import blink_tracks, viseme_curves, viseme_tracks
+from core.lipsync.espeak import (LanguageError, Phoneme, SpeechError, Synthesis, VOICES, espeak_version, synthesize,
                      voice_for)
-from .visemes import VisemeSegment, lookup, map_phonemes, phoneme_table
+from core.lipsync.visemes import VisemeSegment, lookup, map_phonemes, phoneme_table
 
 LANGUAGES = tuple(VOICES)
 

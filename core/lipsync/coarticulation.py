@@ -36,8 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..timeline import Track
-from .visemes import VisemeSegment, must_reach
+from core.timeline import Track
+from core.lipsync.visemes import VisemeSegment, must_reach
 
 SAMPLE_S = 0.02  # s between keys inside a transition
 MUST_REACH_MARGIN = 0.4  # fraction of a contact phoneme a crowded transition may use at each end

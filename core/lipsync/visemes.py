@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import resources
 
-from ..fap import tables
-from .espeak import PAUSE, Phoneme, voice_for
+from core.layers.fap import tables
+from core.lipsync.espeak import PAUSE, Phoneme, voice_for
 
 #: Mimica language -> phoneme tables to search, in order.
 TABLES = {"en": ("en",), "en-us": ("en",), "en-gb": ("en",), "pt-br": ("pt-br", "en")}

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..face import Face
-from ..face import triangle_normals
-from .icp import IcpError, _iterate, boundary_vertex_mask, rotation_about_axis
+from core.face import Face
+from core.face import triangle_normals
+from core.registration.icp import IcpError, _iterate, boundary_vertex_mask, rotation_about_axis
 
 # Model sizes tried (model -> scan): scans from 0.4x to 7x the model's size, a factor 1.27 apart.
 SCALES = tuple(float(s) for s in np.geomspace(0.14, 2.5, 13))

@@ -63,7 +63,7 @@ class Candidates:
 
     def surface_points(self):
         """The candidates as ``core.face.SurfacePoint`` objects (list of c)."""
-        from ..face import SurfacePoint
+        from core.face import SurfacePoint
 
         return [SurfacePoint(int(t), tuple(b)) for t, b in zip(self.triangle, self.bary)]
 

@@ -36,7 +36,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
-from ..face import Face, FaceMetadata, SurfacePoint
+from core.face import Face, FaceMetadata, SurfacePoint
 
 
 class CleanupError(ValueError):
@@ -193,7 +193,7 @@ class _Mesh:
             else:
                 lost.append(name)
         if lost and face.n_triangles:
-            from ..surface_query import TriangleSet
+            from core.surface_query import TriangleSet
 
             pos = original.landmark_positions(lost)
             _, tri, bary = TriangleSet(face.vertices, face.triangles).closest(pos)
@@ -384,8 +384,8 @@ def _membrane(m: _Mesh, free: np.ndarray):
 
 # ---------------------------------------------------------------- spikes
 def _smooth_spikes(m: _Mesh, threshold: float):
-    from ..face import vertex_normals
-    from .icp import boundary_vertex_mask
+    from core.face import vertex_normals
+    from core.registration.icp import boundary_vertex_mask
 
     if len(m.t) == 0:
         return 0, 0

@@ -4,7 +4,7 @@ of the canonical face back to the full-resolution scan.
 :func:`dense_correspondence` places a landmark template ("mpeg4_80" or "a48") on a scan from its
 landmarks and subdivides it (the template's steps: linear, linear, Loop [, Loop]); after each
 step the new vertices move along their normals onto the scan. This is the procedure of
-``core.fap.template.densify`` (same subdivision, creases, boundary and eye rules, same
+``core.layers.fap.template.densify`` (same subdivision, creases, boundary and eye rules, same
 ``DenseTemplate`` result) with two changes, and it stays numerically the same algorithm:
 
 * rays are cast with Embree (``trimesh.ray.ray_pyembree``, embreex) — one scene per scan, about
@@ -40,11 +40,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse
 
-from ..face import Face, FaceMetadata, SurfacePoint, vertex_normals
-from ..fap.template import DenseTemplate, TemplateError, _edge_vertices, skin_triangles
-from ..subdivision import subdivide
-from ..surface_query import TriangleSet
-from .templates import TEMPLATE_NAMES, get_template
+from core.face import Face, FaceMetadata, SurfacePoint, vertex_normals
+from core.layers.fap.template import DenseTemplate, TemplateError, _edge_vertices, skin_triangles
+from core.subdivision import subdivide
+from core.surface_query import TriangleSet
+from core.registration.templates import TEMPLATE_NAMES, get_template
 
 
 class CorrespondenceError(ValueError):
@@ -170,7 +170,7 @@ def template_base_positions(template_name: str, positions: dict[str, np.ndarray]
 
 @dataclass
 class Projection:
-    """The dense template on a scan: ``dense`` (core.fap.template.DenseTemplate) plus where each
+    """The dense template on a scan: ``dense`` (core.layers.fap.template.DenseTemplate) plus where each
     vertex lies on the scan (triangle (N,), barycentric (N, 3)), fallbacks per step and timings."""
 
     dense: DenseTemplate

@@ -146,7 +146,7 @@ def hk_maps(face, *, smoothing_mm: float = 2.0, vertices=None, flat_h: float = 1
     used[tri.ravel()] = True
     if used.sum() < 6:
         raise CurvatureError("the face needs at least 6 vertices in triangles to fit curvature")
-    from ..face import vertex_normals
+    from core.face import vertex_normals
 
     normals = vertex_normals(v, tri)
     H = np.zeros(n)
@@ -400,7 +400,7 @@ def hk_texture(face, hk: HKMaps, size=None) -> np.ndarray:
     its centre (same thresholds as ``hk``); uncovered texels are black. ``size`` = (width, height),
     default the face's texture size. Lets texture-space costs read mu_HK at a candidate's uv.
     """
-    from .candidates import NoTextureError, uv_raster
+    from core.registration.candidates import NoTextureError, uv_raster
 
     if face.uv is None:
         raise NoTextureError(f"{face!r} has no uv coordinates: sample hk.colours per vertex instead")

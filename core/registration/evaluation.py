@@ -40,9 +40,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..face import Face
-from .matching import MatchParams, frontal_raster, input_features, match
-from .templates import get_template
+from core.face import Face
+from core.registration.matching import MatchParams, frontal_raster, input_features, match
+from core.registration.templates import get_template
 
 TOLERANCE = 0.1
 LAMBDAS = tuple(round(0.1 * i, 1) for i in range(11))
@@ -102,7 +102,7 @@ def ground_truth(face: Face, template: str, visible=None) -> np.ndarray:
     """(P, 3) mm of the template's points on ``face`` (NaN where the face lacks a point or, when
     ``visible`` (a set of landmark names) is given, where a feature point is not in it; the
     template's derived points count as visible)."""
-    from .templates import template_positions
+    from core.registration.templates import template_positions
 
     tpl = get_template(template)
     out = np.full((len(tpl.detected), 3), np.nan)
@@ -129,9 +129,9 @@ def tolerance_for(face: Face) -> float:
 def run_case(model: Face, scan: Face, template: str, lambdas: Sequence[float], params: MatchParams,
              contexts: dict, key, visible=None) -> tuple[dict, float]:
     """errors[λ] (P,) mm of matching ``model``'s template points on ``scan``; detection seconds."""
-    from .correspondence import SurfaceRays
-    from .icp import apply_transform, icp
-    from .pipeline import get_model_context
+    from core.registration.correspondence import SurfaceRays
+    from core.registration.icp import apply_transform, icp
+    from core.registration.pipeline import get_model_context
 
     ctx = contexts.get(key)
     if ctx is None:
@@ -159,7 +159,7 @@ def evaluate(n_people: int = 3, *, template: str = "a48", poses: Sequence[str] |
              log: Callable[[str], None] | None = print) -> EvaluationResult:
     """Run both tests on the first ``n_people`` of the synthetic database; print tables, write
     charts to ``out_dir`` (if given) and return the result (``result.lines`` = the printed report)."""
-    from .synthetic import poses as all_poses, synthetic_case
+    from core.registration.synthetic import poses as all_poses, synthetic_case
 
     if n_people < 2:
         raise ValueError(f"the evaluation needs at least 2 people (the across-people test), got {n_people}")

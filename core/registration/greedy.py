@@ -6,9 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from .templates import LandmarkTemplate
-from .rasters import Side
-from .match_params import MatchParams
+from core.registration.templates import LandmarkTemplate
+from core.registration.rasters import Side
+from core.registration.match_params import MatchParams
 
 
 C_A = float(np.sqrt(3.0))   # RGB distance of colours in [0, 1] is at most sqrt(3)

@@ -231,7 +231,7 @@ def _check_transform(T, name: str) -> np.ndarray:
 
 def _target_arrays(target, reject_boundary: bool):
     """(points, normals or None, boundary mask or None, KD-tree) of the target."""
-    from ..face import Face
+    from core.face import Face
 
     if isinstance(target, Face):
         pts = target.vertices

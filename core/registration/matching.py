@@ -89,16 +89,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..face import Face, SurfacePoint
-from .templates import LandmarkTemplate
-from .rasters import (  # noqa: F401 - re-exported
+from core.face import Face, SurfacePoint
+from core.registration.templates import LandmarkTemplate
+from core.registration.rasters import (  # noqa: F401 - re-exported
     FrontalRaster, Grid, grid_for, frontal_raster, Side, sample_texture, sample_vertex_values, _raster_hit,
     _shape_only)
-from .greedy import (  # noqa: F401 - re-exported
+from core.registration.greedy import (  # noqa: F401 - re-exported
     face_scale, MatchResult, match_order, graph_distances, _propagated, greedy_match)
-from .patches import (  # noqa: F401 - re-exported
+from core.registration.patches import (  # noqa: F401 - re-exported
     refine_matches)
-from .match_params import (  # noqa: F401 - re-exported
+from core.registration.match_params import (  # noqa: F401 - re-exported
     HK_SMOOTHING_MM, MatchingError, MatchParams)
 
 
@@ -120,9 +120,9 @@ class ModelContext:
 def model_context(model: Face, template: LandmarkTemplate, params: MatchParams) -> ModelContext:
     """Template points on ``model`` (its landmarks, derived points computed), their appearance, the
     model's frontal raster."""
-    from .correspondence import SurfaceRays
-    from .curvature import hk_maps
-    from .templates import template_positions
+    from core.registration.correspondence import SurfaceRays
+    from core.registration.curvature import hk_maps
+    from core.registration.templates import template_positions
 
     pos = template_positions(model, template.name)
     pts = np.array([pos[p] for p in template.detected])
@@ -154,9 +154,9 @@ class InputFeatures:
 
 def input_features(scan: Face, to_model: np.ndarray, params: MatchParams) -> InputFeatures:
     """Candidates (texture, or geometry when the scan has none), HK colours, Colombo seeds."""
-    from .candidates import NoTextureError, geometry_candidates, texture_candidates
-    from .curvature import CurvatureError, colombo_seeds, hk_maps
-    from .icp import apply_transform
+    from core.registration.candidates import NoTextureError, geometry_candidates, texture_candidates
+    from core.registration.curvature import CurvatureError, colombo_seeds, hk_maps
+    from core.registration.icp import apply_transform
 
     report = []
     textured = True
@@ -191,7 +191,7 @@ def input_features(scan: Face, to_model: np.ndarray, params: MatchParams) -> Inp
 
 
 def _concat_candidates(a, b):
-    from .candidates import Candidates
+    from core.registration.candidates import Candidates
 
     return Candidates(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in
                         ("points", "triangle", "bary", "uv", "colour")))
@@ -210,7 +210,7 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
     fixed : name -> position on the scan (scan frame, mm): kept as they are.
     rays : correspondence.SurfaceRays over the scan (its own frame).
     """
-    from .icp import apply_transform
+    from core.registration.icp import apply_transform
 
     report = report if report is not None else []
     timings = {}
@@ -396,7 +396,7 @@ def _upper_lid_pass(tpl, ctx: ModelContext, raster: FrontalRaster, positions, co
 
 def _positions_from(scan: Face, tri, bary, to_model, positions) -> np.ndarray:
     """(P, 3) model-frame positions of the surface points (tri, bary) on ``scan`` (``positions`` where tri < 0)."""
-    from .icp import apply_transform
+    from core.registration.icp import apply_transform
 
     out = positions.copy()
     ok = tri >= 0

@@ -4,7 +4,7 @@ open mouth found on the opening's depth step, the lower lip brought back to its 
 from __future__ import annotations
 
 import numpy as np
-from .rasters import FrontalRaster
+from core.registration.rasters import FrontalRaster
 
 
 def _lip_order_pass(template, search, out, peak, model_px, skip):

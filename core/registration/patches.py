@@ -4,12 +4,12 @@ cross-correlation of depth and texture patches) within a search window."""
 from __future__ import annotations
 
 import numpy as np
-from .templates import LandmarkTemplate
-from .rasters import FrontalRaster
-from .greedy import graph_distances
-from .mouth_passes import _lip_order_pass, _mouth_opening_pass
-from .match_params import MatchParams
-from .mouth_passes import _lower_lip_pass
+from core.registration.templates import LandmarkTemplate
+from core.registration.rasters import FrontalRaster
+from core.registration.greedy import graph_distances
+from core.registration.mouth_passes import _lip_order_pass, _mouth_opening_pass
+from core.registration.match_params import MatchParams
+from core.registration.mouth_passes import _lower_lip_pass
 
 
 class PatchSearch:

@@ -26,10 +26,10 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from ..face import Face, SurfacePoint
-from .correspondence import CorrespondenceError, Registration, SurfaceRays, dense_correspondence, landmark_positions_on
-from .matching import MatchParams, ModelContext, match, model_context
-from .templates import TEMPLATE_NAMES, get_template
+from core.face import Face, SurfacePoint
+from core.registration.correspondence import CorrespondenceError, Registration, SurfaceRays, dense_correspondence, landmark_positions_on
+from core.registration.matching import MatchParams, ModelContext, match, model_context
+from core.registration.templates import TEMPLATE_NAMES, get_template
 
 MIN_VERTICES = 500
 
@@ -82,7 +82,7 @@ _DEFAULT_MODEL: list = []
 def default_model() -> Face:
     """The built-in default face (loaded once)."""
     if not _DEFAULT_MODEL:
-        from ..default_face import load_default_face
+        from core.default_face import load_default_face
 
         _DEFAULT_MODEL.append(load_default_face())
     return _DEFAULT_MODEL[0]
@@ -134,7 +134,7 @@ UNIT_MISMATCH = 1.3
 
 def _skin_off(scan: Face, model: Face, transform) -> bool:
     """True when much of the model's front skin does not lie on the ICP-aligned scan."""
-    from .alignment import skin_fit
+    from core.registration.alignment import skin_fit
 
     return skin_fit(scan, model, transform)[1] < 0.6
 
@@ -142,7 +142,7 @@ def _skin_off(scan: Face, model: Face, transform) -> bool:
 def _locate(scan: Face, model: Face, report: list[str]):
     """(scan -> model rigid transform of the scan scaled by ``scale``, scale) from
     ``alignment.locate_face``, or None when no face is found there (the reason goes to report)."""
-    from .alignment import FaceNotFoundError, locate_face
+    from core.registration.alignment import FaceNotFoundError, locate_face
 
     try:
         found = locate_face(scan, model)
@@ -153,7 +153,7 @@ def _locate(scan: Face, model: Face, report: list[str]):
     if 1 / UNIT_MISMATCH <= scale <= UNIT_MISMATCH:
         scale = 1.0  # a big or small face, not other units: match at the scan's own size
         # (the rigid part was fitted at the face's own size; refit without the scale below)
-        from .icp import icp
+        from core.registration.icp import icp
 
         refit = icp(scan.vertices[np.unique(scan.triangles)], model, initial=found.transform, max_iterations=50,
                     sample=3000)
@@ -185,7 +185,7 @@ def detect_landmarks(scan: Face, *, template: str = "mpeg4_80", model: Face | No
     progress : called as progress(fraction 0..1, message).
     """
     if template not in TEMPLATE_NAMES:
-        from .templates import UnknownTemplateError
+        from core.registration.templates import UnknownTemplateError
 
         raise UnknownTemplateError(f"unknown landmark template {template!r}; choose one of {', '.join(TEMPLATE_NAMES)}")
     params = params or MatchParams()
@@ -199,7 +199,7 @@ def detect_landmarks(scan: Face, *, template: str = "mpeg4_80", model: Face | No
     fixed_pos = landmark_positions_on(scan, dict(fixed)) if fixed else {}
 
     _progress(progress, 0.1, "aligning the scan to the model (ICP)")
-    from .icp import icp
+    from core.registration.icp import icp
 
     t1 = time.perf_counter()
     res = icp(scan.vertices[np.unique(scan.triangles)], model, max_iterations=50, sample=3000)
@@ -252,7 +252,7 @@ def register_scan(scan: Face, landmarks: Mapping, *, template: str = "mpeg4_80",
     whose normal ray missed, ``.carry_back()`` moves the full scan with the canonical face.
     ``rays`` reuses the Embree scene of a Detection (``Detection.rays``)."""
     if template not in TEMPLATE_NAMES:
-        from .templates import UnknownTemplateError
+        from core.registration.templates import UnknownTemplateError
 
         raise UnknownTemplateError(f"unknown landmark template {template!r}; choose one of {', '.join(TEMPLATE_NAMES)}")
     if scan.n_triangles == 0:
@@ -262,7 +262,7 @@ def register_scan(scan: Face, landmarks: Mapping, *, template: str = "mpeg4_80",
     missing = [p for p in tpl.base.feature_points if p not in positions]
     if missing and template == "a48" and not [p for p in missing if p not in tpl.derived]:
         # a48 temple points are derivable from the MPEG-4 feature points the scan may carry.
-        from .templates import template_positions
+        from core.registration.templates import template_positions
 
         src = scan.with_vertices(scan.vertices)
         for n, p in landmarks.items():

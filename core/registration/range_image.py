@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..face import Face, FaceMetadata
+from core.face import Face, FaceMetadata
 
 
 class RangeImageError(ValueError):

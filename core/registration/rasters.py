@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from ..face import Face
+from core.face import Face
 
 
 # ------------------------------------------------------------------ frontal raster
@@ -54,7 +54,7 @@ def frontal_raster(face: Face, rays, to_model: np.ndarray, grid: Grid, *, textur
 
     ``rays`` is a ``correspondence.SurfaceRays`` over the face's own (unmoved) vertices: the rays
     are moved into the face's frame instead of moving the face (one Embree scene per scan)."""
-    from .correspondence import _barycentric
+    from core.registration.correspondence import _barycentric
 
     cols, rows = np.meshgrid(np.arange(grid.width), np.arange(grid.height))
     x = grid.x0 + cols.ravel() * grid.pixel

@@ -5,7 +5,7 @@ hand-marked landmarks) is not public; this module makes an equivalent one with g
 
 - **People.** Person 0 is the built-in default face; person p > 0 is
   ``generate_face(FaceParameters.random(default_rng([seed, p])))``.
-- **Poses.** ``POSES`` = "neutral" + the six expressions of ``core.fap.tables.expression_names()``
+- **Poses.** ``POSES`` = "neutral" + the six expressions of ``core.layers.fap.tables.expression_names()``
   (MPEG-4 FAP 2 presets), applied at full intensity with ``FaceRig.set_expression(name, 1.0)``.
 - **Scan.** ``scan_face`` with ``SCAN_SETTINGS`` (0.1 mm depth noise, 2 deg / 3 mm pose jitter, no
   holes -- the thesis's meshes were already hole-filled), random stream
@@ -38,7 +38,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from ..face import Face, FaceMetadata, SurfacePoint
+from core.face import Face, FaceMetadata, SurfacePoint
 
 VERSION = "v2"   # v2: all landmarks stored, with a visibility flag
 SCAN_SETTINGS = dict(n_target=50_000, noise_mm=0.1, holes=0, pose_jitter_deg=2.0, pose_jitter_mm=3.0)
@@ -51,7 +51,7 @@ class SyntheticError(ValueError):
 
 def poses() -> tuple[str, ...]:
     """("neutral", "joy", "sadness", "anger", "fear", "disgust", "surprise") from the FAP tables."""
-    from ..fap import tables
+    from core.layers.fap import tables
 
     return tuple(tables.expression_names())
 
@@ -68,17 +68,17 @@ def identity_face(person: int, seed: int = 0) -> Face:
     if person < 0:
         raise SyntheticError(f"person must be >= 0, got {person}")
     if person == 0:
-        from ..default_face import load_default_face
+        from core.default_face import load_default_face
 
         return load_default_face()
-    from ..default_face import FaceParameters, generate_face
+    from core.default_face import FaceParameters, generate_face
 
     return generate_face(FaceParameters.random(np.random.default_rng([seed, person])))
 
 
 @functools.lru_cache(maxsize=2)
 def _rig(person: int, seed: int):
-    from ..rig import FaceRig
+    from core.rig import FaceRig
 
     return FaceRig(identity_face(person, seed))
 
@@ -138,7 +138,7 @@ def synthetic_case(person: int, pose: str, *, cache_dir=None, seed: int = 0) -> 
         except (OSError, ValueError, KeyError):
             pass  # a damaged cache file is regenerated below
     payload = _generate(person, pose, seed)
-    from ..mesh_io import write_atomic
+    from core.formats.mesh_io import write_atomic
 
     path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
@@ -164,7 +164,7 @@ def _all_poses() -> tuple[str, ...]:
 
 
 def _generate(person: int, pose: str, seed: int) -> dict[str, np.ndarray]:
-    from .virtual_scanner import scan_face
+    from core.registration.virtual_scanner import scan_face
 
     rig = _rig(person, seed)
     rig.reset_faps()

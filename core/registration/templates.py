@@ -1,11 +1,11 @@
 """Landmark templates for matching and dense correspondence: "mpeg4_80" and "a48".
 
 Both are stored as data (``resources/templates/<name>.json``) and loaded by
-:func:`core.fap.template.load_template`; this module adds what matching needs on top:
+:func:`core.layers.fap.template.load_template`; this module adds what matching needs on top:
 
 * ``detected``: the points the matcher looks for. For "a48" all 48 points (46 MPEG-4 feature
   points and 2 temple points). For "mpeg4_80" the 64 feature points; its 16 eye extras are affine
-  combinations of feature points and are recomputed on placement (``core.fap.template``).
+  combinations of feature points and are recomputed on placement (``core.layers.fap.template``).
 * ``edges``: the graph G_m over the detected points (thesis A Fig. 3.4): the template's triangle
   edges; for "mpeg4_80" an extra point is contracted (its feature-point neighbours are joined).
 * ground-truth positions on any face carrying the MPEG-4 feature points (every synthetic and the
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..face import Face, SurfacePoint
-from ..fap.template import BaseTemplate, TemplateError, base_positions, load_template, skin_triangles
+from core.face import Face, SurfacePoint
+from core.layers.fap.template import BaseTemplate, TemplateError, base_positions, load_template, skin_triangles
 
 TEMPLATE_NAMES = ("mpeg4_80", "a48")
 
@@ -74,7 +74,7 @@ def expected_counts(base: BaseTemplate) -> list[tuple[int, int]]:
 
     For a mesh with Euler characteristic chi and B boundary edges: E = V + F - chi and B doubles each
     step (each boundary edge splits in two)."""
-    from ..subdivision import boundary_edges, unique_edges
+    from core.subdivision import boundary_edges, unique_edges
 
     v, f = len(base.points), len(base.triangles)
     e = len(unique_edges(base.triangles)[0])
@@ -152,7 +152,7 @@ def template_positions(face: Face, name: str = "a48", *, vertices: np.ndarray | 
         raw = np.array([(np.array(tpl.derived[p]["barycentric"])[:, None]
                          * base[[m80.index(c) for c in tpl.derived[p]["corners"]]]).sum(axis=0) for p in derived])
         skin = skin_triangles(src)
-        from ..surface_query import TriangleSet
+        from core.surface_query import TriangleSet
 
         pos, _tri, _bary = TriangleSet(src.vertices, src.triangles[skin]).closest(raw)
         out.update(zip(derived, pos))

@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..face import Face, FaceMetadata, SurfacePoint
+from core.face import Face, FaceMetadata, SurfacePoint
 
 
 class ScanError(ValueError):
@@ -97,7 +97,7 @@ class ScanResult:
 def random_pose(centre, jitter_deg: float, jitter_mm: float, rng) -> np.ndarray:
     """(4, 4) rigid transform: rotation vector ~ N(0, jitter_deg) deg per axis about ``centre``,
     translation ~ N(0, jitter_mm) mm per axis."""
-    from .icp import rigid_transform, rotation_about_axis
+    from core.registration.icp import rigid_transform, rotation_about_axis
 
     c = np.asarray(centre, dtype=np.float64)
     w = rng.normal(0.0, jitter_deg, size=3) if jitter_deg > 0 else np.zeros(3)
@@ -199,7 +199,7 @@ class _Caster:
         nx, ny = len(ux), len(uy)
         dx = (ux[-1] - ux[0]) / max(nx - 1, 1) if nx > 1 else 1.0
         dy = (uy[-1] - uy[0]) / max(ny - 1, 1) if ny > 1 else 1.0
-        from .candidates import uv_raster
+        from core.registration.candidates import uv_raster
 
         # Map x/y into "uv" of an (nx, ny) image whose texel centres are the ray positions.
         uv = np.column_stack([(self.verts[:, 0] - ux[0]) / (dx * nx) + 0.5 / nx,
@@ -304,7 +304,7 @@ def scan_face(face: Face, *, vertices=None, n_target: int = 50_000, texture_size
         raise ScanError(f"shading must be in [0, 1], got {shading}")
     rng = np.random.default_rng(rng)
 
-    from .icp import apply_transform
+    from core.registration.icp import apply_transform
 
     used = np.zeros(face.n_vertices, bool)
     used[face.triangles.ravel()] = True
@@ -382,13 +382,13 @@ def scan_face(face: Face, *, vertices=None, n_target: int = 50_000, texture_size
 
 
 def _unit_normals(v, t) -> np.ndarray:
-    from ..face import triangle_normals
+    from core.face import triangle_normals
 
     return triangle_normals(v, t)
 
 
 def _triangulate(index, ab, loc, spacing, max_edge_factor, cam: _Camera) -> np.ndarray:
-    from .range_image import grid_triangles
+    from core.registration.range_image import grid_triangles
 
     tris = grid_triangles(index, loc)
     p = loc[tris]
@@ -411,8 +411,8 @@ def _triangulate(index, ab, loc, spacing, max_edge_factor, cam: _Camera) -> np.n
 
 def _transfer_landmarks(source: Face, v, T, scan: Face) -> dict[str, float]:
     """Bind every source landmark (posed) to the closest point of the scan; returns errors (mm)."""
-    from ..surface_query import TriangleSet
-    from .icp import apply_transform
+    from core.surface_query import TriangleSet
+    from core.registration.icp import apply_transform
 
     names = source.landmark_names
     if not names:

@@ -7,7 +7,7 @@ with other test folders' helpers):
   the front half of an ellipsoid with a nose bump, planar uv, a texture whose
   top is visibly different from its bottom, vertex colours and a few MPEG-4
   style landmarks;
-* :func:`write_obj`: a plain OBJ writer independent of ``core.mesh_io``;
+* :func:`write_obj`: a plain OBJ writer independent of ``core.formats.mesh_io``;
 * image statistics for "is this render blank / did it change".
 """
 
@@ -89,7 +89,7 @@ def landmark_names() -> list[str]:
 
 
 def write_obj(face, path: Path) -> Path:
-    """A plain OBJ (v, vt, f v/vt) of ``face``, written without core.mesh_io."""
+    """A plain OBJ (v, vt, f v/vt) of ``face``, written without core.formats.mesh_io."""
     lines = ["# test face"]
     lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in face.vertices]
     has_uv = face.uv is not None

@@ -109,6 +109,6 @@ def default_face():
 
 @pytest.fixture(scope="module")
 def deformer(default_face):
-    from core.fap.fat import FapDeformer
+    from core.layers.fap.fat import FapDeformer
 
     return FapDeformer(default_face)

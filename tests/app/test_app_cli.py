@@ -124,7 +124,7 @@ def test_parse_size(text, expected):
 def test_landmarks_then_register_a_scan_in_other_units(tmp_path, capsys):
     """A face stored in 2-mm units: 'landmarks' finds the points and names the factor, 'register
     --scale' builds the canonical face at human size."""
-    from core.mesh_io import load_face, save_face
+    from core.formats.mesh_io import load_face, save_face
     from core.registration.pipeline import default_model
     from core.registration.virtual_scanner import scan_face
 

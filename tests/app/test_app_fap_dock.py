@@ -13,7 +13,7 @@ from PySide6.QtGui import QEnterEvent, QWheelEvent
 from PySide6.QtWidgets import QApplication
 
 from app.fap_dock import NO_RIG_MESSAGE, FapDock, readable_name
-from core.fap import tables
+from core.layers.fap import tables
 
 TICK_TIMEOUT_MS = 5000
 
@@ -391,7 +391,7 @@ def test_window_imports_and_exports_fap_files_through_the_timeline(qtbot, win, r
     assert shown[i, 1] < default_face.vertices[i, 1] - 1.0   # the viewport shows the jaw open
     out = tmp_path / "back.fap"
     assert c.export_fap(out)
-    from core.fap_file import read_fap
+    from core.formats.fap_file import read_fap
 
     seq = read_fap(out)
     assert seq.values[2][2] == pytest.approx(400)
@@ -416,3 +416,19 @@ def test_window_without_rig_exports_no_fap_file(qtbot, settings, error_boxes, tm
         assert "no rig" in messages[-1]
     finally:
         w.close()
+
+
+def test_the_dock_follows_change_events_row_by_row(dock, rig, monkeypatch):
+    """A FAP change moves only its own row; a pose-only change (a muscle layer settling) moves none."""
+    from core.layer import ParameterChange
+
+    shown = []
+    for number, row in dock.rows.items():
+        monkeypatch.setattr(row, "show_value", lambda v, n=number: shown.append(n))
+    rig.set_values({"fap:3": 250.0})
+    assert shown == [3]
+    shown.clear()
+    rig.changed.emit(ParameterChange())          # what a settling muscle step sends
+    rig.parameters_changed.emit(ParameterChange())
+    assert shown == []
+    rig.set_values({"fap:3": 0.0})

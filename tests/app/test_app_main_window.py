@@ -126,12 +126,12 @@ def test_unsupported_and_missing_files_show_errors(qtbot, window, tmp_path, erro
 
 
 def test_load_notes_are_shown(qtbot, window, tmp_path, monkeypatch):
-    import core.mesh_io
+    import core.formats.mesh_io
 
     noted = make_synthetic_face(n_u=20, n_v=20)
     noted.metadata = FaceMetadata(source="x.obj", units="mm", name="noted",
                                   notes=["Converted metres to millimetres.", "Removed 3 duplicate vertices."])
-    monkeypatch.setattr(core.mesh_io, "load_face", lambda path, progress=None: noted)
+    monkeypatch.setattr(core.formats.mesh_io, "load_face", lambda path, progress=None: noted)
     path = tmp_path / "x.obj"
     path.write_text("v 0 0 0\n")
     assert _load(qtbot, window, path) is True
@@ -142,7 +142,7 @@ def test_load_notes_are_shown(qtbot, window, tmp_path, monkeypatch):
 
 
 def test_progress_is_reported(qtbot, window, tmp_path, monkeypatch):
-    import core.mesh_io
+    import core.formats.mesh_io
 
     seen = []
     shown = window._on_load_progress
@@ -153,7 +153,7 @@ def test_progress_is_reported(qtbot, window, tmp_path, monkeypatch):
             progress(i / 4, f"step {i}")
         return make_synthetic_face(n_u=12, n_v=12)
 
-    monkeypatch.setattr(core.mesh_io, "load_face", slow_load)
+    monkeypatch.setattr(core.formats.mesh_io, "load_face", slow_load)
     (tmp_path / "p.obj").write_text("v 0 0 0\n")
     assert _load(qtbot, window, tmp_path / "p.obj") is True
     assert [f for f, _ in seen if f is not None] == [0.0, 0.25, 0.5, 0.75, 1.0]
@@ -303,7 +303,7 @@ def test_update_vertices_in_place(window, synthetic_face):
 
 
 def test_save_face_as(window, tmp_path, error_boxes):
-    from core.mesh_io import load_face
+    from core.formats.mesh_io import load_face
 
     out = tmp_path / "saved.ply"
     assert window.save_face_file(out) is True

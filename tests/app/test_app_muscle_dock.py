@@ -15,7 +15,7 @@ from PySide6.QtCore import QSettings
 from PySide6.QtWidgets import QApplication
 
 from app.muscle_dock import BUILDING_MESSAGE, JAW, NO_FACE_MESSAGE, MuscleDock, attach_muscle_dock
-from core.muscles import SolverDiverged, control_keys, preset, preset_names
+from core.layers.muscles import SolverDiverged, control_keys, preset, preset_names
 
 TIMEOUT_MS = 20000
 
@@ -222,7 +222,7 @@ def test_save_open_round_trip(dock, tmp_path):
 @pytest.mark.parametrize("text", ["{not json", json.dumps({"format": "mimica-muscle-forces", "version": 1,
                                                             "forces": {"risorius": {"left": 999}}})])
 def test_malformed_force_file_shows_the_message_and_keeps_the_forces(dock, tmp_path, error_boxes, text):
-    from core.muscles import ForceFileError, load_force_set
+    from core.layers.muscles import ForceFileError, load_force_set
 
     dock.apply_preset("sadness")
     before = dock.layer.forces()

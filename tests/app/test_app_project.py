@@ -17,7 +17,7 @@ import pytest
 from PySide6.QtWidgets import QMessageBox
 
 from app.timeline_dock import attach_timeline
-from core import project as cp
+from core.formats import project as cp
 
 
 # ------------------------------------------------------------------ fixtures

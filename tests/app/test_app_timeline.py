@@ -556,7 +556,7 @@ def test_window_export_and_the_command_line_make_identical_frames(qtbot, win, c,
     """Same project, same frame, identical vertices: the window's export evaluates a copy of its rig
     with core.animation.ProjectAnimation, which is what `mimica export` runs on the saved project."""
     from core.animation import ProjectAnimation
-    from core.project import load_project, open_face, save_project
+    from core.formats.project import load_project, open_face, save_project
 
     c.push(lambda: c.timeline.replace_tracks({
         "fap:3": Track("fap:3", [(0.0, 0.0), (1.0, 600.0, "linear"), (2.0, 100.0)]),

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from core.animation_import import tracks_from_dpc, tracks_from_fap
-from core.dpc_file import DpcSequence
-from core.fap import tables
-from core.fap_file import FapSequence, parse_fap
+from core.formats.animation_import import tracks_from_dpc, tracks_from_fap
+from core.formats.dpc_file import DpcSequence
+from core.layers.fap import tables
+from core.formats.fap_file import FapSequence, parse_fap
 from core.timeline import Timeline
 
 

@@ -82,7 +82,7 @@ def test_missing_landmarks_are_a_clear_error(scan):
 
 
 def test_a_saved_canonical_face_gets_its_landmarks_back(registration, tmp_path):
-    from core.mesh_io import load_face, save_face
+    from core.formats.mesh_io import load_face, save_face
     from core.registration.correspondence import with_canonical_landmarks
 
     path = tmp_path / "canonical.obj"

@@ -1,11 +1,11 @@
-"""core.dpc_file: thesis B control-point dynamics files (round trip, tolerated quirks, line-numbered errors)."""
+"""core.formats.dpc_file: thesis B control-point dynamics files (round trip, tolerated quirks, line-numbered errors)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from core.dpc_file import DpcFileError, DpcSequence, control_points, format_dpc, parse_dpc, read_dpc, write_dpc
+from core.formats.dpc_file import DpcFileError, DpcSequence, control_points, format_dpc, parse_dpc, read_dpc, write_dpc
 
 # The example printed in thesis B §5.2 (3 control points shown per frame), with its annotations.
 THESIS_EXAMPLE = """\

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 import resources
-from core.fap import tables
-from core.fap.fat import lid_contact
-from core.fap.template import TemplateError, densify, load_template
+from core.layers.fap import tables
+from core.layers.fap.fat import lid_contact
+from core.layers.fap.template import TemplateError, densify, load_template
 from core.rig import FaceRig
 from core.subdivision import boundary_edges, subdivide
 

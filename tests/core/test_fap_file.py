@@ -1,4 +1,4 @@
-"""Tests for core.fap_file (textual MPEG-4 .fap files), on texts written in the tests."""
+"""Tests for core.formats.fap_file (textual MPEG-4 .fap files), on texts written in the tests."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from core.fap_file import N_FAPS, FapFileError, FapSequence, format_fap, parse_fap, read_fap, write_fap
+from core.formats.fap_file import N_FAPS, FapFileError, FapSequence, format_fap, parse_fap, read_fap, write_fap
 
 # The made-up example of the format note (3 frames at 25 fps), verbatim.
 EXAMPLE = """\

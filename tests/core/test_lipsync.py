@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from core import lipsync
-from core.fap import tables
+from core.layers.fap import tables
 from core.lipsync import coarticulation, visemes
 from core.lipsync.espeak import Phoneme
 from core.timeline import Timeline

@@ -1,4 +1,4 @@
-"""Tests for core.mesh_io (load/save) and core.landmarks_io, on small meshes built in code."""
+"""Tests for core.formats.mesh_io (load/save) and core.formats.landmarks_io, on small meshes built in code."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 import trimesh
 
 from core.face import Face, SurfacePoint
-from core.landmarks_io import LandmarkFileError, load_landmarks, save_landmarks
-from core.mesh_io import MeshLoadError, MeshSaveError, load_face, save_face
+from core.formats.landmarks_io import LandmarkFileError, load_landmarks, save_landmarks
+from core.formats.mesh_io import MeshLoadError, MeshSaveError, load_face, save_face
 
 # A 200 mm square (two triangles' worth of vertices), the basis of the hand-written files.
 SQUARE_V = """
@@ -646,7 +646,7 @@ def test_two_textured_materials_use_the_first_with_note(tmp_path):
 def test_load_texture_image_reads_any_mode_and_refuses_non_images(tmp_path):
     from PIL import Image
 
-    from core.mesh_io import MeshLoadError, load_texture_image
+    from core.formats.mesh_io import MeshLoadError, load_texture_image
 
     grey16 = tmp_path / "depthlike.png"
     Image.fromarray(np.full((4, 6), 65535, np.uint16)).save(grey16)

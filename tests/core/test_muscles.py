@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from core.default_face import load_default_face
-from core.muscles import (ForceFileError, ForceSet, MuscleLayer, SolverDiverged, control_keys, load_force_set,
+from core.layers.muscles import (ForceFileError, ForceSet, MuscleLayer, SolverDiverged, control_keys, load_force_set,
                           muscle_specs, preset, preset_names, save_force_set)
-from core.muscles.kernels import HAVE_NUMBA, SpringKernels
-from core.muscles.model import load_definitions
-from core.muscles.solver import State
+from core.layers.muscles.kernels import HAVE_NUMBA, SpringKernels
+from core.layers.muscles.model import load_definitions
+from core.layers.muscles.solver import State
 
 MIRROR_PAIRS = [("8.3", "8.4"), ("8.5", "8.6"), ("8.7", "8.8"), ("2.4", "2.5"), ("2.6", "2.7"), ("2.8", "2.9")]
 

@@ -8,8 +8,8 @@ import os
 import numpy as np
 import pytest
 
-from core import project as P
-from core.project import FaceRef, Project, ProjectError, ProjectVersionError, RigSettings, SpeechClip
+from core.formats import project as P
+from core.formats.project import FaceRef, Project, ProjectError, ProjectVersionError, RigSettings, SpeechClip
 from core.timeline import Timeline
 
 
@@ -83,7 +83,7 @@ def test_embedded_face_and_its_landmarks(tmp_path, grid_face):
     assert reopened.landmarks == face.landmarks
     # The face file is edited (triangles reversed): detected, landmarks follow their saved positions.
     from core.face import Face
-    from core.mesh_io import save_face
+    from core.formats.mesh_io import save_face
 
     changed = Face(face.vertices, face.triangles[::-1], uv=face.uv, texture=face.texture)
     save_face(changed, moved / "grid.face.ply")

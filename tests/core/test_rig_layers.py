@@ -15,7 +15,7 @@ import offset_layer  # noqa: E402,F401 - registers the offset:z kind and its lay
 
 from core import parameters as P  # noqa: E402
 from core.animation import ProjectAnimation  # noqa: E402
-from core.project import FaceRef, Project, RigSettings, load_project, save_project  # noqa: E402
+from core.formats.project import FaceRef, Project, RigSettings, load_project, save_project  # noqa: E402
 from core.rig import FaceRig  # noqa: E402
 from core.timeline import Timeline, TimelineError, Track  # noqa: E402
 

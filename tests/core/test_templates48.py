@@ -48,7 +48,7 @@ def test_expected_counts_match_the_thesis_tables():
 
 
 def test_a48_points_are_feature_points_or_derived():
-    from core.fap.template import load_template
+    from core.layers.fap.template import load_template
 
     t = get_template("a48")
     m80 = load_template("mpeg4_80")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from core import timeline as T
-from core.fap import tables
+from core.layers.fap import tables
 from core.timeline import Key, MuscleSimulationCache, Timeline, TimelineError, Track, apply_to_rig
 
 

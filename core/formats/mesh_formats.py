@@ -1,13 +1,13 @@
 """mesh_formats.py
 ----
-Format-specific readers behind :mod:`core.mesh_io` (use that
+Format-specific readers behind :mod:`core.formats.mesh_io` (use that
 module; nothing here is public API).
 
 Readers return a :class:`RawMesh` (arrays exactly as the file has them, plus
 notes about what was converted on the way) and raise any exception on a
-malformed file; :func:`core.mesh_io.load_face` turns those into
+malformed file; :func:`core.formats.mesh_io.load_face` turns those into
 ``MeshLoadError`` and does the format-independent repairs. (Writers are in
-:mod:`core.mesh_io`.)
+:mod:`core.formats.mesh_io`.)
 """
 
 from __future__ import annotations

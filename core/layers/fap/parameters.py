@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import math
 
-from ..parameters import Parameter, ParameterError, ParameterKind, ParamKey, register_kind, split_words
-from . import tables
+from core.parameters import Parameter, ParameterError, ParameterKind, ParamKey, register_kind, split_words
+from core.layers.fap import tables
 
 _WORDS = {"t": "top", "b": "bottom", "i": "inner", "m": "middle", "o": "outer", "lm": "left-mid", "rm": "right-mid",
           "l": "left", "r": "right", "cornerlip": "lip corner", "midlip": "mid-lip", "eyebrow": "brow"}

@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from core.mesh_io import write_atomic, write_reporting_errors
+from core.formats.mesh_io import write_atomic, write_reporting_errors
 
-from .text_files import integer as _integer
-from .text_files import number as _number
-from .text_files import read_text_file
+from core.formats.text_files import integer as _integer
+from core.formats.text_files import number as _number
+from core.formats.text_files import read_text_file
 
 __all__ = [
     "N_FAPS", "VISEME_FIELDS", "EXPRESSION_FIELDS", "FapFileError", "FapSequence",

@@ -4,9 +4,9 @@ both kinds are simulated (their effect at time t depends on the force history)."
 
 from __future__ import annotations
 
-from ..layer import register_layer
-from ..parameters import Parameter, ParameterError, ParameterKind, ParamKey, parse, register_kind
-from .muscles import SIDES, jaw_range, spec_by_name
+from core.layer import register_layer
+from core.parameters import Parameter, ParameterError, ParameterKind, ParamKey, parse, register_kind
+from core.layers.muscles.muscles import SIDES, jaw_range, spec_by_name
 
 _SYNTAX = "muscle:<name>:<left|right>"
 
@@ -55,7 +55,7 @@ def control_of(key: str) -> tuple[str, str | None]:
 
 def _layer_for(rig):
     """A muscle layer for ``rig``'s face, on its FAP deformer's dense template (a few seconds)."""
-    from .layer import MuscleLayer
+    from core.layers.muscles.layer import MuscleLayer
 
     layer = MuscleLayer(rig.face, template_dense=getattr(rig.deformer, "dense", None))
     layer.attach(rig)

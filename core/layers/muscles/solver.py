@@ -62,9 +62,9 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
-from .kernels import SpringKernels
-from .model import TissueModel
-from .muscles import MuscleSet, skull_projection
+from core.layers.muscles.kernels import SpringKernels
+from core.layers.muscles.model import TissueModel
+from core.layers.muscles.muscles import MuscleSet, skull_projection
 
 MAX_DISPLACEMENT_CM = 4.0      # no facial expression moves tissue 4 cm: beyond this the run diverged
 TOLERANCE = 0.01               # "within 1 % of equilibrium"

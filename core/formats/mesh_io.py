@@ -11,7 +11,7 @@ texture, unit conversion...) are repaired and described, one sentence each,
 in ``face.metadata.notes``.
 
 Vertex order
-    OBJ is parsed by :mod:`core.mesh_formats` (not by trimesh) so that vertex order is kept exactly.
+    OBJ is parsed by :mod:`core.formats.mesh_formats` (not by trimesh) so that vertex order is kept exactly.
     A vertex that the file uses with several texture coordinates (a uv seam)
     is duplicated: the first (vertex, uv) pair met in the file keeps the
     original index, the others are appended after the last vertex. Files
@@ -38,7 +38,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from core.face import Face, FaceMetadata
-from core.mesh_formats import READERS, RawMesh, _image_to_rgb, plural, reason, weld
+from core.formats.mesh_formats import READERS, RawMesh, _image_to_rgb, plural, reason, weld
 
 __all__ = ["MeshLoadError", "MeshSaveError", "load_face", "load_texture_image", "save_face", "LOAD_FORMATS",
            "SAVE_FORMATS"]

@@ -16,9 +16,9 @@ import numpy as np
 
 import resources
 
-from ..face import Face
-from ..subdivision import subdivide
-from ..surface_query import TriangleSet
+from core.face import Face
+from core.subdivision import subdivide
+from core.surface_query import TriangleSet
 
 
 class TemplateError(ValueError):
@@ -133,7 +133,7 @@ def mouth_side(face: Face, skin: np.ndarray) -> np.ndarray:
     the side their own triangles lie on. All 0 when the face lacks the lip feature points.
     Deformers bind each side only to its own lip, so the jaw never drags the upper lip.
     """
-    from ..subdivision import boundary_edges
+    from core.subdivision import boundary_edges
 
     need = ("2.5", "2.7", "2.2", "2.6", "2.4", "2.9", "2.3", "2.8", "8.3", "8.4")
     if any(p not in face.landmark_names for p in need):
@@ -255,7 +255,7 @@ def densify(face: Face, template: BaseTemplate | None = None, *, steps=None) -> 
 
 def _edge_vertices(triangles: np.ndarray, creases: np.ndarray, n: int) -> np.ndarray:
     """(n,) bool: vertices on the mesh boundary or on a crease (eye margins)."""
-    from ..subdivision import boundary_edges
+    from core.subdivision import boundary_edges
 
     mask = np.zeros(n, bool)
     mask[boundary_edges(triangles).ravel()] = True
@@ -265,6 +265,6 @@ def _edge_vertices(triangles: np.ndarray, creases: np.ndarray, n: int) -> np.nda
 
 
 def _vertex_normals(v: np.ndarray, t: np.ndarray) -> np.ndarray:
-    from ..face import vertex_normals
+    from core.face import vertex_normals
 
     return vertex_normals(v, t)

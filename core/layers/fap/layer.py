@@ -18,11 +18,11 @@ from typing import Callable, Mapping
 import numpy as np
 from psygnal import Signal
 
-from .. import parameters as P
-from ..layer import ParameterChange
-from . import parameters as _kinds  # noqa: F401 - registers the fap/expression/viseme kinds
-from . import tables
-from .fat import FapDeformer
+from core import parameters as P
+from core.layer import ParameterChange
+from core.layers.fap import parameters as _kinds  # noqa: F401 - registers the fap/expression/viseme kinds
+from core.layers.fap import tables
+from core.layers.fap.fat import FapDeformer
 
 N_FAPS = tables.N_FAPS
 Mix = tuple[tuple[int, float], ...]

@@ -46,10 +46,10 @@ from typing import Any
 
 import numpy as np
 
-from .face import Face, SurfacePoint
-from .mesh_io import save_face, write_atomic, write_reporting_errors
-from .parameters import ParameterError, check_value, key_of, sort_key
-from .timeline import Key, Timeline, TimelineError, Track, canonical_key
+from core.face import Face, SurfacePoint
+from core.formats.mesh_io import save_face, write_atomic, write_reporting_errors
+from core.parameters import ParameterError, check_value, key_of, sort_key
+from core.timeline import Key, Timeline, TimelineError, Track, canonical_key
 
 FORMAT_NAME = "mimica-project"
 FORMAT_VERSION = 2  # 2: the rig's values by parameter key; 1 (still read): FAPs, presets and muscles apart
@@ -187,7 +187,7 @@ def to_document(project: Project, base_dir: str | os.PathLike | None = None) -> 
         doc["face"] = entry
     else:
         raise ProjectError("the project's face has neither a built-in name nor a file; save the face first "
-                           "(core.project.embed_face)")
+                           "(core.formats.project.embed_face)")
     if project.landmarks is None:
         doc["landmarks"] = None
     else:
@@ -505,13 +505,13 @@ def open_face(project: Project, notes: list[str] | None = None) -> Face:
     notes : receives a sentence for each thing the user should know (face file changed, landmark
     relocated). Raises ProjectError when the face file is missing or unreadable.
     """
-    from .mesh_io import MeshLoadError, load_face
+    from core.formats.mesh_io import MeshLoadError, load_face
 
     notes = notes if notes is not None else []
     ref = project.face
     changed = False
     if ref.builtin is not None:
-        from .default_face import load_default_face
+        from core.default_face import load_default_face
 
         face = load_default_face()
     else:

@@ -32,13 +32,13 @@ from dataclasses import dataclass
 import numpy as np
 from psygnal import Signal
 
-from .. import parameters as P
-from ..face import Face
-from ..layer import ParameterChange, fresh_signals
-from .force_file import ForceSet, _check_jaw
-from .model import TissueModel, dense_template
-from .muscles import MuscleSet, check_control, control_keys, jaw_range, spec_by_name
-from .solver import TOLERANCE, RelaxReport, SolverDiverged, State, TissueSolver
+from core import parameters as P
+from core.face import Face
+from core.layer import ParameterChange, fresh_signals
+from core.layers.muscles.force_file import ForceSet, _check_jaw
+from core.layers.muscles.model import TissueModel, dense_template
+from core.layers.muscles.muscles import MuscleSet, check_control, control_keys, jaw_range, spec_by_name
+from core.layers.muscles.solver import TOLERANCE, RelaxReport, SolverDiverged, State, TissueSolver
 
 
 @dataclass

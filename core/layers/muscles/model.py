@@ -2,7 +2,7 @@
 
 Geometry
     The skin surface is the canonical dense MPEG-4 template placed on the face
-    (``core.fap.template.densify``; level 2 = 1160 vertices, about thesis C's 1857-vertex head,
+    (``core.layers.fap.template.densify``; level 2 = 1160 vertices, about thesis C's 1857-vertex head,
     level 3 = 4560 vertices, the full canonical face). It keeps the mouth as an open boundary, so
     the lips can part. Fascia and bone are copies of the skin moved *radially* toward a head centre
     c (the mean of the four ear contact points, 0.3 ES further back) by constant thicknesses
@@ -67,10 +67,10 @@ from scipy.sparse.csgraph import dijkstra
 
 import resources
 
-from ..face import Face, vertex_normals
-from ..fap import tables
-from ..fap.template import DenseTemplate, densify, mouth_side
-from ..surface_query import TriangleSet
+from core.face import Face, vertex_normals
+from core.layers.fap import tables
+from core.layers.fap.template import DenseTemplate, densify, mouth_side
+from core.surface_query import TriangleSet
 
 OUTSIDE_FADE_MM = 6.0  # face skin beyond the template outline follows it, fading over this distance
 LAYERS = ("skin", "fascia", "bone")
@@ -465,7 +465,7 @@ def rotation(axis, angle: float) -> np.ndarray:
 
 def dense_template(face: Face, level: int = 3) -> DenseTemplate:
     """The canonical template on ``face`` at subdivision ``level`` (2: 1160 vertices, 3: 4560)."""
-    from ..fap.template import load_template
+    from core.layers.fap.template import load_template
 
     steps = load_template().steps
     if not 1 <= level <= len(steps):

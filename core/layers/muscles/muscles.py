@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
-from .model import MuscleModelError, TissueModel, load_definitions, resolve_point
+from core.layers.muscles.model import MuscleModelError, TissueModel, load_definitions, resolve_point
 
 ORBICULARIS = "orbicularis_oris"
 SIDES = ("left", "right")

@@ -11,12 +11,12 @@ Model / State / Control split:
 - ``force_file``          ForceSet, thesis presets, JSON force files.
 """
 
-from .force_file import (ForceFileError, ForceSet, load_force_set, preset, preset_names,
+from core.layers.muscles.force_file import (ForceFileError, ForceSet, load_force_set, preset, preset_names,
                          save_force_set)
-from .layer import LayerSnapshot, MuscleLayer
-from .model import MuscleModelError
-from .muscles import MuscleSpec, control_keys, jaw_range, muscle_specs
-from .solver import RelaxReport, SolverDiverged
+from core.layers.muscles.layer import LayerSnapshot, MuscleLayer
+from core.layers.muscles.model import MuscleModelError
+from core.layers.muscles.muscles import MuscleSpec, control_keys, jaw_range, muscle_specs
+from core.layers.muscles.solver import RelaxReport, SolverDiverged
 
 __all__ = [
     "MuscleSpec", "muscle_specs", "control_keys", "jaw_range", "MuscleLayer", "LayerSnapshot", "ForceSet",

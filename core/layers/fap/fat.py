@@ -36,10 +36,10 @@ import numpy as np
 import scipy.sparse
 from scipy.sparse.csgraph import dijkstra
 
-from ..face import Face
-from ..surface_query import TriangleSet
-from . import tables
-from .template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
+from core.face import Face
+from core.surface_query import TriangleSet
+from core.layers.fap import tables
+from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
 N_FAPS = tables.N_FAPS
 LID_PAIRS = ((19, 21), (20, 22))  # (upper, lower) per eye
@@ -312,7 +312,7 @@ class FapDeformer:
         ``deform`` therefore lifts any upper-rim vertex that ends below the lower rim.
         """
         face = self.face
-        from ..subdivision import boundary_edges
+        from core.subdivision import boundary_edges
 
         rim = np.unique(boundary_edges(face.triangles).ravel())
         in_part = np.zeros(face.n_vertices, bool)

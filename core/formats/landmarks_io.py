@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from core.face import Face, SurfacePoint
-from core.mesh_io import write_atomic, write_reporting_errors
+from core.formats.mesh_io import write_atomic, write_reporting_errors
 
 __all__ = ["LandmarkFileError", "save_landmarks", "load_landmarks", "FORMAT_NAME", "FORMAT_VERSION"]
 

@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dpc_file import DpcSequence
-from .fap import tables
-from .fap_file import FapSequence
-from .timeline import LINEAR, Track, check_value
+from core.formats.dpc_file import DpcSequence
+from core.layers.fap import tables
+from core.formats.fap_file import FapSequence
+from core.timeline import LINEAR, Track, check_value
 
 __all__ = ["tracks_from_fap", "tracks_from_dpc"]
 
