@@ -24,10 +24,8 @@ _GROUP_TITLES = {"jaw & chin": "Jaw && chin"}  # QToolButton text: '&' marks a m
 # ------------------------------------------------------------------ naming
 def _feature_point_descriptions() -> dict[str, str]:
     try:
-        import resources
-
-        return {r["fp"]: r["description"] for r in resources.get_table("mpeg4/feature_points.csv")}
-    except Exception:  # noqa: BLE001 - descriptions only decorate a tooltip
+        return tables.feature_point_descriptions()
+    except Exception:  # noqa: BLE001 - descriptions only decorate the list
         return {}
 
 

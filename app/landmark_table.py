@@ -11,6 +11,7 @@ from PySide6.QtGui import QBrush, QColor, QIcon, QPainter, QPixmap
 
 from app import picking
 from core.landmark_editing import LandmarkEditModel, LandmarkStatus
+from core.layers.fap import tables
 
 
 STATUS_TIPS = {
@@ -25,9 +26,7 @@ COLUMNS = ("Landmark", "Status", "Conf.", "x", "y", "z")
 
 def _descriptions() -> dict[str, str]:
     try:
-        import resources
-
-        return {r["fp"]: r["description"] for r in resources.get_table("mpeg4/feature_points.csv")}
+        return tables.feature_point_descriptions()
     except Exception:  # noqa: BLE001 - descriptions only decorate the list
         return {}
 

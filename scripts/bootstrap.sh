@@ -28,7 +28,8 @@ fi
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "Installing Mimica and its Python dependencies (first run takes a minute)"
   "$VENV/bin/python" -m pip install --quiet --upgrade pip >/dev/null 2>&1 || true
-  "$VENV/bin/python" -m pip install --quiet -e "$ROOT${EXTRAS:+[$EXTRAS]}" 2>&1 | grep -v "^WARNING: Location" || true
+  # The build backend warns about every editable install of a flat layout; the first screen stays clean.
+  PYTHONWARNINGS=ignore "$VENV/bin/python" -m pip install --quiet -e "$ROOT${EXTRAS:+[$EXTRAS]}" 2>&1 | grep -v "^WARNING: Location" || true
   "$VENV/bin/python" -c "import app, core, resources" || { echo "Installation failed (see messages above)." >&2; exit 1; }
   echo "$want" > "$stamp"
 fi

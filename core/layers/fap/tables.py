@@ -86,6 +86,12 @@ def thesis_faps() -> tuple[int, ...]:
 
 
 @functools.cache
+def feature_point_descriptions() -> dict[str, str]:
+    """{feature point "2.1": its MPEG-4 description} (resources/mpeg4/feature_points.csv)."""
+    return {r["fp"]: r["description"] for r in resources.get_table("mpeg4/feature_points.csv")}
+
+
+@functools.cache
 def expression_names() -> tuple[str, ...]:
     """FAP 2 expression_select names by id (0 = neutral, 1 joy ... 6 surprise)."""
     return tuple(r["name"] for r in resources.get_table("mpeg4/expressions.csv"))
