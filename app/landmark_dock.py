@@ -294,7 +294,8 @@ def attach_landmark_editor(window) -> LandmarkEditor:
     def status(text: str, ms: int = 0) -> None:
         window.statusBar().showMessage(text, ms)
 
-    editor = LandmarkEditor(window.plotter, dock, stack, status_callback=status, parent=window)
+    editor = LandmarkEditor(window.plotter, dock, stack, status_callback=status, viewport=window.viewport,
+                            parent=window)
     for act in editor.window_actions:
         window.addAction(act)
     window.landmark_editor = editor

@@ -40,10 +40,11 @@ class LandmarkEditor(QObject):
     #: The landmark set changed (any edit, undo, load): the rig/registration may want to know.
     landmarks_changed = Signal()
 
-    def __init__(self, plotter, dock, stack, *, status_callback=None,
+    def __init__(self, plotter, dock, stack, *, status_callback=None, viewport=None,
                  parent: QObject | None = None):
         super().__init__(parent)
         self.plotter = plotter
+        self.viewport = viewport
         self.dock = dock
         self.stack = stack
         self._status = status_callback or (lambda _text, _ms=0: None)
@@ -394,7 +395,11 @@ class LandmarkEditor(QObject):
             self._update_markers()
 
     def request_render(self) -> None:
-        if not self._render_timer.isActive():
+        """Redraw soon: through the window's viewport scheduler when there is one (one render per
+        event-loop pass with everything else that changed), else on the editor's own timer."""
+        if self.viewport is not None:
+            self.viewport.request("landmarks")
+        elif not self._render_timer.isActive():
             self._render_timer.start()
 
     def _render_now(self) -> None:

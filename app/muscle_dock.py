@@ -365,14 +365,9 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
         self._render()
 
     def _render(self) -> None:
-        window = self.window_
-        plotter = window.plotter
-        if plotter is None or getattr(plotter, "_closed", False) or not plotter.isVisible():
-            return
-        alive = window._viewport_alive
-        if callable(alive) and not alive():
-            return
-        plotter.render()
+        """Ask the window's viewport to redraw the muscles (once, with whatever else changed)."""
+        if self.window_ is not None:
+            self.window_.viewport.request("muscles")
 
     # ============================================================ widgets -> layer
     def state(self) -> tuple:

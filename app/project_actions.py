@@ -267,8 +267,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
                                                tuple(map(float, up))]
                     if isinstance(camera.get("view_angle"), (int, float)):
                         plotter.camera.view_angle = float(camera["view_angle"])
-                    if plotter.isVisible():
-                        plotter.render()
+                    w.viewport.request("render")
         except Exception:  # noqa: BLE001 - a bad view entry must not stop the project from opening
             traceback.print_exc()
 
