@@ -24,11 +24,14 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from PySide6.QtCore import QSettings, Qt, QTimer, Signal
+from PySide6.QtCore import QEvent, QSettings, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QActionGroup, QKeySequence
 from PySide6.QtWidgets import (
+    QAbstractSpinBox,
     QApplication,
+    QDialog,
     QLabel,
+    QLineEdit,
     QMainWindow,
     QMessageBox,
     QProgressBar,
@@ -105,6 +108,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         # 5 Hz timer would re-render a 50k-triangle face forever for nothing.
         self.plotter = QtInteractor(self, off_screen=False, auto_update=False)
         self.plotter.setAcceptDrops(False)  # drops go to the window (our loader), not pv.read
+        self.plotter.installEventFilter(self)  # keys follow the mouse into the viewport (eventFilter)
         self._disable_vtk_keys()
         scene.setup_stage(self.plotter)
         self.setCentralWidget(self.plotter)
@@ -408,6 +412,16 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         elif rig is not None:
             self.statusBar().clearMessage()
         self.viewport.request("overlay")
+
+    def eventFilter(self, watched, event) -> bool:  # noqa: N802 - Qt override
+        # As in Blender, keys go where the mouse is: entering the 3-D view takes the keyboard from a
+        # number box (its typed value is committed), so 1/2/3, L, R... act on the view instead of
+        # typing into the last box used.
+        if watched is self.plotter and event.type() == QEvent.Type.Enter:
+            focus = QApplication.focusWidget()
+            if isinstance(focus, (QAbstractSpinBox, QLineEdit)) and not isinstance(focus.window(), QDialog):
+                self.plotter.setFocus(Qt.FocusReason.MouseFocusReason)
+        return super().eventFilter(watched, event)
 
     # The document's state, read through the window by the docks' older code paths.
     face = property(lambda self: self.document.face)

@@ -432,3 +432,27 @@ def test_the_dock_follows_change_events_row_by_row(dock, rig, monkeypatch):
     rig.parameters_changed.emit(ParameterChange())
     assert shown == []
     rig.set_values({"fap:3": 0.0})
+
+
+def test_view_keys_follow_the_mouse_into_the_viewport(qtbot, win, dock):
+    """A number box keeps digits typed into it; once the mouse enters the 3-D view, 1/2/3 change
+    the view instead of typing into the box (its value committed, nothing else changed)."""
+    from PySide6.QtCore import QEvent, QPointF
+    from PySide6.QtGui import QEnterEvent
+    from PySide6.QtWidgets import QApplication
+
+    spin = dock.row(3).spin
+    win.activateWindow()
+    qtbot.waitUntil(win.isActiveWindow)
+    spin.setFocus()
+    qtbot.waitUntil(lambda: QApplication.focusWidget() in (spin, spin.lineEdit()))
+    spin.selectAll()
+    qtbot.keyClicks(spin.lineEdit(), "2")                 # typing in the box types in the box
+    qtbot.keyClick(spin.lineEdit(), Qt.Key.Key_Return)
+    assert win.rig.fap_value(3) == 2.0
+    win.set_camera_view("front")
+    QApplication.sendEvent(win.plotter, QEnterEvent(QPointF(5, 5), QPointF(5, 5), QPointF(5, 5)))
+    assert win.plotter.hasFocus()
+    qtbot.keyClick(win.plotter, Qt.Key.Key_2)            # now the key is the side view's
+    assert win._view == "side" and win.rig.fap_value(3) == 2.0
+    win.rig.set_values({"fap:3": 0.0})
