@@ -456,3 +456,25 @@ def test_view_keys_follow_the_mouse_into_the_viewport(qtbot, win, dock):
     qtbot.keyClick(win.plotter, Qt.Key.Key_2)            # now the key is the side view's
     assert win._view == "side" and win.rig.fap_value(3) == 2.0
     win.rig.set_values({"fap:3": 0.0})
+
+
+def test_typing_a_number_out_of_range_is_refused_visibly(qtbot, win, dock):
+    """Typing 500 into the ±400 box of FAP 31 does not give 50: the box says 500 is outside its
+    range and keeps its value; an in-range number typed the same way is taken."""
+    row = dock.row(31)
+    spin = row.spin
+    notes = []
+    spin.refused.connect(notes.append)
+    win.activateWindow()
+    qtbot.waitUntil(win.isActiveWindow)
+    spin.setFocus()
+    spin.selectAll()
+    qtbot.keyClicks(spin.lineEdit(), "500")
+    assert spin.lineEdit().text().startswith("500")       # every digit typed is there
+    qtbot.keyClick(spin.lineEdit(), Qt.Key.Key_Return)
+    assert win.rig.fap_value(31) == 0.0 and notes and "500 is outside -400 to 400 ENS" in notes[-1]
+    spin.selectAll()
+    qtbot.keyClicks(spin.lineEdit(), "250")
+    qtbot.keyClick(spin.lineEdit(), Qt.Key.Key_Return)
+    assert win.rig.fap_value(31) == 250.0
+    win.rig.set_values({"fap:31": 0.0})
