@@ -223,6 +223,10 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         if dock is not None:
             view["overlays"] = {"heat_map": bool(dock.heat_check.isChecked()),
                                 "influence": bool(dock.influence_check.isChecked())}
+            view["link_left_right"] = {"faps": bool(dock.link_check.isChecked())}
+        muscles = getattr(w, "muscle_dock", None)
+        if muscles is not None:
+            view.setdefault("link_left_right", {})["muscles"] = bool(muscles.link_check.isChecked())
         tdock = getattr(c, "dock", None)
         view["timeline"] = {"time": float(c.current_time), "loop": bool(c.loop), "speed": float(c.speed),
                             "auto_key": bool(c.auto_key)}
@@ -246,6 +250,11 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             if isinstance(overlays, dict) and dock is not None:
                 dock.heat_check.setChecked(bool(overlays.get("heat_map", False)))
                 dock.influence_check.setChecked(bool(overlays.get("influence", False)))
+            links = view.get("link_left_right")
+            if isinstance(links, dict):
+                for name, target in (("faps", dock), ("muscles", getattr(w, "muscle_dock", None))):
+                    if target is not None and isinstance(links.get(name), bool):
+                        target.link_check.setChecked(links[name])
             tview = view.get("timeline")
             if isinstance(tview, dict):
                 c.loop = bool(tview.get("loop", False))

@@ -319,3 +319,17 @@ def test_closing_with_unsaved_changes_asks_save_discard_cancel(qtbot, settings, 
     clean.document.project.ask_on_close = True
     clean.show()
     assert clean.close() and len(asked) == 2   # nothing to save: no question
+
+
+def test_link_left_right_is_saved_in_the_project(qtbot, win, c, rig, tmp_path, answers):
+    dock = win.fap_dock
+    dock.link_check.setChecked(True)
+    path = tmp_path / "linked.mimica"
+    assert c.project.save_project(path)
+    import json
+
+    assert json.loads(path.read_text(encoding="utf-8"))["view"]["link_left_right"]["faps"] is True
+    dock.link_check.setChecked(False)
+    assert c.project.open_project(path, ask=False)
+    qtbot.waitUntil(lambda: dock.link_check.isChecked(), timeout=30_000)
+    dock.link_check.setChecked(False)
