@@ -34,6 +34,9 @@ OPEN_FILTER = (
     "STL (*.stl);;glTF (*.glb *.gltf);;All files (*)"
 )
 SCREENSHOT_FILTER = "PNG image (*.png);;JPEG image (*.jpg *.jpeg)"
+PROJECT_SUFFIX = ".mimica"
+ANIMATION_SUFFIXES = (".fap", ".dpc")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
 def _is_mesh_save_error(exc: BaseException) -> bool:
@@ -96,12 +99,38 @@ class FaceFilesMixin:
         self._recent_clear_action.setVisible(bool(files))
 
     def open_recent(self, path: str) -> None:
-        """Open a recent file; a missing one is dropped from the list with a message."""
+        """Open a recent file (a face or a project); a missing one is dropped from the list with a message."""
         if not Path(path).is_file():
             self._set_recent_files([f for f in self.recent_files() if f != path])
             self.show_error("File not found", f"{path}\n\nno longer exists and was removed from the recent files.")
             return
-        self.load_face_file(path)
+        self.open_path(path)
+
+    def open_path(self, path) -> bool:
+        """Open whatever ``path`` is, by its suffix: a face mesh, a project, an animation (.fap, DPC:
+        onto the timeline) or an image (the face's texture). Anything else: a message naming what
+        Mimica opens. Returns True when it was taken."""
+        path = str(path)
+        suffix = Path(path).suffix.lower()
+        project, timeline = self.document.project, self.document.timeline
+        if suffix in OPEN_SUFFIXES:
+            self.load_face_file(path)
+        elif suffix == PROJECT_SUFFIX and project is not None:
+            project.open_project(path)
+        elif suffix in ANIMATION_SUFFIXES and timeline is not None:
+            timeline.import_animation(path)
+        elif suffix in IMAGE_SUFFIXES:
+            if self.face is None:
+                self.show_error("No face for this image", f"{Path(path).name} is an image: open a face first, then "
+                                "drop the image on it (or use Tools ▸ Load texture image…) to use it as its texture.")
+                return False
+            self.load_texture(path)
+        else:
+            self.show_error("Cannot open this file", f"{Path(path).name}: Mimica opens faces ({', '.join(OPEN_SUFFIXES)}), "
+                            f"projects ({PROJECT_SUFFIX}), animations ({', '.join(ANIMATION_SUFFIXES)}) and texture "
+                            f"images ({', '.join(IMAGE_SUFFIXES)}).")
+            return False
+        return True
 
     # ------------------------------------------------------------ loading
     @property

@@ -30,6 +30,7 @@ from PySide6.QtWidgets import (
     QAbstractSpinBox,
     QApplication,
     QDialog,
+    QDockWidget,
     QLabel,
     QLineEdit,
     QMainWindow,
@@ -107,8 +108,9 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         # auto_update=False: we render when something changes; the default
         # 5 Hz timer would re-render a 50k-triangle face forever for nothing.
         self.plotter = QtInteractor(self, off_screen=False, auto_update=False)
-        self.plotter.setAcceptDrops(False)  # drops go to the window (our loader), not pv.read
-        self.plotter.installEventFilter(self)  # keys follow the mouse into the viewport (eventFilter)
+        # Keys follow the mouse into the viewport, and drops on it go to our loader, not pv.read
+        # (both in eventFilter).
+        self.plotter.installEventFilter(self)
         self._disable_vtk_keys()
         scene.setup_stage(self.plotter)
         self.setCentralWidget(self.plotter)
@@ -128,6 +130,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         if tools:  # tests of one dock attach it alone (tools=False)
             self._attach_tools()
         self._restore_window_state()
+        self._take_drops()
 
         if face is not None:
             self.set_face(face)
@@ -413,11 +416,25 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
             self.statusBar().clearMessage()
         self.viewport.request("overlay")
 
+    def _take_drops(self) -> None:
+        """Drops anywhere in the window (viewport, any dock) reach :meth:`dropEvent`: Qt would
+        otherwise hand them to whichever child happens to accept drops, or to nobody."""
+        for widget in (self.plotter, *self.findChildren(QDockWidget)):
+            if not widget.property("mimicaDrops"):
+                widget.setProperty("mimicaDrops", True)
+                widget.setAcceptDrops(True)
+                widget.installEventFilter(self)
+
     def eventFilter(self, watched, event) -> bool:  # noqa: N802 - Qt override
+        kind = event.type()
+        if kind in (QEvent.Type.DragEnter, QEvent.Type.DragMove, QEvent.Type.Drop) and watched.property("mimicaDrops"):
+            {QEvent.Type.DragEnter: self.dragEnterEvent, QEvent.Type.DragMove: self.dragMoveEvent,
+             QEvent.Type.Drop: self.dropEvent}[kind](event)
+            return True
         # As in Blender, keys go where the mouse is: entering the 3-D view takes the keyboard from a
         # number box (its typed value is committed), so 1/2/3, L, R... act on the view instead of
         # typing into the last box used.
-        if watched is self.plotter and event.type() == QEvent.Type.Enter:
+        if watched is self.plotter and kind == QEvent.Type.Enter:
             focus = QApplication.focusWidget()
             if isinstance(focus, (QAbstractSpinBox, QLineEdit)) and not isinstance(focus.window(), QDialog):
                 self.plotter.setFocus(Qt.FocusReason.MouseFocusReason)
@@ -512,14 +529,15 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
 
     # ------------------------------------------------------------ drag & drop
     @staticmethod
-    def _dropped_face_files(mime) -> list[str]:
+    def _dropped_files(mime) -> list[str]:
         if not mime.hasUrls():
             return []
-        paths = [u.toLocalFile() for u in mime.urls() if u.isLocalFile()]
-        return [p for p in paths if Path(p).suffix.lower() in OPEN_SUFFIXES and Path(p).is_file()]
+        return [u.toLocalFile() for u in mime.urls() if u.isLocalFile() and Path(u.toLocalFile()).is_file()]
 
     def dragEnterEvent(self, event) -> None:  # noqa: N802 - Qt override
-        if self._dropped_face_files(event.mimeData()):
+        # Any local file is taken: what it is decides on drop, and a file Mimica cannot open gets a
+        # message there instead of a silent "no entry" cursor.
+        if self._dropped_files(event.mimeData()):
             event.acceptProposedAction()
         else:
             event.ignore()
@@ -528,14 +546,14 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self.dragEnterEvent(event)
 
     def dropEvent(self, event) -> None:  # noqa: N802 - Qt override
-        files = self._dropped_face_files(event.mimeData())
+        files = self._dropped_files(event.mimeData())
         if not files:
             event.ignore()
             return
         event.acceptProposedAction()
         if len(files) > 1:
             self.statusBar().showMessage(f"Opening the first of {len(files)} dropped files", 5000)
-        self.load_face_file(files[0])
+        self.open_path(files[0])
 
     # ------------------------------------------------------------ help
     def about_text(self) -> str:

@@ -444,6 +444,8 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         if isinstance(tview, dict) and bool(tview.get("auto_key", False)) != c.auto_key:
             c.set_auto_key(bool(tview.get("auto_key", False)))
         self.path = Path(path) if path is not None else None
+        if self.path is not None and self.path.suffix == cp.SUFFIX:
+            self.window.add_recent_file(str(self.path))   # File ▸ Open recent lists projects too
         self.stack.clear()
         self._mark_clean()
         self._dirty = dirty
@@ -494,6 +496,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         if self.path is not None and self.path != path:
             cp.discard_autosave(self.path)
         self.path = path
+        self.window.add_recent_file(str(path))
         cp.discard_autosave(path)
         if old_untitled:
             self._discard_own_autosave(untitled_only=True)

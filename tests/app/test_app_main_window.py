@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from app_helpers import image_difference, image_variance, make_synthetic_face, write_obj
-from PySide6.QtCore import QMimeData, QPointF, QSettings, Qt, QTimer, QUrl
+from PySide6.QtCore import QPoint, QMimeData, QPointF, QSettings, Qt, QTimer, QUrl
 from PySide6.QtGui import QDropEvent
 from PySide6.QtWidgets import QMessageBox
 
@@ -169,11 +169,52 @@ def test_drop_file_loads_it(qtbot, window, tmp_path):
     with qtbot.waitSignal(window.load_finished, timeout=LOAD_TIMEOUT_MS):
         window.dropEvent(event)
     assert window.file_label.text() == "dropped.obj"
-    assert not window.plotter.acceptDrops(), "pyvistaqt's own drop handler must be off"
+    assert window.plotter.property("mimicaDrops"), "drops on the viewport go to our loader, not pv.read"
 
     ignored = QMimeData()
     ignored.setUrls([QUrl.fromLocalFile(str(tmp_path))])
-    assert window._dropped_face_files(ignored) == []
+    assert window._dropped_files(ignored) == []   # a folder is not a file
+
+
+def _drop_on(widget, path):
+    """A drag entering ``widget`` and a drop there, delivered as Qt delivers them (up to the first
+    ancestor that takes drops)."""
+    from PySide6.QtGui import QDragEnterEvent
+    from PySide6.QtWidgets import QApplication
+
+    mime = QMimeData()
+    mime.setUrls([QUrl.fromLocalFile(str(path))])
+    enter = QDragEnterEvent(QPoint(20, 20), Qt.DropAction.CopyAction, mime, Qt.MouseButton.LeftButton,
+                            Qt.KeyboardModifier.NoModifier)
+    QApplication.sendEvent(widget, enter)
+    drop = QDropEvent(QPointF(20, 20), Qt.DropAction.CopyAction, mime, Qt.MouseButton.LeftButton,
+                      Qt.KeyboardModifier.NoModifier)
+    QApplication.sendEvent(widget, drop)
+    return enter.isAccepted()
+
+
+def test_drops_anywhere_open_meshes_and_textures_or_say_why_not(qtbot, window, tmp_path, error_boxes):
+    from core.formats.mesh_io import save_face
+
+    glb = tmp_path / "dropped.glb"
+    save_face(make_synthetic_face(n_u=16, n_v=16), glb)   # with uv: a dropped image can be its texture
+    finished = []
+    window.load_finished.connect(finished.append)
+    assert _drop_on(window.fap_dock, glb)               # on a dock
+    qtbot.waitUntil(lambda: bool(finished), timeout=LOAD_TIMEOUT_MS)
+    assert finished == [True] and window.file_label.text() == "dropped.glb", (finished, error_boxes)
+    image = tmp_path / "skin.png"
+    from PIL import Image
+
+    Image.new("RGB", (32, 32), (200, 150, 120)).save(image)
+    finished.clear()
+    assert _drop_on(window.plotter, image)               # on the viewport: the face's texture
+    qtbot.waitUntil(lambda: bool(finished), timeout=LOAD_TIMEOUT_MS)
+    assert window.face.texture is not None and window.face.texture.shape[:2] == (32, 32)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("not a face")
+    assert _drop_on(window.plotter, notes)
+    assert error_boxes and "Mimica opens faces" in error_boxes[-1][1]
 
 
 # ------------------------------------------------------------------ recent files & settings

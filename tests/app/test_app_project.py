@@ -333,3 +333,16 @@ def test_link_left_right_is_saved_in_the_project(qtbot, win, c, rig, tmp_path, a
     assert c.project.open_project(path, ask=False)
     qtbot.waitUntil(lambda: dock.link_check.isChecked(), timeout=30_000)
     dock.link_check.setChecked(False)
+
+
+def test_open_recent_lists_projects_and_opens_them(qtbot, win, c, rig, tmp_path, answers):
+    path = tmp_path / "recent.mimica"
+    rig.set_values({"fap:3": 120.0})
+    c.set_key(["fap:3"])
+    assert c.project.save_project(path)
+    assert win.recent_files()[0] == str(path)
+    c.project.new_project()
+    assert "fap:3" not in c.timeline.tracks
+    win.open_recent(str(path))
+    qtbot.waitUntil(lambda: "fap:3" in c.timeline.tracks, timeout=30_000)
+    assert c.project.path == path
