@@ -190,11 +190,19 @@ def viseme_tracks(segments, *, transition_s: float = 0.1, offset_s: float = 0.0)
     return out
 
 
+#: A blink of a short clip keeps this far (s) from its start and end.
+BLINK_MARGIN_S = 0.1
+
+
 def blink_tracks(start_s: float, end_s: float, rng: np.random.Generator) -> dict[str, Track]:
     """FAP 19–22 tracks with blinks between ``start_s`` and ``end_s`` (only whole blinks)."""
     length = BLINK_CLOSE_S + BLINK_HOLD_S + BLINK_OPEN_S + BLINK_EYE_OFFSET_S[1]
     keys = {n: [] for pair in BLINK_FAPS.values() for n in pair}
     t = start_s + rng.uniform(*BLINK_FIRST_S)
+    if t + length > end_s and end_s - start_s >= length + 2 * BLINK_MARGIN_S:
+        # A short clip would otherwise get no blink at all although one was asked for: one whole
+        # blink, somewhere inside it.
+        t = start_s + rng.uniform(BLINK_MARGIN_S, end_s - start_s - length - BLINK_MARGIN_S)
     while t + length <= end_s:
         offset = rng.uniform(*BLINK_EYE_OFFSET_S)
         lead = "left" if rng.random() < 0.5 else "right"

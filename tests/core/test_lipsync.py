@@ -184,3 +184,17 @@ def test_bad_input():
         lipsync.lipsync_tracks("hello", "en", start_s=-1)
     with pytest.raises(ValueError, match="positive"):
         coarticulation.viseme_curves([visemes.VisemeSegment(1, 0, 1, "p")], transition_s=0)
+
+
+def test_a_short_clip_still_gets_a_blink_when_asked():
+    """A 1.6 s clip used to get none (the first blink was placed 0.5-2 s in, whole blinks only)."""
+    import numpy as np
+
+    from core.lipsync.coarticulation import blink_tracks
+
+    for seed in range(20):
+        tracks = blink_tracks(0.0, 1.6, np.random.default_rng(seed))
+        assert set(tracks) == {"fap:19", "fap:20", "fap:21", "fap:22"}
+        times = np.concatenate([t.times for t in tracks.values()])
+        assert times.min() >= 0.0 and times.max() <= 1.6
+    assert blink_tracks(0.0, 0.2, np.random.default_rng(0)) == {}   # no room for a whole blink
