@@ -108,10 +108,13 @@ class MuscleDockLayout:
         self.preset_combo.setObjectName("musclePresetCombo")
         for name in preset_names():
             self.preset_combo.addItem(_preset_title(name), name)
-        self.preset_combo.setToolTip("Thesis C's test expressions (§5.2–5.6)")
-        self.apply_button = QPushButton("Apply", box)
+        self.preset_combo.setToolTip("Thesis C's test expressions (§5.2–5.6): choosing one applies it, "
+                                     "as the FAP dock's presets do")
+        # One rule for presets in both docks: choosing one applies it (an undo step).
+        self.preset_combo.activated.connect(lambda index: self.apply_preset(self.preset_combo.itemData(index)))
+        self.apply_button = QPushButton("Apply again", box)
         self.apply_button.setObjectName("musclePresetApply")
-        self.apply_button.setToolTip("Set the forces (and jaw) of the chosen expression")
+        self.apply_button.setToolTip("Set the forces (and jaw) of the chosen expression again (after edits)")
         self.apply_button.clicked.connect(lambda: self.apply_preset(self.preset_combo.currentData()))
         self.save_button = QPushButton("Save…", box)
         self.save_button.setObjectName("muscleSave")

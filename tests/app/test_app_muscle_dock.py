@@ -336,3 +336,11 @@ def test_corrected_landmarks_on_the_same_face_mean_a_new_build(synthetic_face):
     other = synthetic_face.landmarks[synthetic_face.landmark_names[1]]
     synthetic_face.set_landmark(name, other)
     assert _face_signature(synthetic_face) != before
+
+
+def test_choosing_a_preset_applies_it_like_the_fap_presets(dock, win, qtbot):
+    index = dock.preset_combo.findData("kiss")
+    steps = win.undo_stack.count()
+    dock.preset_combo.activated.emit(index)         # what a user's choice in the list sends
+    assert dock.layer.forces()[("orbicularis_oris", None)] == preset("kiss").full()[("orbicularis_oris", None)]
+    assert win.undo_stack.count() == steps + 1
