@@ -313,6 +313,12 @@ class FapDock(QDockWidget):
         self._show_preset(self.expression_combo, self.expression_slider, self.expression_spin, eid, eint)
         vid, vint = self.rig.viseme
         self._show_preset(self.viseme_combo, self.viseme_slider, self.viseme_spin, vid, vint)
+        # Where the active presets put each FAP: a mark on its slider, so a user sees what Joy does.
+        presets = self.rig.preset_values()
+        for number, row in self.rows.items():
+            value = presets[number - 1]
+            row.slider.set_ghost(value if value else None)
+            row.slider.setToolTip(row.label.toolTip() + (f"\n\n▲ The active preset puts it at {value:g}." if value else ""))
 
     def _on_rig_changed(self, force: bool = False) -> None:
         """Every widget to the rig's values, emitting nothing (``force``: rows that think

@@ -5,16 +5,47 @@ Small input widgets shared by the docks.
 
 from __future__ import annotations
 
-from PySide6.QtCore import QPoint, Signal
-from PySide6.QtGui import QValidator
-from PySide6.QtWidgets import QDoubleSpinBox, QSlider, QToolTip
+from PySide6.QtCore import QPoint, QPointF, Qt, Signal
+from PySide6.QtGui import QColor, QPainter, QPolygonF, QValidator
+from PySide6.QtWidgets import QDoubleSpinBox, QSlider, QStyle, QStyleOptionSlider, QToolTip
 
 
 class ScrollFriendlySlider(QSlider):
     """A slider that lets the mouse wheel scroll the dock unless it has keyboard focus.
 
     Without this, scrolling a long dock of sliders changes whichever slider passes under the mouse.
+    ``set_ghost(value)`` marks a second value on the groove (e.g. where the active expression preset
+    puts this parameter); None removes the mark.
     """
+
+    ghost: int | None = None
+
+    def set_ghost(self, value: int | None) -> None:
+        value = None if value is None else int(round(value))
+        if value != self.ghost:
+            self.ghost = value
+            self.update()
+
+    def paintEvent(self, event) -> None:  # noqa: N802 - Qt override
+        super().paintEvent(event)
+        if self.ghost is None or not self.minimum() <= self.ghost <= self.maximum():
+            return
+        option = QStyleOptionSlider()
+        self.initStyleOption(option)
+        groove = self.style().subControlRect(QStyle.ComplexControl.CC_Slider, option,
+                                             QStyle.SubControl.SC_SliderGroove, self)
+        handle = self.style().subControlRect(QStyle.ComplexControl.CC_Slider, option,
+                                             QStyle.SubControl.SC_SliderHandle, self)
+        span = groove.width() - handle.width()
+        x = groove.x() + handle.width() / 2 + QStyle.sliderPositionFromValue(
+            self.minimum(), self.maximum(), self.ghost, max(span, 1))
+        painter = QPainter(self)
+        painter.setRenderHint(QPainter.RenderHint.Antialiasing)
+        painter.setPen(Qt.PenStyle.NoPen)
+        painter.setBrush(QColor(230, 120, 20))
+        top = groove.center().y() + 4
+        painter.drawPolygon(QPolygonF([QPointF(x, top), QPointF(x - 4, top + 6), QPointF(x + 4, top + 6)]))
+        painter.end()
 
     def wheelEvent(self, event) -> None:  # noqa: N802 - Qt override
         if self.hasFocus():

@@ -478,3 +478,20 @@ def test_typing_a_number_out_of_range_is_refused_visibly(qtbot, win, dock):
     qtbot.keyClick(spin.lineEdit(), Qt.Key.Key_Return)
     assert win.rig.fap_value(31) == 250.0
     win.rig.set_values({"fap:31": 0.0})
+
+
+def test_preset_values_show_as_marks_on_the_sliders(win, dock, rig):
+    """Joy at 100 %: every FAP Joy moves gets a mark where Joy puts it; the others none."""
+    from core.layers.fap import tables
+
+    rig.set_expression("joy", 1.0)
+    joy = tables.expression_table()[tables.expression_id("joy")]
+    try:
+        marked = {n for n, row in dock.rows.items() if row.slider.ghost is not None}
+        assert marked == {n for n in dock.rows if joy[n - 1] != 0} and marked
+        n = next(iter(marked))
+        assert dock.rows[n].slider.ghost == round(joy[n - 1])
+        assert "active preset" in dock.rows[n].slider.toolTip()
+    finally:
+        rig.set_expression(None)
+    assert all(row.slider.ghost is None for row in dock.rows.values())
