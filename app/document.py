@@ -19,13 +19,16 @@ import traceback
 from PySide6.QtCore import QObject
 
 from app.undo import UndoableRigEdits, make_undo_stack
+from core.cache import DiskCache
 
 NO_RIG_MESSAGE = "This face has no MPEG-4 feature points yet: mark them (landmark picker) to animate it."
 
 
-def build_rig(face) -> tuple[object | None, str]:
+def build_rig(face, cache: DiskCache | None = None) -> tuple[object | None, str]:
     """(FaceRig for ``face``, "") or (None, a message for the user saying why not).
 
+    The FAP table comes from ``cache`` (default: the user's cache folder) when this face was
+    animated before; what the cache had to say (a damaged entry rebuilt) joins the face's notes.
     Never raises: a face without the MPEG-4 feature points is a normal state (the user marks them
     later), and anything unexpected is reported on stderr.
     """
@@ -36,8 +39,13 @@ def build_rig(face) -> tuple[object | None, str]:
     except Exception as exc:  # noqa: BLE001 - animation is optional; the viewer must still work
         traceback.print_exc()
         return None, f"Animation is not available in this installation ({type(exc).__name__}: {exc})."
+    cache = cache if cache is not None else DiskCache()
     try:
-        return FaceRig(face), ""
+        rig = FaceRig(face, cache=cache)
+        notes = getattr(face.metadata, "notes", None)
+        if cache.notes and isinstance(notes, list):
+            notes.extend(n for n in cache.notes if n not in notes)
+        return rig, ""
     except ValueError as exc:  # missing/misplaced feature points: a message, not a bug
         first = NO_RIG_MESSAGE if isinstance(exc, TemplateError) else "This face cannot be animated yet."
         return None, f"{first}\n\nDetails: {exc}"

@@ -291,6 +291,7 @@ class FaceFilesMixin:
         """Render the viewport; write it to ``path`` (png/jpg) if given. Returns the RGB image."""
         from app.render import save_image
 
+        self.viewport.flush()   # the full-quality face, never the draft drawn while things move
         self.plotter.render()
         image = self.plotter.screenshot(None, return_img=True)[..., :3]
         if path is not None:

@@ -70,6 +70,20 @@ class FaceViewMixin:
         self._shown_overlay = (kind, number)
         return True
 
+    def _set_draft(self, on: bool) -> bool:
+        """Draw the face's draft copy (while things move) or the full face (app.viewport)."""
+        return self.face_actor.use_preview(on) if self.face_actor is not None else False
+
+    def _start_preview(self, face) -> None:
+        """Build (or read from the disk cache) the face's draft copy in the background."""
+        from app.preview import cached_preview
+
+        def done(preview) -> None:
+            if self.face_actor is not None and self.face_actor.face is face:
+                self.face_actor.set_preview(preview)
+
+        self.previews.start(lambda job: cached_preview(face), done, lambda _text: None)
+
     def _show_timing(self, compute_ms: float, draw_ms: float) -> None:
         self.tick_label.setText(f"update: compute {compute_ms:.1f} ms · draw {draw_ms:.1f} ms")
 

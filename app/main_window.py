@@ -96,6 +96,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
 
         self.loads = JobRunner(self, supersede=True, user_errors=(MeshLoadError,))
         self.jobs = JobRunner(self)
+        self.previews = JobRunner(self, supersede=True)   # the face's draft copy (app.preview)
         self._notes_box: QMessageBox | None = None
         self._notes_seen: list[str] | None = None  # notes of the face an edited copy replaces
         self._framed_when_shown = False
@@ -112,13 +113,16 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         # (both in eventFilter).
         self.plotter.installEventFilter(self)
         self._disable_vtk_keys()
-        scene.setup_stage(self.plotter)
+        self.renderer_name = scene.renderer_name(self.plotter)
+        scene.setup_stage(self.plotter, anti_aliasing=scene.anti_aliasing_for(self.renderer_name))
         self.setCentralWidget(self.plotter)
         from app.viewport import Viewport
 
         self.viewport = Viewport(self.plotter, self._viewport_alive, self)
         self.viewport.add_updater(("mesh", "overlay"), self._update_face)
         self.viewport.timed.connect(self._show_timing)
+        self.viewport.set_draft = self._set_draft
+        self.viewport.watch_camera(self.plotter.iren.interactor)
         self._tick_timer = self.viewport.timer   # tests wait on it
         # Camera zoom narrows the view angle; presets and Reset camera restore it.
         self._default_view_angle = float(self.plotter.camera.view_angle)
@@ -333,12 +337,14 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self.settings.sync()
         self.loads.cancel()  # ignore loads and jobs still running
         self.jobs.cancel()
+        self.previews.cancel()
         self._closing = True
         self.viewport.stop()
         self._disconnect_rig()
         self.fap_dock.set_rig(None, "")
         self.loads.wait(5000)  # a worker must not outlive the window it reports to
         self.jobs.wait(5000)
+        self.previews.wait(5000)
         if self._notes_box is not None:
             self._notes_box.close()
         self.plotter.close()
@@ -392,6 +398,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self.setWindowTitle(f"{APP_NAME} — {face.metadata.name}")
         self._update_status_labels()
         self.set_camera_view("front")
+        self._start_preview(face)
         self.face_changed.emit(face)
 
     # ------------------------------------------------------------ animation

@@ -148,7 +148,15 @@ class SurfacePicker:
     def pick(self, renderer, x: float, y: float) -> SurfaceHit | None:
         """The surface under display pixel (x, y) (VTK device pixels), or None when the ray misses."""
         self.locator.BuildLocator()  # no-op unless the mesh changed since the last build
-        if not self.picker.Pick(float(x), float(y), 0.0, renderer):
+        # VTK skips hidden actors; the face is hidden while its draft copy is drawn (app.preview),
+        # and its mesh is current then too.
+        visible = self.actor.GetVisibility()
+        self.actor.SetVisibility(True)
+        try:
+            hit = self.picker.Pick(float(x), float(y), 0.0, renderer)
+        finally:
+            self.actor.SetVisibility(visible)
+        if not hit:
             return None
         cell = int(self.picker.GetCellId())
         if cell < 0 or cell >= len(self.triangles):

@@ -91,10 +91,32 @@ def face_texture(face: Face) -> pv.Texture | None:
 
 
 # ------------------------------------------------------------------- stage
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "software rasterizer", "swr", "basic render")
+
+
+def renderer_name(plotter) -> str:
+    """The OpenGL renderer string of ``plotter``'s render window ("" when it cannot be read)."""
+    try:
+        report = plotter.render_window.ReportCapabilities()
+    except Exception:  # noqa: BLE001 - informative only
+        return ""
+    for line in str(report).splitlines():
+        if "renderer string" in line.lower():
+            return line.split(":", 1)[1].strip()
+    return ""
+
+
+def anti_aliasing_for(renderer: str) -> str | None:
+    """MSAA where the GPU is real; none on software OpenGL, where every sample costs CPU time."""
+    name = renderer.lower()
+    return None if any(s in name for s in SOFTWARE_RENDERERS) else "msaa"
+
+
 def setup_stage(plotter: "BasePlotter", *, anti_aliasing: str | None = "msaa") -> None:
     """Background gradient, a camera-attached three-point light rig and anti-aliasing.
 
-    ``anti_aliasing`` is passed to ``enable_anti_aliasing``; None disables it.
+    ``anti_aliasing`` is passed to ``enable_anti_aliasing``; None disables it (see
+    :func:`anti_aliasing_for`: on software OpenGL MSAA triples the cost of a frame).
     MSAA is the default because SSAA (what VTK's EGL build substitutes for
     FXAA) renders at twice the size and so halves landmark marker sizes.
     """
@@ -112,14 +134,15 @@ def setup_stage(plotter: "BasePlotter", *, anti_aliasing: str | None = "msaa") -
         light = pv.Light(position=position, focal_point=(0, 0, 0), color=color,
                          intensity=intensity, light_type="camera light")
         plotter.add_light(light)
-    if anti_aliasing:
-        try:
-            if anti_aliasing == "msaa":
-                plotter.enable_anti_aliasing("msaa", multi_samples=8)
-            else:
-                plotter.enable_anti_aliasing(anti_aliasing)
-        except Exception:  # noqa: BLE001 - anti-aliasing is cosmetic, never fatal
-            pass
+    try:
+        if anti_aliasing == "msaa":
+            plotter.enable_anti_aliasing("msaa", multi_samples=8)
+        elif anti_aliasing:
+            plotter.enable_anti_aliasing(anti_aliasing)
+        else:  # pyvista's theme turns MSAA on by default: off means off
+            plotter.disable_anti_aliasing()
+    except Exception:  # noqa: BLE001 - anti-aliasing is cosmetic, never fatal
+        pass
 
 
 # ------------------------------------------------------------------- actor
@@ -156,6 +179,10 @@ class FaceActor:
         self._normals = VertexNormals(face.triangles, face.n_vertices)
         self._overlay: dict | None = None  # cmap, title, fmt, clim of the scalars shown
         self._scalar_bar_title: str | None = None
+        self.preview = None                # app.preview.PreviewMesh: the draft level of detail
+        self.preview_mesh: pv.PolyData | None = None
+        self.preview_actor: pv.Actor | None = None
+        self._showing_preview = False
         self.mode = ""
         self.set_mode(mode)
         self.set_landmarks_visible(show_landmarks)
@@ -208,11 +235,23 @@ class FaceActor:
         mode = mode.lower()
         if mode not in MODES:
             raise ValueError(f"unknown display mode {mode!r}; choose one of {', '.join(MODES)}")
-        prop = self.actor.prop
-        mapper = self.actor.mapper
+        for actor in self._surface_actors():
+            self._style(actor, mode)
+        self.mode = mode
+        self.use_preview(self._showing_preview)  # wireframe and points are always drawn in full
+        if self._overlay is not None:
+            self._apply_overlay_look()
+
+    def _surface_actors(self) -> list:
+        return [self.actor] + ([self.preview_actor] if self.preview_actor is not None else [])
+
+    def _style(self, actor, mode: str) -> None:
+        """The look of display ``mode`` on one surface actor (the face or its draft copy)."""
+        prop = actor.prop
+        mapper = actor.mapper
         use_texture = mode == "textured" and self.has_texture
         use_colors = mode == "textured" and not use_texture and self.has_vertex_colors
-        self.actor.texture = self.texture if use_texture else None
+        actor.texture = self.texture if use_texture else None
         mapper.scalar_visibility = use_colors
         prop.style = {"wireframe": "wireframe", "points": "points"}.get(mode, "surface")
         if mode in ("textured", "shaded"):
@@ -237,9 +276,6 @@ class FaceActor:
             prop.specular = 0.0
         # Light wireframes/points from both sides: back faces show through.
         prop.backface_culling = False
-        self.mode = mode
-        if self._overlay is not None:
-            self._apply_overlay_look()
 
     # ----------------------------------------------------------- scalar overlays
     def show_scalars(self, values, *, cmap: str = "inferno", clim=None, title: str = "",
@@ -253,6 +289,7 @@ class FaceActor:
         wireframe, points) is kept; :meth:`clear_scalars` returns to the normal look.
         """
         values = np.asarray(values, dtype=np.float32).reshape(-1)
+        self.use_preview(False)  # overlays are drawn on the full face only
         if values.shape != (self.mesh.n_points,):
             raise ValueError(f"expected {self.mesh.n_points} scalar values, got {values.shape[0]}")
         if clim is None:
@@ -323,6 +360,57 @@ class FaceActor:
             title_font_size=14, label_font_size=12, color="white", shadow=True, render=False)
         self._scalar_bar_title = key
 
+    # ----------------------------------------------------------- draft level of detail
+    @property
+    def showing_preview(self) -> bool:
+        """True while the draft copy (:mod:`app.preview`) is drawn instead of the full face."""
+        return self._showing_preview
+
+    def set_preview(self, preview) -> None:
+        """Give the face a draft level of detail (an :class:`app.preview.PreviewMesh`; None drops it)."""
+        self.use_preview(False)
+        if self.preview_actor is not None:
+            self.plotter.remove_actor(self.preview_actor, reset_camera=False, render=False)
+        self.preview, self.preview_mesh, self.preview_actor = None, None, None
+        if preview is None:
+            return
+        index = preview.index
+        tris = np.asarray(preview.triangles, dtype=np.int64)
+        cells = np.hstack([np.full((len(tris), 1), 3, dtype=np.int64), tris]).ravel()
+        mesh = pv.PolyData(np.array(self.mesh.points[index], dtype=np.float64), faces=cells)
+        for name in (_NORMALS_ARRAY, _UV_ARRAY, _RGB_ARRAY):
+            if name in self.mesh.point_data:
+                mesh.point_data[name] = np.array(self.mesh.point_data[name][index])
+        mesh.point_data.active_normals_name = _NORMALS_ARRAY
+        if _UV_ARRAY in mesh.point_data:
+            mesh.point_data.active_texture_coordinates_name = _UV_ARRAY
+        mapper = pv.DataSetMapper(mesh)
+        mapper.color_mode = "direct"
+        if _RGB_ARRAY in mesh.point_data:
+            mapper.SetScalarModeToUsePointFieldData()
+            mapper.SelectColorArray(_RGB_ARRAY)
+        mapper.scalar_visibility = False
+        actor = pv.Actor(mapper=mapper)
+        actor.prop.interpolation = "phong"
+        actor.SetVisibility(False)
+        actor.SetPickable(False)
+        self.plotter.add_actor(actor, reset_camera=False, name=f"{self.name}-preview", render=False)
+        self.preview, self.preview_mesh, self.preview_actor = preview, mesh, actor
+        self._style(actor, self.mode)
+
+    def use_preview(self, on: bool) -> bool:
+        """Draw the draft copy (True) or the full face (False). The draft is used only where it looks
+        the same: textured or shaded, no overlay. Returns True if what is drawn changed."""
+        on = bool(on) and self.preview_actor is not None and self._overlay is None \
+            and self.mode in ("textured", "shaded")
+        if on == self._showing_preview:
+            return False
+        self._showing_preview = on
+        self.actor.SetVisibility(not on)
+        if self.preview_actor is not None:
+            self.preview_actor.SetVisibility(on)
+        return True
+
     # ----------------------------------------------------------- landmarks
     def _landmark_points(self, vertices: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(marker positions, label anchor positions), each (k, 3)."""
@@ -392,6 +480,10 @@ class FaceActor:
             normals = self._normals(vertices)
         self.mesh.points[:] = vertices
         self.mesh.point_data[_NORMALS_ARRAY][:] = normals
+        if self.preview_mesh is not None:
+            # The full face's normals at the kept vertices: the draft is shaded like the face.
+            self.preview_mesh.points[:] = vertices[self.preview.index]
+            self.preview_mesh.point_data[_NORMALS_ARRAY][:] = np.asarray(normals)[self.preview.index]
         if self.landmark_mesh is not None:
             markers, anchors = self._landmark_points(vertices, np.asarray(normals, float))
             self.landmark_mesh.points[:] = markers
@@ -401,6 +493,7 @@ class FaceActor:
         """Take the face (and its landmarks and scalar bar) off the plotter."""
         self._set_scalar_bar(None, "")
         self._overlay = None
+        self.set_preview(None)
         for actor in [self.actor, *self._landmark_actors]:
             self.plotter.remove_actor(actor, reset_camera=False, render=False)
         self._landmark_actors = []

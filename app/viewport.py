@@ -12,6 +12,11 @@ input events get handled in between (software OpenGL takes 25-400 ms per frame).
 
 ``last_tick_ms`` is (compute ms, draw ms) of the last update that moved the mesh: compute is the
 updaters' time, draw the render's.
+
+Level of detail while things move (ParaView's "LOD while interacting"): a pass that moved the
+mesh, and a camera drag or wheel zoom (VTK's start/end interaction events), draw the face's draft
+copy (:mod:`app.preview`, through the ``set_draft`` callback); ``SETTLE_MS`` after the last such
+input the full face is drawn once. ``last_full_ms`` is the time of that full-quality render.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from PySide6.QtCore import QObject, QTimer, Signal
 __all__ = ["Viewport", "PARTS"]
 
 PARTS = ("mesh", "overlay", "landmarks", "muscles", "render")
+SETTLE_MS = 150   # input pause after which the full-quality frame is drawn
 
 
 class Viewport(QObject):
@@ -34,6 +40,7 @@ class Viewport(QObject):
     """
 
     timed = Signal(float, float)
+    settled = Signal(float)   # ms of the full-quality render drawn once input paused
 
     def __init__(self, plotter, alive: Callable[[], bool], parent: QObject | None = None):
         super().__init__(parent)
@@ -46,6 +53,44 @@ class Viewport(QObject):
         self.timer.setInterval(0)
         self.timer.timeout.connect(self.tick)
         self.last_tick_ms: tuple[float, float] | None = None
+        self.last_full_ms: float | None = None
+        # set_draft(on) -> True if what is drawn changed; None: no draft level of detail
+        self.set_draft: Callable[[bool], bool] | None = None
+        self.settle_timer = QTimer(self)
+        self.settle_timer.setSingleShot(True)
+        self.settle_timer.setInterval(SETTLE_MS)
+        self.settle_timer.timeout.connect(self.settle)
+        self._interacting = False
+
+    def watch_camera(self, interactor) -> None:
+        """Draw drafts while the camera is dragged or zoomed with ``interactor`` (a vtkRenderWindowInteractor)."""
+        interactor.AddObserver("StartInteractionEvent", lambda *_: self._camera_moves(True))
+        interactor.AddObserver("EndInteractionEvent", lambda *_: self._camera_moves(False))
+
+    def _camera_moves(self, started: bool) -> None:
+        self._interacting = started
+        if started:
+            self.settle_timer.stop()
+            self._draft(True)   # VTK renders the drag itself
+        else:
+            self.settle_timer.start()
+
+    def _draft(self, on: bool) -> bool:
+        return bool(self.set_draft(on)) if self.set_draft is not None else False
+
+    def settle(self) -> None:
+        """Draw the full-quality frame now (the settle timer does it once input pauses)."""
+        self.settle_timer.stop()
+        if self._interacting or not self._alive():
+            return
+        if self.timer.isActive():   # an update is still queued: settle after it
+            self.settle_timer.start()
+            return
+        if self._draft(False):
+            start = time.perf_counter()
+            self.render()
+            self.last_full_ms = (time.perf_counter() - start) * 1e3
+            self.settled.emit(self.last_full_ms)
 
     def add_updater(self, parts: tuple[str, ...], update: Callable[[frozenset], bool]) -> None:
         """Run ``update(requested)`` when one of ``parts`` was requested; it returns True when it
@@ -68,13 +113,16 @@ class Viewport(QObject):
         return part in self._pending
 
     def flush(self) -> None:
-        """Run a pending update now (tests and scripts; the timer does it otherwise)."""
+        """Run a pending update now and draw the full face (tests and scripts; timers do it otherwise)."""
         if self.timer.isActive():
             self.timer.stop()
             self.tick()
+        if self.settle_timer.isActive():
+            self.settle()
 
     def stop(self) -> None:
         self.timer.stop()
+        self.settle_timer.stop()
         self._pending.clear()
 
     def tick(self) -> None:
@@ -89,6 +137,9 @@ class Viewport(QObject):
         computed = time.perf_counter()
         if not changed:
             return
+        if "mesh" in parts:   # something moves: draft now, the full face once it pauses
+            self._draft(True)
+            self.settle_timer.start()
         self.render()
         drawn = time.perf_counter()
         if "mesh" in parts:

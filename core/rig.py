@@ -40,6 +40,7 @@ import numpy as np
 from psygnal import Signal
 
 from core import parameters as P
+from core.cache import DiskCache
 from core.face import Face
 from core.layers.fap import tables
 from core.layers.fap.fat import FapDeformer
@@ -69,15 +70,17 @@ class FaceRig:
     face : Face
         The neutral face, with at least the 64 MPEG-4 feature points of the base template.
     deformer : FapDeformer, optional
-        A prebuilt FAP deformer for ``face`` (built here otherwise; about a second for 50k vertices).
+        A prebuilt FAP deformer for ``face`` (built here otherwise: seconds for 50k vertices).
+    cache : core.cache.DiskCache, optional
+        Where to find the deformer built on an earlier run, and to store it (no cache: always built).
     """
 
     changed = Signal(object)             # ParameterChange (empty when only a dynamic layer moved)
     parameters_changed = Signal(object)  # ParameterChange with the keys whose values changed
 
-    def __init__(self, face: Face, deformer: FapDeformer | None = None):
+    def __init__(self, face: Face, deformer: FapDeformer | None = None, *, cache: DiskCache | None = None):
         self.face = face
-        self.deformer = deformer if deformer is not None else FapDeformer(face)
+        self.deformer = deformer if deformer is not None else FapDeformer.for_face(face, cache)
         self.specs = tables.fap_specs()
         self.fapu = self.deformer.fapu
         self.faps = FapLayer(self.deformer)

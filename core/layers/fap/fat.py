@@ -30,12 +30,15 @@ both are scaled down so that they meet (``lid_contact``); the slider values are 
 
 from __future__ import annotations
 
+import sys
 from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse
 from scipy.sparse.csgraph import dijkstra
 
+import resources
+from core.cache import DiskCache, fingerprint, source_version
 from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import tables
@@ -345,6 +348,37 @@ class FapDeformer:
         lo, hi = face.bounds
         return np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2 - 30.0, lo[2] - 40.0])
 
+    # ------------------------------------------------------------ caching
+    def __getstate__(self) -> dict:
+        # The face is the cache key, not part of the entry: it is given back on load.
+        state = dict(self.__dict__)
+        del state["face"], state["_rest"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.face = None
+        self._rest = None
+
+    @classmethod
+    def for_face(cls, face: Face, cache: DiskCache | None = None) -> "FapDeformer":
+        """The deformer of ``face``, read from ``cache`` when built before (else built and stored).
+
+        Keyed by the face's vertices, triangles, feature points and parts, the template file and
+        the source of the modules that build the table: any change there builds afresh.
+        """
+        if cache is None:
+            return cls(face)
+        key = deformer_key(face)
+        found = cache.get("fap", key)
+        if isinstance(found, cls):
+            found.face = face
+            found._rest = face.vertices.ravel()
+            return found
+        deformer = cls(face)
+        cache.put("fap", key, deformer)
+        return deformer
+
     # ------------------------------------------------------------ queries
     def why_not_animated(self, number: int) -> str:
         if number in (23, 24, 25, 26):
@@ -409,6 +443,19 @@ class FapDeformer:
         return self.finish(self._rest.reshape(-1, 3) + self.displacement(values), values)
 
 
+def deformer_key(face: Face) -> str:
+    """The cache key of ``face``'s FapDeformer (see :meth:`FapDeformer.for_face`)."""
+    import core.layers.fap.template as template_module
+    import core.surface_query as surface_query
+    import core.subdivision as subdivision
+
+    code = source_version(sys.modules[__name__], template_module, tables, surface_query, subdivision)
+    landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
+    parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
+    data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]
+    return fingerprint(code, data, face.vertices, face.triangles, landmarks, parts)
+
+
 def _rotation(axis, angle: float) -> np.ndarray:
     """3x3 right-handed rotation by ``angle`` rad about unit ``axis`` (Rodrigues)."""
     k = np.asarray(axis, float)
@@ -416,4 +463,4 @@ def _rotation(axis, angle: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
-__all__ = ["FapDeformer", "TemplateError", "lid_contact"]
+__all__ = ["FapDeformer", "TemplateError", "deformer_key", "lid_contact"]
