@@ -85,12 +85,10 @@ default face); without them, 0.66 × the model's skin bounding-box width.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.face import Face, SurfacePoint
-from core.registration.templates import LandmarkTemplate
+from core.face import Face
 from core.registration.rasters import (  # noqa: F401 - re-exported
     FrontalRaster, Grid, grid_for, frontal_raster, Side, sample_texture, sample_vertex_values, _raster_hit,
     _shape_only)
@@ -100,104 +98,9 @@ from core.registration.patches import (  # noqa: F401 - re-exported
     refine_matches)
 from core.registration.match_params import (  # noqa: F401 - re-exported
     HK_SMOOTHING_MM, MatchingError, MatchParams)
-
-
-# ------------------------------------------------------------------ model context and full match
-@dataclass
-class ModelContext:
-    """Everything about the model that does not change between inputs (build once per model)."""
-
-    face: Face
-    template: LandmarkTemplate
-    side: Side
-    scale: float
-    grid: Grid
-    raster: FrontalRaster
-    surface: list            # per detected point: SurfacePoint on the model
-    normals: np.ndarray | None = None   # (P, 3) unit model surface normals at the points
-
-
-def model_context(model: Face, template: LandmarkTemplate, params: MatchParams) -> ModelContext:
-    """Template points on ``model`` (its landmarks, derived points computed), their appearance, the
-    model's frontal raster."""
-    from core.registration.correspondence import SurfaceRays
-    from core.registration.curvature import hk_maps
-    from core.registration.templates import template_positions
-
-    pos = template_positions(model, template.name)
-    pts = np.array([pos[p] for p in template.detected])
-    _, tri, bary = model.closest_surface_points(pts)
-    hk = hk_maps(model, smoothing_mm=HK_SMOOTHING_MM)
-    side = Side(pts, sample_texture(model, tri, bary), sample_vertex_values(model, hk.colours / 255.0, tri, bary))
-    scale = face_scale(pos, pts)
-    grid = grid_for(pts, params.pixel_mm, margin=0.25 * scale)
-    rays = SurfaceRays(model.vertices, model.triangles)
-    raster = frontal_raster(model, rays, np.eye(4), grid)
-    surface = [SurfacePoint(int(t), tuple(b)) for t, b in zip(tri, bary)]
-    nrm = (bary[:, :, None] * model.vertex_normals[model.triangles[tri]]).sum(axis=1)
-    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-    return ModelContext(model, template, side, scale, grid, raster, surface, nrm)
-
-
-@dataclass
-class InputFeatures:
-    """The input's candidates (model frame) and seeds, plus messages about fallbacks."""
-
-    side: Side
-    triangle: np.ndarray
-    bary: np.ndarray
-    seeds: dict
-    textured: bool
-    report: list
-    timings: dict = field(default_factory=dict)   # "candidates_s", "hk_s", "seeds_s"
-
-
-def input_features(scan: Face, to_model: np.ndarray, params: MatchParams) -> InputFeatures:
-    """Candidates (texture, or geometry when the scan has none), HK colours, Colombo seeds."""
-    from core.registration.candidates import NoTextureError, geometry_candidates, texture_candidates
-    from core.registration.curvature import CurvatureError, colombo_seeds, hk_maps
-    from core.registration.icp import apply_transform
-
-    report = []
-    textured = True
-    t0 = time.perf_counter()
-    try:
-        cand = texture_candidates(scan, count=params.candidates, quality=params.quality,
-                                  min_distance_px=params.min_distance_px)
-        if len(cand) < 50:
-            report.append(f"the texture gave only {len(cand)} corner candidates; adding geometry candidates")
-            geo = geometry_candidates(scan, count=params.candidates)
-            cand = _concat_candidates(cand, geo)
-    except NoTextureError:
-        textured = False
-        report.append("the scan has no texture: matching uses geometry candidates and curvature/shape "
-                      "appearance only (expect lower accuracy; check the landmarks)")
-        cand = geometry_candidates(scan, count=params.candidates)
-    t1 = time.perf_counter()
-    hk = hk_maps(scan, smoothing_mm=HK_SMOOTHING_MM)
-    t2 = time.perf_counter()
-    seeds = {}
-    if params.seeds:
-        try:
-            seeds = {k: apply_transform(v[None], to_model)[0] for k, v in colombo_seeds(scan, hk).items()}
-        except CurvatureError as exc:
-            report.append(f"Colombo seeds not found ({exc}); matching starts from the structure alone")
-    pts = apply_transform(cand.points, to_model)
-    hkc = sample_vertex_values(scan, hk.colours / 255.0, cand.triangle, cand.bary)
-    colour = cand.colour if textured else np.full((len(pts), 3), 0.5)
-    t3 = time.perf_counter()
-    return InputFeatures(Side(pts, colour, hkc), np.asarray(cand.triangle), np.asarray(cand.bary), seeds,
-                         textured, report, {"candidates_s": t1 - t0, "hk_s": t2 - t1, "seeds_s": t3 - t2})
-
-
-def _concat_candidates(a, b):
-    from core.registration.candidates import Candidates
-
-    return Candidates(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in
-                        ("points", "triangle", "bary", "uv", "colour")))
-
-
-SEED_POINTS = {"nose_tip": ("9.3",), "inner_eye_corner_left": ("3.11",), "inner_eye_corner_right": ("3.8",)}
+from core.registration.match_context import ModelContext, model_context  # noqa: F401 - re-exported
+from core.registration.scan_features import (  # noqa: F401 - re-exported
+    SEED_POINTS, InputFeatures, geometry_params, input_features, preset_points)
 
 
 def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchParams, *, rays,
@@ -220,29 +123,13 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
     P = len(names)
     feats = features or input_features(scan, to_model, params)
     report += feats.report
-    params_used = params if feats.textured else _geometry_params(params)
+    params_used = params if feats.textured else geometry_params(params)
     timings["features_s"] = time.perf_counter() - t0
     if features is None:
         timings.update(feats.timings)
 
-    preset: dict[int, np.ndarray] = {}
     fixed = fixed or {}
-    unknown = [n for n in fixed if n not in names]
-    if unknown:
-        raise MatchingError(f"fixed landmark(s) {', '.join(unknown)} are not points of template {tpl.name!r}")
-    for n, p in fixed.items():
-        preset[tpl.index(n)] = apply_transform(np.asarray(p, float)[None], to_model)[0]
-    seed_idx = []
-    for key, pos in feats.seeds.items():
-        for n in SEED_POINTS.get(key, ()):
-            if n in names and tpl.index(n) not in preset:
-                i = tpl.index(n)
-                d = float(np.linalg.norm(pos - ctx.side.points[i]))
-                if d <= 0.12 * ctx.scale:
-                    preset[i] = pos
-                    seed_idx.append(i)
-                else:
-                    report.append(f"Colombo seed {key} is {d:.0f} mm from where the aligned model puts {n}; ignored")
+    preset = preset_points(ctx, feats, fixed, to_model, report)
     order = match_order(tpl, ctx.side.points, list(preset))
     t1 = time.perf_counter()
     gd, chosen, margin, _pred = greedy_match(tpl, ctx.side, feats.side, params_used, ctx.scale, order=order,
@@ -417,12 +304,3 @@ def _confidence(ctx: ModelContext, positions, peak, margin, params: MatchParams,
     consistency = np.exp(-(np.linalg.norm(positions - loo, axis=1) / (0.1 * ctx.scale)) ** 2)
     evidence = np.clip(peak, 0, 1) if params.refine else np.clip(margin / 0.1, 0, 1)
     return 0.5 * evidence + 0.5 * consistency
-
-
-def _geometry_params(params: MatchParams) -> MatchParams:
-    """Without texture d_A,UV carries no information: all appearance weight on the HK term."""
-    import dataclasses
-
-    return dataclasses.replace(params, lam_a=0.0)
-
-
