@@ -1,7 +1,8 @@
 """What the matcher's passes read; none of it changes while a match runs.
 
 * ``ModelContext``: the model's side (template points, their appearance, the model's frontal
-  raster), built once per model and template.
+  raster), built once per model and template;
+* ``PixelContext``: what the passes in the scan's frontal raster read (patch search, model pixels).
 
 Frames: the model frame is the model's own, in mm; the scan is aligned to it by ``to_model``.
 """
@@ -54,3 +55,52 @@ def model_context(model: Face, template: LandmarkTemplate, params: MatchParams) 
     nrm = (bary[:, :, None] * model.vertex_normals[model.triangles[tri]]).sum(axis=1)
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
     return ModelContext(model, template, side, scale, grid, raster, surface, nrm)
+
+
+@dataclass(frozen=True)
+class PixelContext:
+    """What the passes in the scan's frontal raster read (pixels are (col, row), rows grow downwards).
+
+    template : the landmark template. raster : the scan's FrontalRaster (depth in mm).
+    model_px : (P, 2) float, the model points' pixels on the same grid.
+    greedy_px : (P, 2) float, the greedy matches' pixels (where round 1 searches).
+    scale : face scale, mm. params : the parameters in force. skip : (P,) bool, points not searched
+    (fixed). search : the ``patches.PatchSearch`` (None only in tests of a pass that can do without).
+    gdist : (P, P) float, mm, graph distances on the model (round 2's weights).
+    """
+
+    template: LandmarkTemplate
+    raster: FrontalRaster
+    model_px: np.ndarray
+    greedy_px: np.ndarray
+    scale: float
+    params: MatchParams
+    skip: np.ndarray
+    search: object
+    gdist: np.ndarray
+
+    @property
+    def radius_px(self) -> int:
+        """Round 1's search radius (``refine_radius`` × scale), pixels, at least 1."""
+        return max(1, int(round(self.params.refine_radius * self.scale / self.params.pixel_mm)))
+
+    @property
+    def scale_px(self) -> float:
+        """The face scale in pixels."""
+        return self.scale / self.params.pixel_mm
+
+
+def pixel_context(ctx: ModelContext, scan_raster: FrontalRaster, params: MatchParams, *, textured: bool,
+                  fixed: np.ndarray, gdist: np.ndarray, greedy_positions: np.ndarray) -> PixelContext:
+    """The pixel passes' context: ``params`` in force, ``fixed`` (P,) bool, ``gdist`` (P, P) mm,
+    greedy_positions (P, 3) model frame."""
+    from core.registration.patches import PatchSearch, patch_halves
+    from core.registration.rasters import _shape_only
+
+    tpl = ctx.template
+    # Without texture the model's colour channels would compare with nothing: shape only.
+    model_raster = ctx.raster if textured else _shape_only(ctx.raster)
+    search = PatchSearch(ctx.side.points, model_raster, scan_raster, params, patch_halves(tpl),
+                         [n in tpl.base.outline for n in tpl.detected])
+    return PixelContext(tpl, scan_raster, model_raster.to_pixel(ctx.side.points),
+                        scan_raster.to_pixel(greedy_positions), ctx.scale, params, fixed, search, gdist)

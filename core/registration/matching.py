@@ -90,15 +90,16 @@ import numpy as np
 
 from core.face import Face
 from core.registration.rasters import (  # noqa: F401 - re-exported
-    FrontalRaster, Grid, grid_for, frontal_raster, Side, sample_texture, sample_vertex_values, _raster_hit,
-    _shape_only)
+    FrontalRaster, Grid, grid_for, frontal_raster, Side, sample_texture, sample_vertex_values, _raster_hit)
 from core.registration.greedy import (  # noqa: F401 - re-exported
-    face_scale, MatchResult, match_order, graph_distances, _propagated, greedy_match)
-from core.registration.patches import (  # noqa: F401 - re-exported
-    refine_matches)
+    face_scale, match_order, graph_distances, _propagated, greedy_match)
+from core.registration.pass_results import (  # noqa: F401 - re-exported
+    GreedyMatch, MatchResult, PixelEstimates, PixelMoves)
+from core.registration.patches import search_near_greedy, search_near_prediction
+from core.registration.mouth_passes import lip_order_pass, lower_lip_pass, mouth_opening_pass
 from core.registration.match_params import (  # noqa: F401 - re-exported
     HK_SMOOTHING_MM, MatchingError, MatchParams)
-from core.registration.match_context import ModelContext, model_context  # noqa: F401 - re-exported
+from core.registration.match_context import ModelContext, model_context, pixel_context  # noqa: F401 - re-exported
 from core.registration.scan_features import (  # noqa: F401 - re-exported
     SEED_POINTS, InputFeatures, geometry_params, input_features, preset_points)
 
@@ -132,8 +133,10 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
     preset = preset_points(ctx, feats, fixed, to_model, report)
     order = match_order(tpl, ctx.side.points, list(preset))
     t1 = time.perf_counter()
-    gd, chosen, margin, _pred = greedy_match(tpl, ctx.side, feats.side, params_used, ctx.scale, order=order,
-                                             preset=preset)
+    gdist = graph_distances(tpl, ctx.side.points)
+    greedy = greedy_match(tpl, ctx.side, feats.side, params_used, ctx.scale, order=order, preset=preset,
+                          gdist=gdist)
+    gd, chosen, margin = greedy.positions, greedy.candidate, greedy.margin
     timings["greedy_s"] = time.perf_counter() - t1
 
     # Surface points of the greedy result (scan frame).
@@ -154,9 +157,16 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
     if params_used.refine:
         if scan_raster is None:
             scan_raster = frontal_raster(scan, rays, to_model, ctx.grid, texture=feats.textured)
-        model_raster = ctx.raster if feats.textured else _shape_only(ctx.raster)
         skip = np.array([names[i] in fixed for i in range(P)])
-        pix, peak = refine_matches(tpl, gd, ctx.side.points, model_raster, scan_raster, params_used, ctx.scale, skip)
+        pctx = pixel_context(ctx, scan_raster, params_used, textured=feats.textured, fixed=skip, gdist=gdist,
+                             greedy_positions=gd)
+        passes = [search_near_greedy, search_near_prediction, lower_lip_pass]
+        if params_used.mouth_opening:
+            passes += [mouth_opening_pass, lip_order_pass]
+        est = PixelEstimates.empty(P)
+        for pixel_pass in passes:
+            est = est.apply(pixel_pass(pctx, est))
+        pix, peak = est.pixel, est.peak.copy()
         for i in range(P):
             if not np.all(np.isfinite(pix[i])):
                 continue
@@ -178,7 +188,6 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
         tri[need], bary[need] = t, b
         positions[need] = apply_transform(pos, to_model)
     # Confidence: appearance evidence x structural consistency (leave-one-out prediction).
-    gdist = graph_distances(tpl, ctx.side.points)
     confidence = _confidence(ctx, positions, peak, margin, params_used, gdist)
     if params_used.lid_depth and params_used.refine and scan_raster is not None and scan_raster.depth is not None:
         if _upper_lid_pass(tpl, ctx, scan_raster, positions, confidence, fixed, tri, bary, source, peak):
