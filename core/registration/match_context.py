@@ -2,6 +2,8 @@
 
 * ``ModelContext``: the model's side (template points, their appearance, the model's frontal
   raster), built once per model and template;
+* ``MatchContext``: one match (the scan, its rigid alignment and rasters, the parameters in force),
+  read by the surface passes;
 * ``PixelContext``: what the passes in the scan's frontal raster read (patch search, model pixels).
 
 Frames: the model frame is the model's own, in mm; the scan is aligned to it by ``to_model``.
@@ -58,6 +60,68 @@ def model_context(model: Face, template: LandmarkTemplate, params: MatchParams) 
 
 
 @dataclass(frozen=True)
+class MatchContext:
+    """One match's inputs, as the surface passes read them.
+
+    model : the ModelContext. scan : the input Face in its own frame (mm).
+    to_model / from_model : (4, 4) scan -> model frame and its inverse.
+    rays : ``correspondence.SurfaceRays`` over the scan (its own frame).
+    params : the parameters in force (λ_A = 0 for a scan without texture).
+    textured : the scan has a texture (appearance uses colour as well as shape).
+    fixed : (P,) bool, the user's fixed points (kept as given, never searched).
+    gdist : (P, P) float, mm: shortest-path distances along G_m on the model (``greedy.graph_distances``).
+    scan_raster : the scan's FrontalRaster on the model's grid; None without refinement.
+    """
+
+    model: ModelContext
+    scan: Face
+    to_model: np.ndarray
+    from_model: np.ndarray
+    rays: object
+    params: MatchParams
+    textured: bool
+    fixed: np.ndarray
+    gdist: np.ndarray
+    scan_raster: FrontalRaster | None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.model.template.detected
+
+    def surface_position(self, triangle: int, bary: np.ndarray) -> np.ndarray:
+        """(3,) model-frame position of one scan surface point."""
+        from core.registration.icp import apply_transform
+
+        return apply_transform((bary @ self.scan.vertices[self.scan.triangles[triangle]])[None], self.to_model)[0]
+
+    def surface_positions(self, triangle: np.ndarray, bary: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """(P, 3) model-frame positions of the scan surface points (triangle (P,), bary (P, 3)),
+        computed together; ``positions`` where triangle < 0."""
+        from core.registration.icp import apply_transform
+
+        out = positions.copy()
+        ok = triangle >= 0
+        p = np.einsum("pk,pkd->pd", bary[ok], self.scan.vertices[self.scan.triangles[triangle[ok]]])
+        out[ok] = apply_transform(p, self.to_model)
+        return out
+
+    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The scan surface points closest to model-frame points (k, 3): (triangle (k,), bary (k, 3),
+        model-frame positions (k, 3))."""
+        from core.registration.icp import apply_transform
+
+        pos, tri, bary = self.rays.closest(apply_transform(points, self.from_model))
+        return tri, bary, apply_transform(pos, self.to_model)
+
+
+def match_context(model: ModelContext, scan: Face, to_model: np.ndarray, rays, params: MatchParams, *,
+                  textured: bool, fixed: np.ndarray, gdist: np.ndarray,
+                  scan_raster: FrontalRaster | None) -> MatchContext:
+    return MatchContext(model, scan, to_model, np.linalg.inv(to_model), rays, params, textured, fixed, gdist,
+                        scan_raster)
+
+
+@dataclass(frozen=True)
 class PixelContext:
     """What the passes in the scan's frontal raster read (pixels are (col, row), rows grow downwards).
 
@@ -90,17 +154,17 @@ class PixelContext:
         return self.scale / self.params.pixel_mm
 
 
-def pixel_context(ctx: ModelContext, scan_raster: FrontalRaster, params: MatchParams, *, textured: bool,
-                  fixed: np.ndarray, gdist: np.ndarray, greedy_positions: np.ndarray) -> PixelContext:
-    """The pixel passes' context: ``params`` in force, ``fixed`` (P,) bool, ``gdist`` (P, P) mm,
-    greedy_positions (P, 3) model frame."""
+def pixel_context(ctx: MatchContext, greedy_positions: np.ndarray) -> PixelContext:
+    """The pixel passes' context of a match with refinement (``ctx.scan_raster`` set)."""
     from core.registration.patches import PatchSearch, patch_halves
     from core.registration.rasters import _shape_only
 
-    tpl = ctx.template
+    m = ctx.model
+    tpl = m.template
     # Without texture the model's colour channels would compare with nothing: shape only.
-    model_raster = ctx.raster if textured else _shape_only(ctx.raster)
-    search = PatchSearch(ctx.side.points, model_raster, scan_raster, params, patch_halves(tpl),
+    model_raster = m.raster if ctx.textured else _shape_only(m.raster)
+    search = PatchSearch(m.side.points, model_raster, ctx.scan_raster, ctx.params, patch_halves(tpl),
                          [n in tpl.base.outline for n in tpl.detected])
-    return PixelContext(tpl, scan_raster, model_raster.to_pixel(ctx.side.points),
-                        scan_raster.to_pixel(greedy_positions), ctx.scale, params, fixed, search, gdist)
+    return PixelContext(tpl, ctx.scan_raster, model_raster.to_pixel(m.side.points),
+                        ctx.scan_raster.to_pixel(greedy_positions), m.scale, ctx.params, ctx.fixed, search,
+                        ctx.gdist)

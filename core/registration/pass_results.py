@@ -2,15 +2,18 @@
 
 A pass reads the match (``match_context``) and returns which landmarks it moves, to where and with
 what evidence; it changes nothing. Only the orchestrator (``matching.match``) applies the moves,
-so each pass can be read and tested on its own. The arrays of the moves are read-only.
+so each pass can be read and tested on its own. The arrays of the moves and states are read-only.
 
-In the scan's frontal raster: ``PixelMoves`` onto ``PixelEstimates`` (the patch search and the
-mouth passes). P is the number of template points (``template.detected``), indices are into that
-order.
+Two levels, as the matcher works: in the scan's frontal raster (``PixelMoves`` onto
+``PixelEstimates``: the patch search and the mouth passes) and on the scan surface
+(``SurfaceMoves`` onto ``MatchState``: pixels lifted to the surface, the closest-point snap, the
+lid and steep passes). P is the number of template points (``template.detected``), indices are
+into that order.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Iterable
 
@@ -89,6 +92,85 @@ class PixelEstimates:
         pixel[moves.index] = moves.pixel
         peak[moves.index] = moves.peak
         return PixelEstimates(_frozen(pixel), _frozen(peak))
+
+
+# ------------------------------------------------------------------ surface level
+@dataclass(frozen=True)
+class SurfaceMoves:
+    """Landmarks one surface pass moves on the scan (sequences are converted to read-only arrays).
+
+    index : (k,) int, each landmark at most once.
+    triangle : (k,) int scan triangle; bary : (k, 3) barycentric coordinates in it.
+    position : (k, 3) float, model frame, mm; None when the pass gives surface points only (the
+        orchestrator then derives the positions from them).
+    source : k str ("refined", "prediction", ...), or None: sources unchanged.
+    evidence : (k,) float appearance evidence, or None: unchanged.
+    """
+
+    index: np.ndarray
+    triangle: np.ndarray
+    bary: np.ndarray
+    position: np.ndarray | None = None
+    source: tuple[str, ...] | None = None
+    evidence: np.ndarray | None = None
+
+    def __post_init__(self):
+        put = lambda name, value: object.__setattr__(self, name, value)   # noqa: E731 (frozen)
+        put("index", _frozen(self.index, np.int64, (-1,)))
+        put("triangle", _frozen(self.triangle, np.int64, (-1,)))
+        put("bary", _frozen(self.bary, float, (-1, 3)))
+        if self.position is not None:
+            put("position", _frozen(self.position, float, (-1, 3)))
+        if self.source is not None:
+            put("source", tuple(self.source))
+        if self.evidence is not None:
+            put("evidence", _frozen(self.evidence, float, (-1,)))
+
+    @classmethod
+    def none(cls) -> SurfaceMoves:
+        return cls([], [], [])
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+@dataclass(frozen=True)
+class MatchState:
+    """The match so far, one row a template point.
+
+    positions : (P, 3) float, model frame, mm.
+    triangle : (P,) int scan triangle, −1 while a point has no surface point; bary : (P, 3).
+    source : P str: "seed", "candidate", "refined", "fixed", "prediction".
+    evidence : (P,) float appearance evidence (the NCC peak; 0 when none).
+    """
+
+    positions: np.ndarray
+    triangle: np.ndarray
+    bary: np.ndarray
+    source: tuple[str, ...]
+    evidence: np.ndarray
+
+    def __post_init__(self):
+        for name in ("positions", "triangle", "bary", "evidence"):
+            getattr(self, name).setflags(write=False)
+
+    def apply(self, moves: SurfaceMoves) -> MatchState:
+        """The state with ``moves`` applied (positions kept where the moves give none)."""
+        i = moves.index
+        tri, bary, pos, ev = (a.copy() for a in (self.triangle, self.bary, self.positions, self.evidence))
+        tri[i], bary[i] = moves.triangle, moves.bary
+        if moves.position is not None:
+            pos[i] = moves.position
+        if moves.evidence is not None:
+            ev[i] = moves.evidence
+        source = list(self.source)
+        for k, s in zip(i, moves.source or ()):
+            source[k] = s
+        return MatchState(pos, tri, bary, tuple(source), ev)
+
+    def replace(self, **changes) -> MatchState:
+        return dataclasses.replace(self, **{k: (v.copy() if isinstance(v, np.ndarray) else v)
+                                            for k, v in changes.items()})
 
 
 # ------------------------------------------------------------------ the match
