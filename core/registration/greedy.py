@@ -23,7 +23,6 @@ def face_scale(positions: dict[str, np.ndarray], points: np.ndarray) -> float:
 def match_order(template: LandmarkTemplate, model_points: np.ndarray, first: list[int]) -> list[int]:
     """Seeds (``first``) then breadth-first over G_m, ties by distance from the seeds' centroid."""
     nbrs = template.neighbours()
-    n = len(template.detected)
     start = list(dict.fromkeys(first)) or [int(np.argmin(np.linalg.norm(model_points - model_points.mean(0), axis=1)))]
     centre = model_points[start].mean(axis=0)
     dist = np.linalg.norm(model_points - centre, axis=1)
@@ -52,8 +51,8 @@ def graph_distances(template: LandmarkTemplate, model_points: np.ndarray) -> np.
     return np.where(np.isfinite(d), d, 1e6)
 
 
-def _propagated(model: np.ndarray, gd: np.ndarray, matched: np.ndarray, sigma: float,
-                dist: np.ndarray | None = None) -> np.ndarray:
+def propagated(model: np.ndarray, gd: np.ndarray, matched: np.ndarray, sigma: float,
+               dist: np.ndarray | None = None) -> np.ndarray:
     """(P, 3): matched vertices where they are, the others displaced by the Gaussian-weighted mean
     of the matched displacements; ``dist`` (P, P) the distances to weigh by (graph distances;
     Euclidean model distances when None)."""
@@ -103,7 +102,7 @@ def greedy_match(template: LandmarkTemplate, model: Side, cand: Side, params: Ma
         if matched[k]:
             prediction[k] = gd[k]
             continue
-        cur = _propagated(model.points, gd, matched, sigma, gdist) if params.propagate else gd
+        cur = propagated(model.points, gd, matched, sigma, gdist) if params.propagate else gd
         pred = cur[k]
         prediction[k] = pred
         dist = np.linalg.norm(cand.points - pred, axis=1)

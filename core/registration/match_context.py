@@ -157,12 +157,12 @@ class PixelContext:
 def pixel_context(ctx: MatchContext, greedy_positions: np.ndarray) -> PixelContext:
     """The pixel passes' context of a match with refinement (``ctx.scan_raster`` set)."""
     from core.registration.patches import PatchSearch, patch_halves
-    from core.registration.rasters import _shape_only
+    from core.registration.rasters import shape_only
 
     m = ctx.model
     tpl = m.template
     # Without texture the model's colour channels would compare with nothing: shape only.
-    model_raster = m.raster if ctx.textured else _shape_only(m.raster)
+    model_raster = m.raster if ctx.textured else shape_only(m.raster)
     search = PatchSearch(m.side.points, model_raster, ctx.scan_raster, ctx.params, patch_halves(tpl),
                          [n in tpl.base.outline for n in tpl.detected])
     return PixelContext(tpl, ctx.scan_raster, model_raster.to_pixel(m.side.points),

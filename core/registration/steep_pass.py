@@ -15,9 +15,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from core.registration.greedy import _propagated
+from core.registration.greedy import propagated
 from core.registration.pass_results import MatchState, SurfaceMoves
-from core.registration.rasters import _raster_hit
+from core.registration.rasters import raster_hit
 
 if TYPE_CHECKING:
     from core.registration.match_context import MatchContext, ModelContext
@@ -59,10 +59,10 @@ def steep_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> 
         [s in ("refined", "seed", "fixed") for s in state.source])
     if not (steep.any() and anchor.sum() >= 3):
         return SurfaceMoves.none()
-    pred = _propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)
+    pred = propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)
     index, tri, bary, pos = [], [], [], []
     for i in np.nonzero(steep)[0]:
-        hit = None if outline[i] else _raster_hit(ctx.scan_raster, pred[i])
+        hit = None if outline[i] else raster_hit(ctx.scan_raster, pred[i])
         if hit is None:
             t, b, p = ctx.closest(pred[i][None])
             t, b, p = t[0], b[0], p[0]
