@@ -20,13 +20,16 @@ from typing import Iterable
 import numpy as np
 
 
-def _frozen(a, dtype=None, shape=None) -> np.ndarray:
-    """A read-only copy of ``a`` (reshaped to ``shape`` when given)."""
-    out = np.array(a, dtype=dtype)
-    if shape is not None:
-        out = out.reshape(shape)
-    out.setflags(write=False)
-    return out
+def _freeze(obj, **fields) -> None:
+    """Replace each named array field of the frozen dataclass ``obj`` (None stays None) by a
+    read-only copy of it, of the given (dtype, shape): sequences are accepted, and the caller's
+    arrays can be neither changed through ``obj`` nor change it."""
+    for name, (dtype, shape) in fields.items():
+        value = getattr(obj, name)
+        if value is not None:
+            out = np.array(value, dtype=dtype).reshape(shape)
+            out.setflags(write=False)
+            object.__setattr__(obj, name, out)
 
 
 # ------------------------------------------------------------------ greedy
@@ -61,11 +64,14 @@ class PixelMoves:
     pixel: np.ndarray
     peak: np.ndarray
 
+    def __post_init__(self):
+        _freeze(self, index=(np.int64, (-1,)), pixel=(float, (-1, 2)), peak=(float, (-1,)))
+
     @classmethod
     def take(cls, pixel: np.ndarray, peak: np.ndarray, moved: Iterable[int]) -> PixelMoves:
         """The rows ``moved`` of a pass's working arrays pixel (P, 2) / peak (P,)."""
         idx = np.array(sorted(set(int(i) for i in moved)), dtype=np.int64)
-        return cls(_frozen(idx), _frozen(pixel[idx], float, (-1, 2)), _frozen(peak[idx], float))
+        return cls(idx, pixel[idx], peak[idx])
 
     def __len__(self) -> int:
         return len(self.index)
@@ -79,9 +85,12 @@ class PixelEstimates:
     pixel: np.ndarray
     peak: np.ndarray
 
+    def __post_init__(self):
+        _freeze(self, pixel=(float, (-1, 2)), peak=(float, (-1,)))
+
     @classmethod
     def empty(cls, n: int) -> PixelEstimates:
-        return cls(_frozen(np.full((n, 2), np.nan)), _frozen(np.zeros(n)))
+        return cls(np.full((n, 2), np.nan), np.zeros(n))
 
     def working(self) -> tuple[np.ndarray, np.ndarray]:
         """Writable copies (pixel, peak) for a pass to work on (its moves are read back from them)."""
@@ -91,7 +100,7 @@ class PixelEstimates:
         pixel, peak = self.working()
         pixel[moves.index] = moves.pixel
         peak[moves.index] = moves.peak
-        return PixelEstimates(_frozen(pixel), _frozen(peak))
+        return PixelEstimates(pixel, peak)
 
 
 # ------------------------------------------------------------------ surface level
@@ -115,16 +124,10 @@ class SurfaceMoves:
     evidence: np.ndarray | None = None
 
     def __post_init__(self):
-        put = lambda name, value: object.__setattr__(self, name, value)   # noqa: E731 (frozen)
-        put("index", _frozen(self.index, np.int64, (-1,)))
-        put("triangle", _frozen(self.triangle, np.int64, (-1,)))
-        put("bary", _frozen(self.bary, float, (-1, 3)))
-        if self.position is not None:
-            put("position", _frozen(self.position, float, (-1, 3)))
+        _freeze(self, index=(np.int64, (-1,)), triangle=(np.int64, (-1,)), bary=(float, (-1, 3)),
+                position=(float, (-1, 3)), evidence=(float, (-1,)))
         if self.source is not None:
-            put("source", tuple(self.source))
-        if self.evidence is not None:
-            put("evidence", _frozen(self.evidence, float, (-1,)))
+            object.__setattr__(self, "source", tuple(self.source))
 
     @classmethod
     def none(cls) -> SurfaceMoves:
@@ -151,8 +154,9 @@ class MatchState:
     evidence: np.ndarray
 
     def __post_init__(self):
-        for name in ("positions", "triangle", "bary", "evidence"):
-            getattr(self, name).setflags(write=False)
+        _freeze(self, positions=(float, (-1, 3)), triangle=(np.int64, (-1,)), bary=(float, (-1, 3)),
+                evidence=(float, (-1,)))
+        object.__setattr__(self, "source", tuple(self.source))
 
     def apply(self, moves: SurfaceMoves) -> MatchState:
         """The state with ``moves`` applied (positions kept where the moves give none)."""
@@ -169,8 +173,7 @@ class MatchState:
         return MatchState(pos, tri, bary, tuple(source), ev)
 
     def replace(self, **changes) -> MatchState:
-        return dataclasses.replace(self, **{k: (v.copy() if isinstance(v, np.ndarray) else v)
-                                            for k, v in changes.items()})
+        return dataclasses.replace(self, **changes)
 
 
 # ------------------------------------------------------------------ the match

@@ -179,3 +179,19 @@ def test_lower_inner_lip_collapsed_on_the_outer_lip_goes_back_to_the_seam(model)
     assert out[i23, 1] < out[i82, 1] and out[i23, 1] > out[i81, 1]
     assert peak[i23] == 0.0 and peak[i29] == 1.0               # the uncollapsed point is left alone
     np.testing.assert_array_equal(out[i29], model_px[i29])
+
+
+def test_moves_are_applied_to_a_copy_and_results_are_read_only():
+    from core.registration.pass_results import MatchState, PixelEstimates, PixelMoves, SurfaceMoves
+
+    state = MatchState(np.zeros((3, 3)), [-1, 5, 6], np.zeros((3, 3)), ("prediction",) * 3, np.zeros(3))
+    moves = SurfaceMoves([0], [7], [[0.2, 0.3, 0.5]], [[1.0, 2.0, 3.0]], source=["refined"])
+    after = state.apply(moves)
+    assert list(after.triangle) == [7, 5, 6] and after.source == ("refined", "prediction", "prediction")
+    np.testing.assert_array_equal(after.positions[0], (1, 2, 3))
+    assert list(state.triangle) == [-1, 5, 6] and not state.positions.any()   # the state it came from is kept
+    for a in (after.positions, moves.bary, state.evidence):
+        with pytest.raises(ValueError):
+            a[0] = 1.0
+    est = PixelEstimates.empty(3).apply(PixelMoves.take(np.ones((3, 2)), np.full(3, 0.8), [2]))
+    assert np.isnan(est.pixel[:2]).all() and list(est.pixel[2]) == [1.0, 1.0] and list(est.peak) == [0, 0, 0.8]
