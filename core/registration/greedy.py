@@ -3,17 +3,14 @@ candidates by their features and the positions their matched neighbours predict.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 from core.registration.templates import LandmarkTemplate
 from core.registration.rasters import Side
 from core.registration.match_params import MatchParams
+from core.registration.pass_results import GreedyMatch
 
 
 C_A = float(np.sqrt(3.0))   # RGB distance of colours in [0, 1] is at most sqrt(3)
-
-
 
 
 def face_scale(positions: dict[str, np.ndarray], points: np.ndarray) -> float:
@@ -23,25 +20,9 @@ def face_scale(positions: dict[str, np.ndarray], points: np.ndarray) -> float:
 
 
 # ------------------------------------------------------------------ the matcher
-@dataclass
-class MatchResult:
-    """positions (P, 3) model frame; triangle (P,) / bary (P, 3) on the input face; confidence (P,);
-    source (P,) str: "seed", "candidate", "refined", "fixed", "prediction"; timings."""
-
-    names: tuple[str, ...]
-    positions: np.ndarray
-    triangle: np.ndarray
-    bary: np.ndarray
-    confidence: np.ndarray
-    source: list[str]
-    greedy_positions: np.ndarray
-    timings: dict = field(default_factory=dict)
-
-
 def match_order(template: LandmarkTemplate, model_points: np.ndarray, first: list[int]) -> list[int]:
     """Seeds (``first``) then breadth-first over G_m, ties by distance from the seeds' centroid."""
     nbrs = template.neighbours()
-    n = len(template.detected)
     start = list(dict.fromkeys(first)) or [int(np.argmin(np.linalg.norm(model_points - model_points.mean(0), axis=1)))]
     centre = model_points[start].mean(axis=0)
     dist = np.linalg.norm(model_points - centre, axis=1)
@@ -70,8 +51,8 @@ def graph_distances(template: LandmarkTemplate, model_points: np.ndarray) -> np.
     return np.where(np.isfinite(d), d, 1e6)
 
 
-def _propagated(model: np.ndarray, gd: np.ndarray, matched: np.ndarray, sigma: float,
-                dist: np.ndarray | None = None) -> np.ndarray:
+def propagated(model: np.ndarray, gd: np.ndarray, matched: np.ndarray, sigma: float,
+               dist: np.ndarray | None = None) -> np.ndarray:
     """(P, 3): matched vertices where they are, the others displaced by the Gaussian-weighted mean
     of the matched displacements; ``dist`` (P, P) the distances to weigh by (graph distances;
     Euclidean model distances when None)."""
@@ -89,11 +70,12 @@ def _propagated(model: np.ndarray, gd: np.ndarray, matched: np.ndarray, sigma: f
 
 
 def greedy_match(template: LandmarkTemplate, model: Side, cand: Side, params: MatchParams, scale: float, *,
-                 order: list[int], preset: dict[int, np.ndarray] | None = None):
+                 order: list[int], preset: dict[int, np.ndarray] | None = None,
+                 gdist: np.ndarray | None = None) -> GreedyMatch:
     """Algorithm 1, vectorised over candidates.
 
     preset : vertex index -> position (model frame) matched before the loop (seeds, fixed points).
-    Returns (positions (P, 3), candidate index per vertex (P,) or −1, margin (P,), prediction (P, 3)).
+    gdist : (P, P) graph distances on the model (``graph_distances``; computed when not given).
     """
     P, C = len(template.detected), len(cand.points)
     nbrs = template.neighbours()
@@ -105,7 +87,8 @@ def greedy_match(template: LandmarkTemplate, model: Side, cand: Side, params: Ma
     d_a = params.lam_a * d_uv + (1 - params.lam_a) * d_hk
     R = params.radius * scale if params.radius > 0 else np.inf
     sigma = params.sigma * scale
-    gdist = graph_distances(template, model.points)
+    if gdist is None:
+        gdist = graph_distances(template, model.points)
     gd = model.points.copy()
     matched = np.zeros(P, bool)
     used = np.zeros(C, bool)
@@ -119,7 +102,7 @@ def greedy_match(template: LandmarkTemplate, model: Side, cand: Side, params: Ma
         if matched[k]:
             prediction[k] = gd[k]
             continue
-        cur = _propagated(model.points, gd, matched, sigma, gdist) if params.propagate else gd
+        cur = propagated(model.points, gd, matched, sigma, gdist) if params.propagate else gd
         pred = cur[k]
         prediction[k] = pred
         dist = np.linalg.norm(cand.points - pred, axis=1)
@@ -151,4 +134,4 @@ def greedy_match(template: LandmarkTemplate, model: Side, cand: Side, params: Ma
         used[j] = True
         gd[k] = cand.points[j]
         matched[k] = True
-    return gd, chosen, margin, prediction
+    return GreedyMatch(gd, chosen, margin, prediction)

@@ -1,9 +1,16 @@
 """Structural landmark matching (thesis A §3.2, Algorithm 1) with Mimica's refinements.
 
-This module runs the match (``match``) and scores it; its passes live beside it: ``rasters``
-(frontal rasters and surface sampling), ``greedy`` (the thesis's greedy structural matcher),
-``patches`` (NCC patch refinement), ``mouth_passes`` (lip order, mouth opening, lower lip) and
-``match_params`` (parameters).
+This module runs the match (``match``): it builds the context the passes read, runs each pass
+and applies what the pass returns, in one place. Beside it: ``match_params`` (parameters),
+``match_context`` (what the passes read), ``pass_results`` (what they return, and the match's
+state), ``scan_features`` (the scan's candidates and seeds), ``rasters`` (frontal rasters),
+``greedy`` (the thesis's greedy matcher), ``patches`` (NCC patch search), ``mouth_passes`` (lower
+lip, mouth opening, lip order), ``surface_points`` (pixels onto the scan surface), ``lid_pass``,
+``steep_pass`` and ``confidence``.
+
+Order of the passes: greedy -> patch search round 1 and 2 -> lower lip -> mouth opening -> lip
+order (in the scan's frontal raster) -> onto the surface -> closest-point snap -> confidence ->
+upper lid -> steep sides (each followed by the confidence again) -> fixed points' confidence 1.
 
 The model is a face whose landmarks are known (a template's points); the input is a scan already
 rigidly aligned to it (ICP, done by ``pipeline.detect_landmarks``), so everything here works in
@@ -55,10 +62,10 @@ the evaluation showed they are needed to reach the accuracy goals):
   mouth (no step, or an opening under 1.5 mm) leaves the patch-search result, except that a lower
   inner-lip point found on the lower outer lip (pressed lips) goes back to the seam, at the
   model's offset below the upper outer lip;
-* ``lid_depth``: a doubtful upper-lid point (confidence < ``LID_RECHECK``; brows lowered onto the
+* ``lid_depth`` (``lid_pass``): a doubtful upper-lid point (confidence < ``LID_RECHECK``; brows lowered onto the
   lid, as in anger, fit the lid patch) goes to the foot of the lid's depth fall onto the eyeball,
   searched in its column above the lower-lid point;
-* ``steep_prediction``: where the model's surface turns sideways away from the frontal view
+* ``steep_prediction`` (``steep_pass``): where the model's surface turns sideways away from the frontal view
   (normal z < ``STEEP_NZ`` and |x| >= |y|: temples, jaw-angle and face-border points, outer brow
   ends; not the mouth and eye points, textured contours that curl away from the view) the frontal
   raster is
@@ -85,119 +92,28 @@ default face); without them, 0.66 × the model's skin bounding-box width.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.face import Face, SurfacePoint
-from core.registration.templates import LandmarkTemplate
+from core.face import Face
 from core.registration.rasters import (  # noqa: F401 - re-exported
-    FrontalRaster, Grid, grid_for, frontal_raster, Side, sample_texture, sample_vertex_values, _raster_hit,
-    _shape_only)
+    FrontalRaster, Grid, grid_for, frontal_raster, Side, sample_texture, sample_vertex_values)
 from core.registration.greedy import (  # noqa: F401 - re-exported
-    face_scale, MatchResult, match_order, graph_distances, _propagated, greedy_match)
-from core.registration.patches import (  # noqa: F401 - re-exported
-    refine_matches)
+    face_scale, match_order, graph_distances, greedy_match)
 from core.registration.match_params import (  # noqa: F401 - re-exported
     HK_SMOOTHING_MM, MatchingError, MatchParams)
-
-
-# ------------------------------------------------------------------ model context and full match
-@dataclass
-class ModelContext:
-    """Everything about the model that does not change between inputs (build once per model)."""
-
-    face: Face
-    template: LandmarkTemplate
-    side: Side
-    scale: float
-    grid: Grid
-    raster: FrontalRaster
-    surface: list            # per detected point: SurfacePoint on the model
-    normals: np.ndarray | None = None   # (P, 3) unit model surface normals at the points
-
-
-def model_context(model: Face, template: LandmarkTemplate, params: MatchParams) -> ModelContext:
-    """Template points on ``model`` (its landmarks, derived points computed), their appearance, the
-    model's frontal raster."""
-    from core.registration.correspondence import SurfaceRays
-    from core.registration.curvature import hk_maps
-    from core.registration.templates import template_positions
-
-    pos = template_positions(model, template.name)
-    pts = np.array([pos[p] for p in template.detected])
-    _, tri, bary = model.closest_surface_points(pts)
-    hk = hk_maps(model, smoothing_mm=HK_SMOOTHING_MM)
-    side = Side(pts, sample_texture(model, tri, bary), sample_vertex_values(model, hk.colours / 255.0, tri, bary))
-    scale = face_scale(pos, pts)
-    grid = grid_for(pts, params.pixel_mm, margin=0.25 * scale)
-    rays = SurfaceRays(model.vertices, model.triangles)
-    raster = frontal_raster(model, rays, np.eye(4), grid)
-    surface = [SurfacePoint(int(t), tuple(b)) for t, b in zip(tri, bary)]
-    nrm = (bary[:, :, None] * model.vertex_normals[model.triangles[tri]]).sum(axis=1)
-    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-    return ModelContext(model, template, side, scale, grid, raster, surface, nrm)
-
-
-@dataclass
-class InputFeatures:
-    """The input's candidates (model frame) and seeds, plus messages about fallbacks."""
-
-    side: Side
-    triangle: np.ndarray
-    bary: np.ndarray
-    seeds: dict
-    textured: bool
-    report: list
-    timings: dict = field(default_factory=dict)   # "candidates_s", "hk_s", "seeds_s"
-
-
-def input_features(scan: Face, to_model: np.ndarray, params: MatchParams) -> InputFeatures:
-    """Candidates (texture, or geometry when the scan has none), HK colours, Colombo seeds."""
-    from core.registration.candidates import NoTextureError, geometry_candidates, texture_candidates
-    from core.registration.curvature import CurvatureError, colombo_seeds, hk_maps
-    from core.registration.icp import apply_transform
-
-    report = []
-    textured = True
-    t0 = time.perf_counter()
-    try:
-        cand = texture_candidates(scan, count=params.candidates, quality=params.quality,
-                                  min_distance_px=params.min_distance_px)
-        if len(cand) < 50:
-            report.append(f"the texture gave only {len(cand)} corner candidates; adding geometry candidates")
-            geo = geometry_candidates(scan, count=params.candidates)
-            cand = _concat_candidates(cand, geo)
-    except NoTextureError:
-        textured = False
-        report.append("the scan has no texture: matching uses geometry candidates and curvature/shape "
-                      "appearance only (expect lower accuracy; check the landmarks)")
-        cand = geometry_candidates(scan, count=params.candidates)
-    t1 = time.perf_counter()
-    hk = hk_maps(scan, smoothing_mm=HK_SMOOTHING_MM)
-    t2 = time.perf_counter()
-    seeds = {}
-    if params.seeds:
-        try:
-            seeds = {k: apply_transform(v[None], to_model)[0] for k, v in colombo_seeds(scan, hk).items()}
-        except CurvatureError as exc:
-            report.append(f"Colombo seeds not found ({exc}); matching starts from the structure alone")
-    pts = apply_transform(cand.points, to_model)
-    hkc = sample_vertex_values(scan, hk.colours / 255.0, cand.triangle, cand.bary)
-    colour = cand.colour if textured else np.full((len(pts), 3), 0.5)
-    t3 = time.perf_counter()
-    return InputFeatures(Side(pts, colour, hkc), np.asarray(cand.triangle), np.asarray(cand.bary), seeds,
-                         textured, report, {"candidates_s": t1 - t0, "hk_s": t2 - t1, "seeds_s": t3 - t2})
-
-
-def _concat_candidates(a, b):
-    from core.registration.candidates import Candidates
-
-    return Candidates(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in
-                        ("points", "triangle", "bary", "uv", "colour")))
-
-
-SEED_POINTS = {"nose_tip": ("9.3",), "inner_eye_corner_left": ("3.11",), "inner_eye_corner_right": ("3.8",)}
+from core.registration.match_context import (  # noqa: F401 - re-exported
+    MatchContext, ModelContext, match_context, model_context, pixel_context)
+from core.registration.pass_results import (  # noqa: F401 - re-exported
+    GreedyMatch, MatchResult, MatchState, PixelEstimates, PixelMoves, SurfaceMoves)
+from core.registration.scan_features import (  # noqa: F401 - re-exported
+    SEED_POINTS, InputFeatures, geometry_params, input_features, preset_points)
+from core.registration.patches import search_near_greedy, search_near_prediction
+from core.registration.mouth_passes import lip_order_pass, lower_lip_pass, mouth_opening_pass
+from core.registration.surface_points import pixels_to_surface, snap_to_surface
+from core.registration.confidence import match_confidence
+from core.registration.lid_pass import upper_lid_pass
+from core.registration.steep_pass import steep_pass, steep_points  # noqa: F401 - re-exported
 
 
 def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchParams, *, rays,
@@ -210,219 +126,81 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
     fixed : name -> position on the scan (scan frame, mm): kept as they are.
     rays : correspondence.SurfaceRays over the scan (its own frame).
     """
-    from core.registration.icp import apply_transform
-
     report = report if report is not None else []
     timings = {}
     t0 = time.perf_counter()
-    tpl = ctx.template
-    names = tpl.detected
+    names = ctx.template.detected
     P = len(names)
     feats = features or input_features(scan, to_model, params)
     report += feats.report
-    params_used = params if feats.textured else _geometry_params(params)
+    used = params if feats.textured else geometry_params(params)
     timings["features_s"] = time.perf_counter() - t0
     if features is None:
         timings.update(feats.timings)
 
-    preset: dict[int, np.ndarray] = {}
     fixed = fixed or {}
-    unknown = [n for n in fixed if n not in names]
-    if unknown:
-        raise MatchingError(f"fixed landmark(s) {', '.join(unknown)} are not points of template {tpl.name!r}")
-    for n, p in fixed.items():
-        preset[tpl.index(n)] = apply_transform(np.asarray(p, float)[None], to_model)[0]
-    seed_idx = []
-    for key, pos in feats.seeds.items():
-        for n in SEED_POINTS.get(key, ()):
-            if n in names and tpl.index(n) not in preset:
-                i = tpl.index(n)
-                d = float(np.linalg.norm(pos - ctx.side.points[i]))
-                if d <= 0.12 * ctx.scale:
-                    preset[i] = pos
-                    seed_idx.append(i)
-                else:
-                    report.append(f"Colombo seed {key} is {d:.0f} mm from where the aligned model puts {n}; ignored")
-    order = match_order(tpl, ctx.side.points, list(preset))
+    preset = preset_points(ctx, feats, fixed, to_model, report)
+    is_fixed = np.array([n in fixed for n in names])
     t1 = time.perf_counter()
-    gd, chosen, margin, _pred = greedy_match(tpl, ctx.side, feats.side, params_used, ctx.scale, order=order,
-                                             preset=preset)
+    gdist = graph_distances(ctx.template, ctx.side.points)
+    greedy = greedy_match(ctx.template, ctx.side, feats.side, used, ctx.scale,
+                          order=match_order(ctx.template, ctx.side.points, list(preset)), preset=preset, gdist=gdist)
     timings["greedy_s"] = time.perf_counter() - t1
+    state = _greedy_state(greedy, feats, preset, is_fixed)
 
-    # Surface points of the greedy result (scan frame).
-    inv = np.linalg.inv(to_model)
+    t2 = time.perf_counter()
+    if used.refine and scan_raster is None:
+        scan_raster = frontal_raster(scan, rays, to_model, ctx.grid, texture=feats.textured)
+    mctx = match_context(ctx, scan, to_model, rays, used, textured=feats.textured, fixed=is_fixed, gdist=gdist,
+                         scan_raster=scan_raster if used.refine else None)
+    if used.refine:
+        pctx = pixel_context(mctx, greedy.positions)
+        passes = [search_near_greedy, search_near_prediction, lower_lip_pass]
+        if used.mouth_opening:
+            passes += [mouth_opening_pass, lip_order_pass]
+        est = PixelEstimates.empty(P)
+        for pixel_pass in passes:
+            est = est.apply(pixel_pass(pctx, est))
+        # Every point's evidence is its final NCC; those on the covered scan raster move there.
+        state = _apply(mctx, state.replace(evidence=est.peak), pixels_to_surface(mctx, est))
+    timings["refine_s"] = time.perf_counter() - t2
+    state = _apply(mctx, state, snap_to_surface(mctx, state))
+
+    confidence = match_confidence(mctx, state.positions, state.evidence, greedy.margin)
+    surface_passes = []
+    if used.lid_depth and used.refine:
+        surface_passes.append(upper_lid_pass)
+    if used.steep_prediction and used.refine:
+        surface_passes.append(steep_pass)
+    for surface_pass in surface_passes:
+        moves = surface_pass(mctx, state, confidence)
+        if len(moves):
+            state = _apply(mctx, state, moves)
+            confidence = match_confidence(mctx, state.positions, state.evidence, greedy.margin)
+    confidence[is_fixed] = 1.0
+    timings["match_s"] = time.perf_counter() - t0
+    return MatchResult(names, state.positions.copy(), state.triangle.copy(), state.bary.copy(), confidence,
+                       list(state.source), greedy.positions.copy(), timings)
+
+
+def _greedy_state(greedy: GreedyMatch, feats: InputFeatures, preset: dict, is_fixed: np.ndarray) -> MatchState:
+    """The match after the greedy pass: candidates' surface points, preset points (seeds, fixed)
+    and predictions without one yet (triangle −1), no evidence."""
+    P = len(greedy.candidate)
     tri = np.full(P, -1)
     bary = np.zeros((P, 3))
-    source = ["prediction"] * P
-    has = chosen >= 0
-    tri[has], bary[has] = feats.triangle[chosen[has]], feats.bary[chosen[has]]
-    for i in range(P):
-        if has[i]:
-            source[i] = "candidate"
+    has = greedy.candidate >= 0
+    tri[has], bary[has] = feats.triangle[greedy.candidate[has]], feats.bary[greedy.candidate[has]]
+    source = ["candidate" if h else "prediction" for h in has]
     for i in preset:
-        source[i] = "fixed" if names[i] in fixed else "seed"
-    positions = gd.copy()
-    peak = np.zeros(P)
-    t2 = time.perf_counter()
-    if params_used.refine:
-        if scan_raster is None:
-            scan_raster = frontal_raster(scan, rays, to_model, ctx.grid, texture=feats.textured)
-        model_raster = ctx.raster if feats.textured else _shape_only(ctx.raster)
-        skip = np.array([names[i] in fixed for i in range(P)])
-        pix, peak = refine_matches(tpl, gd, ctx.side.points, model_raster, scan_raster, params_used, ctx.scale, skip)
-        for i in range(P):
-            if not np.all(np.isfinite(pix[i])):
-                continue
-            c, r = int(pix[i, 0]), int(pix[i, 1])
-            if not (0 <= r < scan_raster.triangle.shape[0] and 0 <= c < scan_raster.triangle.shape[1]):
-                continue
-            t = scan_raster.triangle[r, c]
-            if t < 0:
-                continue
-            tri[i], bary[i] = t, scan_raster.bary[r, c]
-            positions[i] = apply_transform((bary[i] @ scan.vertices[scan.triangles[t]])[None], to_model)[0]
-            source[i] = "refined" if peak[i] > 0 else "prediction"
-    timings["refine_s"] = time.perf_counter() - t2
-    # Points still without a surface point (prediction, seeds, fixed): closest scan point.
-    need = np.nonzero(tri < 0)[0]
-    if len(need):
-        p_scan = apply_transform(positions[need], inv)
-        pos, t, b = rays.closest(p_scan)
-        tri[need], bary[need] = t, b
-        positions[need] = apply_transform(pos, to_model)
-    # Confidence: appearance evidence x structural consistency (leave-one-out prediction).
-    gdist = graph_distances(tpl, ctx.side.points)
-    confidence = _confidence(ctx, positions, peak, margin, params_used, gdist)
-    if params_used.lid_depth and params_used.refine and scan_raster is not None and scan_raster.depth is not None:
-        if _upper_lid_pass(tpl, ctx, scan_raster, positions, confidence, fixed, tri, bary, source, peak):
-            positions = _positions_from(scan, tri, bary, to_model, positions)
-            confidence = _confidence(ctx, positions, peak, margin, params_used, gdist)
-    if params_used.steep_prediction and params_used.refine:
-        steep = steep_points(ctx) & np.array([n not in fixed for n in names])
-        outline = np.array([n in tpl.base.outline for n in names])
-        anchor = (confidence > ANCHOR_CONFIDENCE) & ~steep & ~outline & np.array([s in ("refined", "seed", "fixed") for s in source])
-        if steep.any() and anchor.sum() >= 3:
-            pred = _propagated(ctx.side.points, positions, anchor, params.sigma * ctx.scale, gdist)
-            for i in np.nonzero(steep)[0]:
-                source[i] = "prediction"
-                peak[i] = 0.0
-                hit = None if outline[i] else _raster_hit(scan_raster, pred[i])
-                if hit is None:
-                    pos, t, b = rays.closest(apply_transform(pred[i][None], inv))
-                    tri[i], bary[i], positions[i] = t[0], b[0], apply_transform(pos, to_model)[0]
-                else:
-                    tri[i], bary[i] = hit
-                    positions[i] = apply_transform((bary[i] @ scan.vertices[scan.triangles[tri[i]]])[None], to_model)[0]
-            confidence = _confidence(ctx, positions, peak, margin, params_used, gdist)
-    for i in preset:
-        if names[i] in fixed:
-            confidence[i] = 1.0
-    timings["match_s"] = time.perf_counter() - t0
-    return MatchResult(names, positions, tri, bary, confidence, source, gd, timings)
+        source[i] = "fixed" if is_fixed[i] else "seed"
+    return MatchState(greedy.positions.copy(), tri, bary, tuple(source), np.zeros(P))
 
 
-STEEP_NZ = 0.65          # model normal z below this (> ~50 deg from the view): steep in the frontal raster
-ANCHOR_CONFIDENCE = 0.6  # matches above this confidence anchor the prediction of the steep points
-
-
-def steep_points(ctx: ModelContext) -> np.ndarray:
-    """(P,) bool: points whose model surface normal turns sideways away from the frontal view
-    (z < STEEP_NZ, |x| >= |y|), except the mouth and eye points: those are textured features (lip and lid contours curl away
-    from the view) that the patch search and the opening passes place. The lips are the mouth
-    loop, the lip points and every point within 0.1 x scale of the mouth loop (outer lip corners)."""
-    base = ctx.template.base
-    names = ctx.template.detected
-    features = set(base.mouth) | base.upper_lip_points | base.lower_lip_points
-    for loop in base.eye_margins.values():
-        features |= set(loop)
-    loop = [names.index(n) for n in base.mouth if n in names]
-    if loop:
-        d = np.linalg.norm(ctx.side.points[:, None, :] - ctx.side.points[None, loop, :], axis=2).min(axis=1)
-        features |= {n for n, di in zip(names, d) if di < 0.1 * ctx.scale}
-    if ctx.normals is None:
-        return np.zeros(len(names), bool)
-    sideways = np.abs(ctx.normals[:, 0]) >= np.abs(ctx.normals[:, 1])   # not the chin's or nose's underside
-    return (ctx.normals[:, 2] < STEEP_NZ) & sideways & np.array([n not in features for n in names])
-
-
-LID_RECHECK = 0.5     # upper-lid matches below this confidence are checked against the depth profile
-LID_FALL_MM = 0.5     # the lid's fall onto the eyeball is at least this steep (mm of depth per pixel row)
-
-
-def _upper_lid_pass(tpl, ctx: ModelContext, raster: FrontalRaster, positions, confidence, fixed, tri, bary,
-                    source, peak) -> bool:
-    """Doubtful upper-lid points (confidence < LID_RECHECK) go to the foot of the lid's fall onto
-    the eyeball, in the column at the model's horizontal offset from the lower-lid partner and
-    within twice the model's lid gap above it: the steepest downward depth fall there (unscanned rows
-    under an overhanging lid bridged linearly), followed down while it keeps falling (> 0.3 mm a row). Updates tri / bary / source / peak in place (the
-    positions are recomputed by the caller); True if any point moved."""
-    names = tpl.detected
-    moved = False
-    for loop in tpl.base.eye_margins.values():
-        if len(loop) != 4 or loop[1] not in names or loop[3] not in names:
-            continue
-        i, j = names.index(loop[1]), names.index(loop[3])
-        if confidence[i] >= LID_RECHECK or loop[1] in fixed:
-            continue
-        mu, ml = raster.to_pixel(ctx.side.points[[i, j]])
-        pl = raster.to_pixel(positions[j])[0]
-        gap = ml[1] - mu[1]
-        col = int(round(pl[0] + mu[0] - ml[0]))
-        top, bottom = int(round(pl[1] - 2 * gap)), int(round(pl[1] - 1))
-        H, W = raster.depth.shape
-        if gap < 2 or not (0 <= top and bottom < H and 0 <= col < W):
-            continue
-        d = raster.depth[top:bottom + 1, col].astype(float)
-        ok = np.isfinite(d)
-        if ok.sum() < 0.5 * len(d):
-            continue
-        # A few unscanned rows where the lid overhangs the eyeball: bridge them (the fall spans them).
-        d = np.interp(np.arange(len(d)), np.nonzero(ok)[0], d[ok])
-        g = np.diff(d)          # depth change going down one row (the viewer is at +z)
-        s = int(np.argmin(g))
-        if g[s] > -LID_FALL_MM:
-            continue
-        e = s
-        while e + 1 < len(g) and g[e + 1] < -0.3:
-            e += 1
-        row = top + e + 1
-        if raster.triangle[row, col] < 0:
-            continue
-        tri[i], bary[i] = raster.triangle[row, col], raster.bary[row, col]
-        source[i], peak[i] = "refined", 0.5
-        moved = True
-    return moved
-
-
-def _positions_from(scan: Face, tri, bary, to_model, positions) -> np.ndarray:
-    """(P, 3) model-frame positions of the surface points (tri, bary) on ``scan`` (``positions`` where tri < 0)."""
-    from core.registration.icp import apply_transform
-
-    out = positions.copy()
-    ok = tri >= 0
-    p = np.einsum("pk,pkd->pd", bary[ok], scan.vertices[scan.triangles[tri[ok]]])
-    out[ok] = apply_transform(p, to_model)
+def _apply(ctx: MatchContext, state: MatchState, moves: SurfaceMoves) -> MatchState:
+    """The one place where a pass's moves change the match. Moves with surface points only (the lid
+    pass) have every point's position derived again from its surface point, all in one batch."""
+    out = state.apply(moves)
+    if moves.position is None and len(moves):
+        out = out.replace(positions=ctx.surface_positions(out.triangle, out.bary, out.positions))
     return out
-
-
-def _confidence(ctx: ModelContext, positions, peak, margin, params: MatchParams, gdist) -> np.ndarray:
-    """(P,) the mean of the appearance evidence and the leave-one-out structural consistency."""
-    P = len(positions)
-    loo = np.zeros((P, 3))
-    sigma = params.sigma * ctx.scale
-    for i in range(P):
-        m = np.ones(P, bool)
-        m[i] = False
-        loo[i] = _propagated(ctx.side.points, positions, m, sigma, gdist)[i]
-    consistency = np.exp(-(np.linalg.norm(positions - loo, axis=1) / (0.1 * ctx.scale)) ** 2)
-    evidence = np.clip(peak, 0, 1) if params.refine else np.clip(margin / 0.1, 0, 1)
-    return 0.5 * evidence + 0.5 * consistency
-
-
-def _geometry_params(params: MatchParams) -> MatchParams:
-    """Without texture d_A,UV carries no information: all appearance weight on the HK term."""
-    import dataclasses
-
-    return dataclasses.replace(params, lam_a=0.0)
-
-

@@ -1,24 +1,38 @@
-"""Mouth passes of the matcher: the lips kept in order top to bottom, the inner lip points of an
-open mouth found on the opening's depth step, the lower lip brought back to its seam."""
+"""Mouth passes of the matcher, in the scan's frontal raster (after the patch search, in this
+order): the lower lip searched below the upper lip where the jaw went (``lower_lip_pass``), the
+inner lip points of an open mouth put on the opening's depth steps (``mouth_opening_pass``), a
+lower inner-lip point collapsed onto the outer lip brought back to the seam (``lip_order_pass``).
+
+Each reads a ``PixelContext`` and the current ``PixelEstimates`` and returns ``PixelMoves``; pixels
+are (col, row), rows grow downwards. A pass works on a copy of the estimates because its later
+points read where its earlier ones went (e.g. an outer lower-lip point stays below the inner one)."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from core.registration.rasters import FrontalRaster
+from core.registration.pass_results import PixelEstimates, PixelMoves
+
+if TYPE_CHECKING:
+    from core.registration.match_context import PixelContext
 
 
-def _lip_order_pass(template, search, out, peak, model_px, skip):
+def lip_order_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
     """A lower inner-lip point found on (or below) the lower outer lip goes back above it.
 
     On a pressed, closed mouth there is no opening and the lower-lip patch fits the lower outer
     lip's edge as well; the inner point then collapses onto the outer one. The inner point is kept
     at least half the model's inner-to-outer lip height above the outer point, at the model's
-    offset below the upper outer lip (the lips touch: it is the seam)."""
+    offset below the upper outer lip (the lips touch: it is the seam); its evidence becomes 0."""
+    template, search, model_px, skip = ctx.template, ctx.search, ctx.model_px, ctx.skip
+    out, peak = est.working()
+    moved = []
     base = template.base
     names = template.detected
     loop = [template.index(n) for n in base.mouth if n in names]
     if len(loop) < 4:
-        return
+        return PixelMoves.take(out, peak, moved)
     corners = {loop[0], loop[len(loop) // 2]}
     upper = {template.index(n) for n in base.upper_lip_points if n in names}
     lower = {template.index(n) for n in base.lower_lip_points if n in names}
@@ -26,7 +40,7 @@ def _lip_order_pass(template, search, out, peak, model_px, skip):
     upper_out = [i for i in upper if i not in loop and np.all(np.isfinite(out[i]))]
     lower_out = [i for i in lower if i not in loop and np.all(np.isfinite(out[i]))]
     if not upper_out or not lower_out:
-        return
+        return PixelMoves.take(out, peak, moved)
     for k in lower_in:
         if skip[k] or not np.all(np.isfinite(out[k])):
             continue
@@ -39,6 +53,8 @@ def _lip_order_pass(template, search, out, peak, model_px, skip):
         hit = search.nearest_covered((out[k, 0], row))
         if np.all(np.isfinite(hit)):
             out[k], peak[k] = hit, 0.0
+            moved.append(k)
+    return PixelMoves.take(out, peak, moved)
 
 
 OPENING_STEP_MM = 3.0     # a depth step this large between neighbouring pixel rows is an occluding edge
@@ -50,7 +66,7 @@ OPENING_MIN_MM = 1.5      # a mouth opening narrower than this is treated as clo
 HOLE_MM = 3.0             # uncovered rows this tall between two lip rows: an unscanned opening
 
 
-def _mouth_opening_pass(template, raster: FrontalRaster, out, peak, model_px, scale, skip, search=None):
+def mouth_opening_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
     """Inner-lip points put on the edges of the mouth opening, when the scan shows one.
 
     Seen from the front an open mouth is an occluding edge: along a vertical line through the mouth
@@ -68,21 +84,27 @@ def _mouth_opening_pass(template, raster: FrontalRaster, out, peak, model_px, sc
       wrong side of the opening are searched again (patch search) on their own side.
 
     With no step in a column, or an opening narrower than ``OPENING_MIN_MM`` (closed mouth), the
-    points keep their patch-search estimates."""
+    points keep their patch-search estimates. Without ``ctx.search`` (tests) only the inner-lip
+    points move. Inner-lip points on an edge get evidence of at least 0.5."""
+    template, raster, model_px, scale, skip, search = (ctx.template, ctx.raster, ctx.model_px, ctx.scale,
+                                                       ctx.skip, ctx.search)
+    out, peak = est.working()
+    moved = []
+    done = lambda: PixelMoves.take(out, peak, moved)   # noqa: E731
     depth = raster.depth
     if depth is None:
-        return
+        return done()
     base = template.base
     names = template.detected
     if not all(n in names for n in base.mouth) or NOSE_BOTTOM not in names:
-        return
+        return done()
     ok = lambda i: bool(np.all(np.isfinite(out[i])))   # noqa: E731
     loop = [template.index(n) for n in base.mouth]
     c0, c1 = loop[0], loop[len(loop) // 2]                  # the two corners
     jaw = [template.index(n) for n in JAW_POINTS if n in names and ok(template.index(n))]
     nose = template.index(NOSE_BOTTOM)
     if not (ok(c0) and ok(c1) and ok(nose) and jaw):
-        return
+        return done()
     upper_set = {template.index(n) for n in base.upper_lip_points if n in names}
     upper_in = [i for i in loop if i not in (c0, c1) and i in upper_set]
     lower_in = [i for i in loop if i not in (c0, c1) and i not in upper_set]
@@ -95,10 +117,10 @@ def _mouth_opening_pass(template, raster: FrontalRaster, out, peak, model_px, sc
     bottom = int(round(np.median([out[i, 1] for i in jaw])))   # the chin, below the lower lip
     top, bottom = max(top, 0), min(bottom, Hh - 1)
     if bottom - top < 4:
-        return
+        return done()
     span_model = model_px[c1, 0] - model_px[c0, 0]
     if abs(span_model) < 1:
-        return
+        return done()
     def opening_edges(c):
         """(last row above, first row below) the opening in column c (absolute rows), or None."""
         if not 0 <= c < W:
@@ -148,8 +170,9 @@ def _mouth_opening_pass(template, raster: FrontalRaster, out, peak, model_px, sc
         edges[k] = (c, r_up, r_lo)
         out[k] = (float(c), float(r_up if k in upper_in else r_lo))
         peak[k] = max(peak[k], 0.5)
+        moved.append(k)
     if search is None or not edges:
-        return
+        return done()
     # The jaw below the lower lip: a chin point found less than half its model distance below the
     # lower lip's inner edge (the patch search latched onto the lip) is searched again lower down.
     if mid is not None:
@@ -167,6 +190,7 @@ def _mouth_opening_pass(template, raster: FrontalRaster, out, peak, model_px, sc
                 out[k], peak[k] = best, val
             else:
                 out[k] = search.nearest_covered((out[k, 0], (lo_row + hi_row) / 2))
+            moved.append(k)
     # Outer-lip points on the wrong side of the opening: search again on their own side.
     r = max(2, int(round(0.05 * scale / px)))
     for group, side in ((upper_out, "upper"), (lower_out, "lower")):
@@ -190,6 +214,8 @@ def _mouth_opening_pass(template, raster: FrontalRaster, out, peak, model_px, sc
                 out[k], peak[k] = best, val
             else:
                 out[k] = (out[k, 0], float(np.clip(pred, lo_row, hi_row)))
+            moved.append(k)
+    return done()
 
 
 JAW_POINTS = ("2.10", "2.1", "2.11", "2.12")
@@ -198,19 +224,24 @@ JAW_POINTS = ("2.10", "2.1", "2.11", "2.12")
 NOSE_BOTTOM = "9.15"
 
 
-def _lower_lip_pass(template, search, out, peak, model_px, r, scale_px, skip):
+def lower_lip_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
     """Lower-lip points searched below their upper-lip partner, pulled to where the jaw went.
 
     An open mouth shows two lip bands; the lower-lip patches also fit the upper lip, and the
     structure of the other mouth points does not tell which (they move together). The jaw
     (chin points, found reliably) does: the lower lip moves down with it, by about 1-2x the chin's
-    displacement, and it is never above the upper lip."""
+    displacement, and it is never above the upper lip. Inner lip first: an outer point is searched
+    below where its inner one went."""
+    template, search, model_px, skip = ctx.template, ctx.search, ctx.model_px, ctx.skip
+    r, scale_px = ctx.radius_px, ctx.scale_px
+    out, peak = est.working()
+    moved = []
     names = template.detected
     jaw = [template.index(n) for n in JAW_POINTS if n in names and np.all(np.isfinite(out[template.index(n)]))]
     upper = [template.index(n) for n in template.base.upper_lip_points if n in names]
     lower = [template.index(n) for n in template.base.lower_lip_points if n in names]
     if not jaw or not upper or not lower:
-        return
+        return PixelMoves.take(out, peak, moved)
     jaw_disp = np.median(out[jaw] - model_px[jaw], axis=0)
     drop = max(float(jaw_disp[1]), 0.0)          # rows grow downwards
     for k in sorted(lower, key=lambda i: model_px[i, 1]):   # inner lip first (higher up)
@@ -230,3 +261,5 @@ def _lower_lip_pass(template, search, out, peak, model_px, r, scale_px, skip):
         best, val = search.search(k, (cx, (top + bottom) / 2), r, int(np.ceil((bottom - top) / 2)), pull_px=pred)
         if best is not None:
             out[k], peak[k] = best, val
+            moved.append(k)
+    return PixelMoves.take(out, peak, moved)

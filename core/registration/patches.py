@@ -1,15 +1,21 @@
 """Patch refinement: each matched point moved to where its model patch correlates best (normalised
-cross-correlation of depth and texture patches) within a search window."""
+cross-correlation of surface-normal and texture patches) in the scan's frontal raster.
+
+Two passes (``matching`` runs them, then the mouth passes): round 1 searches around each greedy
+match, round 2 around each point's structural prediction from the others."""
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import numpy as np
 from core.registration.templates import LandmarkTemplate
 from core.registration.rasters import FrontalRaster
-from core.registration.greedy import graph_distances
-from core.registration.mouth_passes import _lip_order_pass, _mouth_opening_pass
 from core.registration.match_params import MatchParams
-from core.registration.mouth_passes import _lower_lip_pass
+from core.registration.pass_results import PixelEstimates, PixelMoves
+
+if TYPE_CHECKING:
+    from core.registration.match_context import PixelContext
 
 
 class PatchSearch:
@@ -103,42 +109,44 @@ def patch_halves(template: LandmarkTemplate) -> list[str]:
     return out
 
 
-def refine_matches(template: LandmarkTemplate, greedy: np.ndarray, model_points: np.ndarray,
-                   model_raster: FrontalRaster, scan_raster: FrontalRaster, params: MatchParams, scale: float,
-                   skip: np.ndarray):
-    """Two rounds of patch search (see the module docstring).
-
-    Round 1 searches around each greedy match. Round 2 predicts every point from the others
-    (graph-distance-weighted displacements, weighted by their round-1 NCC) and searches a window
-    spanning the prediction with a pull towards it; mouth points get a taller window (the jaw
-    moves them vertically). Returns (pixels (P, 2) (col, row) in the scan raster or NaN, NCC (P,))."""
-    P = len(template.detected)
-    search = PatchSearch(model_points, model_raster, scan_raster, params, patch_halves(template),
-                         [n in template.base.outline for n in template.detected])
-    r = max(1, int(round(params.refine_radius * scale / params.pixel_mm)))
-    out = np.full((P, 2), np.nan)
-    peak = np.zeros(P)
-    sc = scan_raster.to_pixel(greedy)
-    for k in range(P):
-        if skip[k]:
+def search_near_greedy(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
+    """Round 1: each point's patch searched within ``ctx.radius_px`` of its greedy match
+    (``est`` is not read: round 1 starts the estimates)."""
+    out, peak = est.working()
+    moved = []
+    r = ctx.radius_px
+    for k in range(len(ctx.template.detected)):
+        if ctx.skip[k]:
             continue
-        best, val = search.search(k, sc[k], r, r)
+        best, val = ctx.search.search(k, ctx.greedy_px[k], r, r)
         if best is not None:
             out[k], peak[k] = best, val
-    # Round 2: structural prediction from the others.
-    pos_px = np.where(np.isfinite(out), out, sc)
-    gdist = graph_distances(template, model_points)
-    sigma = params.sigma * scale
+            moved.append(k)
+    return PixelMoves.take(out, peak, moved)
+
+
+def search_near_prediction(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
+    """Round 2: each point predicted from the others (graph-distance Gaussian weights × their
+    round-1 NCC, σ = ``sigma`` × scale) and searched in a window spanning the prediction and its
+    round-1 pixel, pulled towards the prediction; mouth points get a taller window (the jaw moves
+    them vertically). A result replaces round 1's unless its NCC is more than 0.05 lower; a point
+    with no reliable patch anywhere (outline at the scan's edge) takes the covered pixel nearest
+    the prediction, with no evidence."""
+    template, skip, model_px, r = ctx.template, ctx.skip, ctx.model_px, ctx.radius_px
+    P = len(template.detected)
+    out, peak = est.working()
+    moved = []
+    pos_px = np.where(np.isfinite(est.pixel), est.pixel, ctx.greedy_px)
+    sigma = ctx.params.sigma * ctx.scale
     mouth = {template.index(n) for n in template.base.mouth if n in template.detected}
     mouth |= {template.index(n) for n in template.base.upper_lip_points | template.base.lower_lip_points
               if n in template.detected}
-    model_px = model_raster.to_pixel(model_points)
-    conf = np.clip(peak, 0.05, 1.0)
+    conf = np.clip(est.peak, 0.05, 1.0)
     conf[skip] = 1.0
     for k in range(P):
         if skip[k]:
             continue
-        w = np.exp(-gdist[k] ** 2 / (2 * sigma * sigma)) * conf
+        w = np.exp(-ctx.gdist[k] ** 2 / (2 * sigma * sigma)) * conf
         w[k] = 0.0
         if w.sum() < 1e-9:
             continue
@@ -147,17 +155,14 @@ def refine_matches(template: LandmarkTemplate, greedy: np.ndarray, model_points:
         span = np.abs(pred - pos_px[k]) / 2
         rx = int(np.ceil(span[0])) + r
         ry = int(np.ceil(span[1])) + (2 * r if k in mouth else r)
-        best, val = search.search(k, centre, rx, ry, pull_px=pred)
+        best, val = ctx.search.search(k, centre, rx, ry, pull_px=pred)
         if best is not None and val >= peak[k] - 0.05:
             out[k], peak[k] = best, val
+            moved.append(k)
         elif best is None and not np.all(np.isfinite(out[k])):
-            # No reliable patch (outline at the scan's edge): the structural prediction.
-            out[k], peak[k] = search.nearest_covered(pred), 0.0
-    _lower_lip_pass(template, search, out, peak, model_px, r, scale / params.pixel_mm, skip)
-    if params.mouth_opening:
-        _mouth_opening_pass(template, scan_raster, out, peak, model_px, scale, skip, search)
-        _lip_order_pass(template, search, out, peak, model_px, skip)
-    return out, peak
+            out[k], peak[k] = ctx.search.nearest_covered(pred), 0.0
+            moved.append(k)
+    return PixelMoves.take(out, peak, moved)
 
 
 def _ncc(win: np.ndarray, patch: np.ndarray) -> np.ndarray:

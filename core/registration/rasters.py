@@ -149,7 +149,7 @@ def sample_vertex_values(face: Face, values: np.ndarray, triangle, bary) -> np.n
     return np.einsum("kj,kjd->kd", bary, np.asarray(values, float)[face.triangles[np.asarray(triangle, np.int64)]])
 
 
-def _raster_hit(raster: FrontalRaster | None, p: np.ndarray):
+def raster_hit(raster: FrontalRaster | None, p: np.ndarray):
     """(triangle, bary) of the scan surface seen at the frontal pixel of ``p`` (3,), or None."""
     if raster is None:
         return None
@@ -159,5 +159,6 @@ def _raster_hit(raster: FrontalRaster | None, p: np.ndarray):
     return int(raster.triangle[r, c]), raster.bary[r, c]
 
 
-def _shape_only(r: FrontalRaster) -> FrontalRaster:
+def shape_only(r: FrontalRaster) -> FrontalRaster:
+    """``r`` with its surface-normal channels only (no colour: for a scan without texture)."""
     return FrontalRaster(r.x0, r.y0, r.pixel, r.triangle, r.bary, np.ascontiguousarray(r.channels[..., :3]))

@@ -96,9 +96,18 @@ def test_greedy_recovers_a_permutation():
     order = match_order(tpl, pts, [tpl.index("9.3")])
     assert sorted(order) == list(range(48)) and order[0] == tpl.index("9.3")
     for propagate in (False, True):
-        gd, chosen, margin, _ = greedy_match(tpl, model, cand, MatchParams(lam=0.5, propagate=propagate), 91.0, order=order)
-        assert np.array_equal(perm[chosen], np.arange(48))
-        assert (margin > 0).all()
+        g = greedy_match(tpl, model, cand, MatchParams(lam=0.5, propagate=propagate), 91.0, order=order)
+        assert np.array_equal(perm[g.candidate], np.arange(48))
+        assert (g.margin > 0).all()
+
+
+def pixel_context_for(tpl, raster, model_px, *, search=None, scale=90.0):
+    """A PixelContext for testing one mouth pass (greedy pixels and graph distances unused)."""
+    from core.registration.match_context import PixelContext
+
+    P = len(tpl.detected)
+    return PixelContext(tpl, raster, model_px, model_px, scale, MatchParams(), np.zeros(P, bool), search,
+                        np.zeros((P, P)))
 
 
 def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
@@ -106,7 +115,8 @@ def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
     inner-lip points land on row 34, the lower ones on row 51, spread between the opening's ends;
     a closed mouth (no opening) leaves them alone."""
     from core.registration.matching import FrontalRaster
-    from core.registration.mouth_passes import _mouth_opening_pass
+    from core.registration.mouth_passes import mouth_opening_pass
+    from core.registration.pass_results import PixelEstimates
 
     tpl = get_template("a48")
     names = tpl.detected
@@ -121,18 +131,18 @@ def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
     for n in ("2.10", "2.1", "2.11", "2.12"):
         model_px[names.index(n)] = (40, 70)
     depth = np.zeros((90, 80))
-    out = model_px.copy()
-    skip = np.zeros(P, bool)
-    closed = out.copy()
+    est = PixelEstimates(model_px.copy(), np.zeros(P))
     raster = FrontalRaster(0.0, 0.0, 0.75, np.zeros((90, 80), int), np.zeros((90, 80, 3)), np.zeros((90, 80, 1)), depth)
-    _mouth_opening_pass(tpl, raster, closed, np.zeros(P), model_px, 90.0, skip)
-    np.testing.assert_array_equal(closed, model_px)
+    assert len(mouth_opening_pass(pixel_context_for(tpl, raster, model_px), est)) == 0   # closed: nothing moves
     depth[35:51, 25:56] = -20.0
-    _mouth_opening_pass(tpl, raster, out, np.zeros(P), model_px, 90.0, skip)
+    moves = mouth_opening_pass(pixel_context_for(tpl, raster, model_px), est)
+    out = est.apply(moves).pixel
+    np.testing.assert_array_equal(est.pixel, model_px)      # the pass returns moves, changes nothing
     upper = [names.index(n) for n in loop[1:half]]
     lower = [names.index(n) for n in loop[half + 1:]]
     assert np.all(out[upper, 1] == 34) and np.all(out[lower, 1] == 51)
     assert np.all((out[upper + lower, 0] > 24) & (out[upper + lower, 0] < 56))
+    assert set(moves.index) == set(upper + lower) and np.all(moves.peak == 0.5)
 
 
 def test_steep_points_are_the_lateral_sides(model):
@@ -146,7 +156,8 @@ def test_steep_points_are_the_lateral_sides(model):
 
 
 def test_lower_inner_lip_collapsed_on_the_outer_lip_goes_back_to_the_seam(model):
-    from core.registration.mouth_passes import _lip_order_pass
+    from core.registration.mouth_passes import lip_order_pass
+    from core.registration.pass_results import PixelEstimates
 
     tpl = get_template("a48")
     pos = template_positions(model, "a48")
@@ -160,8 +171,27 @@ def test_lower_inner_lip_collapsed_on_the_outer_lip_goes_back_to_the_seam(model)
         def nearest_covered(self, px):
             return tuple(px)
 
-    _lip_order_pass(tpl, Search(), out, peak, model_px, np.zeros(len(out), bool))
+    moves = lip_order_pass(pixel_context_for(tpl, None, model_px, search=Search()), PixelEstimates(out, peak))
+    assert list(moves.index) == [i23]
+    est = PixelEstimates(out, peak).apply(moves)
+    out, peak = est.pixel, est.peak
     assert out[i23, 1] == pytest.approx(model_px[i23, 1])     # back at the seam, below the upper outer lip
     assert out[i23, 1] < out[i82, 1] and out[i23, 1] > out[i81, 1]
     assert peak[i23] == 0.0 and peak[i29] == 1.0               # the uncollapsed point is left alone
     np.testing.assert_array_equal(out[i29], model_px[i29])
+
+
+def test_moves_are_applied_to_a_copy_and_results_are_read_only():
+    from core.registration.pass_results import MatchState, PixelEstimates, PixelMoves, SurfaceMoves
+
+    state = MatchState(np.zeros((3, 3)), [-1, 5, 6], np.zeros((3, 3)), ("prediction",) * 3, np.zeros(3))
+    moves = SurfaceMoves([0], [7], [[0.2, 0.3, 0.5]], [[1.0, 2.0, 3.0]], source=["refined"])
+    after = state.apply(moves)
+    assert list(after.triangle) == [7, 5, 6] and after.source == ("refined", "prediction", "prediction")
+    np.testing.assert_array_equal(after.positions[0], (1, 2, 3))
+    assert list(state.triangle) == [-1, 5, 6] and not state.positions.any()   # the state it came from is kept
+    for a in (after.positions, moves.bary, state.evidence):
+        with pytest.raises(ValueError):
+            a[0] = 1.0
+    est = PixelEstimates.empty(3).apply(PixelMoves.take(np.ones((3, 2)), np.full(3, 0.8), [2]))
+    assert np.isnan(est.pixel[:2]).all() and list(est.pixel[2]) == [1.0, 1.0] and list(est.peak) == [0, 0, 0.8]
