@@ -41,6 +41,9 @@ def build_rig(face, cache: DiskCache | None = None) -> tuple[object | None, str]
         return None, f"Animation is not available in this installation ({type(exc).__name__}: {exc})."
     cache = cache if cache is not None else DiskCache()
     try:
+        from core.normal_kernels import warm_up
+
+        warm_up()   # build_rig runs on a loader thread: compile the per-tick normals there
         rig = FaceRig(face, cache=cache)
         notes = getattr(face.metadata, "notes", None)
         if cache.notes and isinstance(notes, list):

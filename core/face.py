@@ -24,6 +24,8 @@ import scipy.sparse
 import scipy.sparse.csgraph
 from scipy.spatial import cKDTree
 
+from core.normal_kernels import vertex_normals_into
+
 
 @dataclass(frozen=True)
 class SurfacePoint:
@@ -450,19 +452,28 @@ def triangle_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 class VertexNormals:
     """Area-weighted unit vertex normals for one fixed triangulation, fast enough per frame.
 
-    Build once per triangulation; each call is one cross product per triangle and one
-    precomputed sparse (vertex x triangle) product, about 5 ms for the 50k-vertex default face.
+    Build once per triangulation; each call is one pass over the triangles
+    (:mod:`core.normal_kernels`, ~1 ms for the 50k-vertex default face), or without numba one
+    cross product per triangle and one precomputed sparse (vertex x triangle) product (~5-10 ms).
     """
 
     def __init__(self, triangles, n_vertices: int):
         tri = np.asarray(triangles, dtype=np.int64)
         m = len(tri)
         self.n_vertices = int(n_vertices)
+        self._triangles = np.ascontiguousarray(tri)
         self._corners = [np.ascontiguousarray(tri[:, k]) for k in range(3)]
         self._incidence = scipy.sparse.csr_matrix(
             (np.ones(3 * m), (tri.ravel(), np.repeat(np.arange(m), 3))), shape=(self.n_vertices, m))
 
     def __call__(self, vertices) -> np.ndarray:
+        v = np.ascontiguousarray(vertices, dtype=np.float64)
+        if vertex_normals_into is not None and v.shape == (self.n_vertices, 3):
+            return vertex_normals_into(v, self._triangles, np.empty_like(v))
+        return self.with_numpy(v)
+
+    def with_numpy(self, vertices) -> np.ndarray:
+        """The same normals without the compiled kernel (the reference)."""
         v = np.asarray(vertices, dtype=np.float64)
         x, y, z = v[:, 0], v[:, 1], v[:, 2]
         i0, i1, i2 = self._corners

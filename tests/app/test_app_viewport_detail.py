@@ -69,7 +69,8 @@ def _settled(win) -> bool:
 
 def test_a_slider_draws_the_draft_then_the_full_face(qtbot, win):
     actor = win.face_actor
-    assert not actor.showing_preview and actor.actor.GetVisibility()
+    qtbot.waitUntil(lambda: _settled(win) and not actor.showing_preview, timeout=TIMEOUT_MS)
+    assert actor.actor.GetVisibility()
     win.fap_dock.row(3).slider.setValue(500)
     qtbot.waitUntil(lambda: win.viewport.last_tick_ms is not None and actor.showing_preview, timeout=TIMEOUT_MS)
     assert not actor.actor.GetVisibility() and actor.preview_actor.GetVisibility()
