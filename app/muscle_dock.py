@@ -3,10 +3,12 @@
 The muscle dock (thesis C's interface): one slider per muscle *per side* and the jaw
 angle, driving a :class:`core.layers.muscles.MuscleLayer` on the window's :class:`core.rig.FaceRig`.
 
-* Rows: the 9 linear muscles as pairs (the name spans two lines, "left" and "right" below each
-  other, so the two sides of a muscle sit together and every slider has the full width), then the
-  orbicularis oris and the jaw opening. Each row: slider, spin box with units (thesis force units
-  ``u``; degrees for the jaw), reset ↺. "Link left/right" moves a muscle's partner with it.
+* Rows: the shared :class:`app.parameter_row.ParameterRow` of each control's registry key
+  ("muscle:risorius:left", "jaw"): the 9 linear muscles as pairs (the name spans two lines, "left"
+  and "right" below each other, so the two sides of a muscle sit together and every slider has the
+  full width), then the orbicularis oris and the jaw opening. Each row: slider, spin box with units
+  (thesis force units ``u``; degrees for the jaw), reset ↺. "Link left/right" moves a control's
+  mirror (from the registry) with it.
   "left"/"right" are the face's own sides (in the front view its left is on the screen's right).
 * House rules of the FAP dock: widgets write through the layer's setters and never keep their
   own copy; every widget follows ``layer.changed`` with its signals blocked (no echo); the dock
@@ -46,16 +48,18 @@ from __future__ import annotations
 import contextlib
 import time
 import traceback
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Hashable
 
 from PySide6.QtCore import QEvent, QObject, QSignalBlocker, Qt, QTimer, Signal
 from PySide6.QtGui import QKeySequence
 from PySide6.QtWidgets import QDockWidget, QLabel, QMessageBox, QWidget
 
 from app.jobs import JobRunner
-from app.muscle_dock_ui import JAW, ControlRow, MuscleDockLayout, _preset_title
+from app.muscle_dock_ui import JAW, MuscleDockLayout, _preset_title
 from app.muscle_simulation import (  # noqa: F401 - the tests tune these
     ANIMATION_INTERVAL_MS, ANIMATION_S, RELAX_BUDGET_S, MuscleSimulationMixin)
+from app.parameter_row import ParameterRow
+from core import parameters as P
 
 if TYPE_CHECKING:  # pragma: no cover
     from core.layers.muscles import MuscleLayer
@@ -116,7 +120,7 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
         self.layer: "MuscleLayer | None" = None
         self.rig = None
         self.view = None  # MuscleView, while a layer and a plotter exist
-        self.rows: dict[tuple, ControlRow] = {}
+        self.rows: dict[str, ParameterRow] = {}   # by canonical key: "muscle:risorius:left", "jaw"
         self.name_labels: dict[str, QLabel] = {}
         self._syncing = False
         self._view_dirty = True
@@ -333,9 +337,8 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
             return
         self._syncing = True
         try:
-            forces = layer.forces()
             for key, row in self.rows.items():
-                value = float(layer.jaw_deg) if key == JAW else float(forces.get(key, 0.0))
+                value = float(layer.value(key))
                 if row.value != value:
                     row.show_value(value)
         finally:
@@ -402,9 +405,8 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
         layer = self.layer
         if layer is None:
             return
-        forces = layer.forces()
         for key, row in self.rows.items():
-            row.show_value(float(layer.jaw_deg) if key == JAW else float(forces.get(key, 0.0)))
+            row.show_value(float(layer.value(key)))
 
     def _edit(self, text: str, call, merge_key=None) -> bool:
         """An edit from this dock: apply, record one undo step, settle."""
@@ -424,32 +426,29 @@ class MuscleDock(MuscleDockLayout, MuscleSimulationMixin, QDockWidget):
                 self._update_status(converged=True)
         return ok
 
-    def _row_edited(self, key: tuple, value: float) -> None:
+    def _row_edited(self, key: str, value: float) -> None:
         layer = self.layer
         if layer is None or self._syncing:
             return
-        if key == JAW:
-            self._edit("jaw opening", lambda: layer.set_jaw(value), merge_key=JAW)
-            return
-        name, side = key
-        label = self.name_labels[name].text()
-        if side is not None and self.link_check.isChecked():
-            other = (name, "right" if side == "left" else "left")
-            self._edit(f"{label} (both sides)", lambda: layer.set_forces({key: value, other: value}),
-                       merge_key=(name, "both"))
-        else:
-            what = f"{label} {side}" if side else label
-            self._edit(what, lambda: layer.set_force(name, side, value), merge_key=key)
+        values = {key: value}
+        mirror = self.rows[key].mirror
+        if mirror in self.rows and self.link_check.isChecked():
+            values[mirror] = self.rows[mirror].clamp(value)
+        self._edit(key, lambda: layer.set_values(values))
 
-    def set_control(self, key: tuple, value: float) -> None:
+    def row(self, key: Hashable) -> ParameterRow:
+        """The row of a control by any spelling: ("risorius", "left"), "muscle:risorius:left", "jaw"."""
+        return self.rows[P.key_of(key)]
+
+    def set_control(self, key: Hashable, value: float) -> None:
         """Set one control as if its row was edited (link, undo and settling included)."""
-        self._row_edited(key, float(value))
+        self._row_edited(P.key_of(key), float(value))
 
-    def reset_control(self, key: tuple) -> None:
-        """The row's ↺: that control to 0 (and its partner when linked)."""
-        row = self.rows.get(key)
+    def reset_control(self, key: Hashable) -> None:
+        """The row's ↺: that control to its default, 0 (and its mirror when linked)."""
+        row = self.rows.get(P.key_of(key))
         if row is not None:
-            self._row_edited(key, max(row.minimum, 0.0))
+            self._row_edited(row.key, row.default)
 
     def reset_all(self) -> None:
         """Every force and the jaw to 0, the tissue at rest at once (``layer.reset()``)."""
@@ -544,4 +543,4 @@ def attach_muscle_dock(window, *, level: int = 3) -> MuscleDock:
     return dock
 
 
-__all__ = ["MuscleDock", "ControlRow", "attach_muscle_dock", "RELAX_BUDGET_S", "ANIMATION_S", "JAW"]
+__all__ = ["MuscleDock", "attach_muscle_dock", "RELAX_BUDGET_S", "ANIMATION_S", "JAW"]

@@ -1,6 +1,6 @@
 """The muscle dock's widgets: presets and force-set files, link and show toggles, Animate / Rest /
-Stop, and the grid of per-side rows (a muscle's two sides together, then the orbicularis oris and
-the jaw), built once; and the force-set file dialogs."""
+Stop, and the grid of per-side rows (the shared :class:`app.parameter_row.ParameterRow`; a muscle's
+two sides together, then the orbicularis oris and the jaw), built once; and the force-set file dialogs."""
 
 from __future__ import annotations
 
@@ -11,18 +11,12 @@ from PySide6.QtWidgets import (
     QCheckBox, QComboBox, QFileDialog, QFrame, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QMessageBox,
     QProgressBar, QPushButton, QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
 
-from app.parameter_row import ParameterControls
+from app.parameter_row import ParameterRow, align_rows, parameter_tooltip
+from core import parameters as P
 
-
-#: Slider steps per unit (force units and degrees): 0.1 resolution.
-SLIDER_SCALE = 10
-FORCE_SUFFIX = " u"
-JAW = ("jaw", None)
+#: The jaw's parameter key (the muscle forces are "muscle:<name>:<side>").
+JAW = "jaw"
 FILE_FILTER = "Mimica force sets (*.json);;All files (*)"
-
-
-def _side_text(side: str | None) -> str:
-    return "" if side is None else side
 
 
 def _preset_title(name: str) -> str:
@@ -36,25 +30,6 @@ def _force_unit_dyn() -> float | None:
         return float(load_params().force_unit)
     except Exception:  # noqa: BLE001 - decorates a tooltip only
         return None
-
-
-class ControlRow(ParameterControls):
-    """Slider, spin box and reset button of one control (a muscle side, the orbicularis, the jaw),
-    with the side's label; the dock's grid lays the widgets out, the value lives in the layer."""
-
-    def __init__(self, key: tuple, minimum: float, maximum: float, suffix: str, tooltip: str,
-                 parent: QWidget, *, side_text: str = ""):
-        tag = "_".join(str(k) for k in key if k is not None)
-        super().__init__(key, minimum, maximum, parent, suffix=suffix, slider_scale=SLIDER_SCALE,
-                         slider_step=SLIDER_SCALE // 2, decimals=1, spin_step=0.5, name=f"muscle_{tag}")
-        self.side_label = QLabel(side_text, parent)
-        self.side_label.setObjectName(f"muscleSide_{tag}")
-        self.side_label.setStyleSheet("QLabel { color: #6b7280; }")
-        for w in (self.side_label, self.slider, self.spin):
-            w.setToolTip(tooltip)
-
-    def widgets(self) -> list[QWidget]:
-        return [self.side_label, *super().widgets()]
 
 
 class MuscleDockLayout:
@@ -187,15 +162,10 @@ class MuscleDockLayout:
     def _build_rows(self) -> QWidget:
         from core.layers.muscles import muscle_specs
 
-        try:
-            from core.layers.muscles.muscles import jaw_range
-
-            jaw_lo, jaw_hi = jaw_range()
-        except Exception:  # noqa: BLE001 - the contract does not export it; thesis-like default
-            jaw_lo, jaw_hi = 0.0, 25.0
         unit_dyn = _force_unit_dyn()
-        unit_note = (f"Thesis force units: 1 u = {unit_dyn:g} dyn at the muscle's mobile end (per reference node)"
-                     if unit_dyn else "Thesis force units")
+        unit_note = (f"<i>Thesis force units: 1 u = {unit_dyn:g} dyn at the muscle's mobile end (per reference "
+                     "node)</i>" if unit_dyn else "<i>Thesis force units</i>")
+        sides_note = "Sides are the face's own: its left is on the right of the screen in the front view."
         body = QWidget()
         body.setObjectName("muscleRows")
         grid = QGridLayout(body)
@@ -205,7 +175,7 @@ class MuscleDockLayout:
         r = 0
         for spec in muscle_specs():
             tip = (f"<b>{spec.label}</b><br>{spec.description}<br>Range {spec.minimum:g} to {spec.maximum:g} u"
-                   f"<br><i>{unit_note}</i>")
+                   f"<br>{unit_note}")
             name = QLabel(spec.label, body)
             name.setObjectName(f"muscleName_{spec.name}")
             name.setWordWrap(True)
@@ -215,44 +185,43 @@ class MuscleDockLayout:
             sides = ("left", "right") if spec.paired else (None,)
             grid.addWidget(name, r, 0, len(sides), 1, Qt.AlignmentFlag.AlignVCenter)
             for side in sides:
-                side_tip = tip
-                if side is not None:
-                    side_tip += ("<br>Sides are the face's own: its left is on the right of the screen "
-                                 "in the front view.")
-                row = ControlRow((spec.name, side), spec.minimum, spec.maximum, FORCE_SUFFIX, side_tip, body,
-                                 side_text=_side_text(side))
-                self._add_row(grid, r, row)
+                key = str(P.ParamKey("muscle", spec.name, side))
+                notes = [unit_note] + ([sides_note] if side else [])
+                self._add_row(grid, r, key, side or "", notes)
                 r += 1
             if spec.paired:
                 line = QFrame(body)
                 line.setFrameShape(QFrame.Shape.HLine)
                 line.setStyleSheet("QFrame { color: #3a3c40; }")
-                grid.addWidget(line, r, 0, 1, 5)
+                grid.addWidget(line, r, 0, 1, 2)
                 r += 1
-        jaw_tip = ("<b>Jaw opening</b><br>Rotates the lower lip and chin about an axis behind the ears "
-                   f"(thesis C §3.4).<br>Range {jaw_lo:g}° to {jaw_hi:g}°")
+        jaw = P.describe(JAW)
         name = QLabel("Jaw opening", body)
         name.setObjectName("muscleName_jaw")
-        name.setToolTip(jaw_tip)
+        name.setToolTip(parameter_tooltip(jaw))
         self.name_labels["jaw"] = name
         grid.addWidget(name, r, 0)
-        self._add_row(grid, r, ControlRow(JAW, jaw_lo, jaw_hi, "°", jaw_tip, body))
+        self._add_row(grid, r, JAW, "", [])
         r += 1
         grid.setRowStretch(r, 1)
-        grid.setColumnStretch(2, 1)
-        # One width for the name column (long names wrap onto the pair's two lines) and the spins.
+        grid.setColumnStretch(1, 1)
+        # One width for the name column (long names wrap onto the pair's two lines), the side labels
+        # and the spin boxes, so every slider has the same length.
         metrics = name.fontMetrics()
         grid.setColumnMinimumWidth(0, metrics.horizontalAdvance("Levator labii sup. ") + 4)
         for label in self.name_labels.values():
             label.setMaximumWidth(metrics.horizontalAdvance("Levator labii sup. alaeque") + 4)
-        spin_w = max(row.spin.sizeHint().width() for row in self.rows.values())
-        for row in self.rows.values():
-            row.spin.setFixedWidth(spin_w)
+        side_width = max(row.label.sizeHint().width() for row in self.rows.values())
+        align_rows(self.rows.values(), label_width=side_width)
         return body
 
-    def _add_row(self, grid: QGridLayout, r: int, row: ControlRow) -> None:
-        for c, w in enumerate(row.widgets(), start=1):
-            grid.addWidget(w, r, c)
+    def _add_row(self, grid: QGridLayout, r: int, key: str, side_text: str, notes: list[str]) -> None:
+        tag = key.replace(":", "_")
+        row = ParameterRow(key, grid.parentWidget(), text=side_text, name=tag,
+                           tooltip=parameter_tooltip(P.describe(key), notes))
+        row.label.setObjectName(f"muscleSide_{tag}")
+        row.label.setStyleSheet("QLabel { color: #6b7280; }")
+        grid.addWidget(row, r, 1)
         row.edited.connect(self._row_edited)
         row.reset_requested.connect(self.reset_control)
         self.rows[row.key] = row
