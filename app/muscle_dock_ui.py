@@ -1,6 +1,7 @@
 """The muscle dock's widgets: presets and force-set files, link and show toggles, Animate / Rest /
 Stop, and the grid of per-side rows (the shared :class:`app.parameter_row.ParameterRow`; a muscle's
-two sides together, then the orbicularis oris and the jaw), built once; and the force-set file dialogs."""
+two sides together, then the orbicularis oris and the jaw), built once; and the force-set file
+dialogs (the files themselves are read and written by :class:`app.muscle_simulation.MuscleSimulation`)."""
 
 from __future__ import annotations
 
@@ -12,15 +13,12 @@ from PySide6.QtWidgets import (
     QProgressBar, QPushButton, QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
 
 from app.parameter_row import ParameterRow, align_rows, parameter_tooltip
+from app.muscle_simulation import preset_title
 from core import parameters as P
 
 #: The jaw's parameter key (the muscle forces are "muscle:<name>:<side>").
 JAW = "jaw"
 FILE_FILTER = "Mimica force sets (*.json);;All files (*)"
-
-
-def _preset_title(name: str) -> str:
-    return name.replace("_", " ").capitalize()
 
 
 def _force_unit_dyn() -> float | None:
@@ -82,7 +80,7 @@ class MuscleDockLayout:
         self.preset_combo = QComboBox(box)
         self.preset_combo.setObjectName("musclePresetCombo")
         for name in preset_names():
-            self.preset_combo.addItem(_preset_title(name), name)
+            self.preset_combo.addItem(preset_title(name), name)
         self.preset_combo.setToolTip("Thesis C's test expressions (§5.2–5.6): choosing one applies it, "
                                      "as the FAP dock's presets do")
         # One rule for presets in both docks: choosing one applies it (an undo step).
@@ -122,7 +120,7 @@ class MuscleDockLayout:
         self.reset_all_button = QPushButton("Reset all", w)
         self.reset_all_button.setObjectName("muscleResetAll")
         self.reset_all_button.setToolTip("Every force and the jaw to 0, the face at rest at once")
-        self.reset_all_button.clicked.connect(self.reset_all)
+        self.reset_all_button.clicked.connect(self.simulation.reset_all)
         row.addWidget(self.link_check)
         row.addWidget(self.show_check)
         row.addStretch(1)
@@ -138,16 +136,16 @@ class MuscleDockLayout:
         self.animate_button.setObjectName("muscleAnimate")
         self.animate_button.setToolTip("Play the transition from rest to the current forces in real time "
                                        "(thesis C's Execute)")
-        self.animate_button.clicked.connect(self.animate)
+        self.animate_button.clicked.connect(self.simulation.animate)
         self.stop_button = QPushButton("■ Stop", w)
         self.stop_button.setObjectName("muscleStop")
         self.stop_button.setToolTip("Stop the animation where it is")
-        self.stop_button.clicked.connect(self.stop)
+        self.stop_button.clicked.connect(lambda: self.simulation.stop())
         self.rest_button = QPushButton("Rest", w)
         self.rest_button.setObjectName("muscleRest")
         self.rest_button.setToolTip("Every force and the jaw to 0, relaxing back in real time "
                                     "(thesis C's Initialise; Reset all does it at once)")
-        self.rest_button.clicked.connect(self.rest)
+        self.rest_button.clicked.connect(self.simulation.rest)
         self.status_label = QLabel(w)
         self.status_label.setObjectName("muscleStatus")
         self.status_label.setStyleSheet("QLabel { color: #6b7280; }")
@@ -230,7 +228,7 @@ class MuscleDockLayout:
         for w in (self.preset_combo, self.apply_button, self.save_button, self.open_button, self.link_check,
                   self.reset_all_button, self.animate_button, self.rest_button, self.show_check):
             w.setEnabled(enabled)
-        self.stop_button.setEnabled(enabled and self._animating)
+        self.stop_button.setEnabled(enabled and self.simulation.animating)
         self.scroll.setEnabled(enabled)
 
     # ============================================================ files
@@ -266,33 +264,18 @@ class MuscleDockLayout:
 
     def save_force_file(self, path) -> bool:
         """Write the current forces and jaw to ``path`` (JSON); errors become a warning box."""
-        from core.layers.muscles import ForceSet, save_force_set
-
-        layer = self.layer
-        if layer is None:
-            return False
-        force_set = ForceSet(dict(layer.forces()), jaw_deg=float(layer.jaw_deg), name=Path(path).stem)
         try:
-            save_force_set(path, force_set)
+            return self.simulation.save_force_file(path)
         except (OSError, ValueError) as exc:
             QMessageBox.warning(self, f"Could not save {Path(path).name}", str(exc))
             return False
-        self._status_bar(f"Saved the force set {path}", 5000)
-        return True
 
     def open_force_file(self, path) -> bool:
-        """Load a force set from ``path`` and apply it; a bad file leaves the forces untouched."""
-        from core.layers.muscles import ForceFileError, load_force_set
+        """Load a force set from ``path`` and apply it; a bad file is a warning box and changes nothing."""
+        from core.layers.muscles import ForceFileError
 
-        layer = self.layer
-        if layer is None:
-            return False
         try:
-            force_set = load_force_set(path)
+            return self.simulation.open_force_file(path)
         except (ForceFileError, OSError) as exc:
             QMessageBox.warning(self, f"Could not open {Path(path).name}", str(exc))
             return False
-        ok = self._edit(f"open force set {Path(path).name}", lambda: layer.apply(force_set))
-        if ok:
-            self._status_bar(f"Loaded the force set {Path(path).name}", 5000)
-        return ok

@@ -47,7 +47,7 @@ def built(qapp, default_face, deformer, tmp_path_factory):
     win.plotter.disable_anti_aliasing()
     win.show()
     dock = attach_muscle_dock(win)
-    dock.animation_s = 0.4  # keep the playback tests short
+    dock.simulation.animation_s = 0.4  # keep the playback tests short
     first = {"message": dock.message_label.text(), "building": dock.is_building,
              "enabled": dock.apply_button.isEnabled()}
     assert _process_until(lambda: dock.layer is not None or not dock.is_building, 180), "muscle build timed out"
@@ -64,17 +64,17 @@ def win(built):
 @pytest.fixture
 def dock(win, qtbot, error_boxes) -> MuscleDock:
     d = win.muscle_dock
-    d.stop(relax=False)
+    d.simulation.stop(relax=False)
     d.link_check.setChecked(False)
     d.set_muscles_visible(False)
     d.layer.reset()
     win.undo_stack.clear()
-    qtbot.waitUntil(lambda: not d.settling and not win._tick_timer.isActive(), timeout=TIMEOUT_MS)
+    qtbot.waitUntil(lambda: not d.simulation.settling and not win._tick_timer.isActive(), timeout=TIMEOUT_MS)
     return d
 
 
 def _settle(qtbot, win, dock):
-    qtbot.waitUntil(lambda: not dock.settling and not dock.animating and dock.layer.converged
+    qtbot.waitUntil(lambda: not dock.simulation.settling and not dock.simulation.animating and dock.layer.converged
                     and not win._tick_timer.isActive(), timeout=TIMEOUT_MS)
 
 
@@ -84,7 +84,7 @@ def test_built_off_thread_tabified_with_the_fap_dock_and_in_the_view_menu(built,
     assert first["building"] and first["message"] == BUILDING_MESSAGE and not first["enabled"]
     assert dock in win.tabifiedDockWidgets(win.fap_dock)
     assert win.muscle_dock_action in win.view_menu.actions()
-    assert dock.layer is not None and dock.apply_button.isEnabled() and not dock.message_label.isVisible()
+    assert dock.layer is not None and dock.preset_combo.isEnabled() and not dock.message_label.isVisible()
     assert "muscles" in dock.rig._layers and dock.rig is win.rig  # attached to the window's rig
     # 9 pairs x 2 + orbicularis + jaw
     assert set(dock.rows) == {key_of(k) for k in control_keys()} | {JAW} and JAW == "jaw"
@@ -212,7 +212,7 @@ def test_save_open_round_trip(dock, tmp_path):
     path = tmp_path / "mine.json"
     assert dock.save_force_file(path)
     assert json.loads(path.read_text())["jaw_deg"] == pytest.approx(4.5)
-    dock.reset_all()
+    dock.simulation.reset_all()
     assert not any(dock.layer.forces().values())
     assert dock.open_force_file(path)
     assert dock.layer.forces() == pytest.approx(saved)
@@ -242,7 +242,7 @@ def test_malformed_force_file_shows_the_message_and_keeps_the_forces(dock, tmp_p
 def test_viewport_follows_a_muscle_slider_once_settled(dock, win, qtbot):
     before = np.array(win.face_actor.mesh.points)
     dock.row(("zygomatic_major", "left")).slider.setValue(400)
-    assert dock.settling  # the relax timer drives the solve
+    assert dock.simulation.settling  # the relax timer drives the solve
     _settle(qtbot, win, dock)
     assert dock.status == "equilibrium"
     after = np.array(win.face_actor.mesh.points)
@@ -253,7 +253,7 @@ def test_viewport_follows_a_muscle_slider_once_settled(dock, win, qtbot):
     near = np.linalg.norm(before - P, axis=1) < 8.0
     assert (after - before)[near, 1].mean() > 0.2
     assert np.dot((after - before)[near].mean(axis=0), R - P) > 0
-    assert dock.last_relax is not None and dock.last_settle_s is not None
+    assert dock.simulation.last_relax is not None and dock.simulation.last_settle_s is not None
 
 
 def test_muscles_toggle_adds_and_removes_the_actor(dock, win, qtbot):
@@ -280,9 +280,9 @@ def test_animate_plays_in_wall_clock_time_then_settles(dock, win, qtbot):
     dock.apply_preset("discreet_smile")
     _settle(qtbot, win, dock)
     dock.animate_button.click()
-    assert dock.animating and dock.stop_button.isEnabled()
+    assert dock.simulation.animating and dock.stop_button.isEnabled()
     assert dock.layer.mode == "dynamic"
-    qtbot.waitUntil(lambda: not dock.animating, timeout=TIMEOUT_MS)
+    qtbot.waitUntil(lambda: not dock.simulation.animating, timeout=TIMEOUT_MS)
     assert dock.layer.time > 0.3  # simulated seconds played
     _settle(qtbot, win, dock)
     assert dock.status == "equilibrium"
@@ -291,13 +291,13 @@ def test_animate_plays_in_wall_clock_time_then_settles(dock, win, qtbot):
 
 def test_stop_and_rest(dock, win, qtbot):
     dock.apply_preset("sadness")
-    dock.animate()
+    dock.simulation.animate()
     qtbot.wait(100)
     dock.stop_button.click()
-    assert not dock.animating
+    assert not dock.simulation.animating
     dock.rest_button.click()  # animated back to neutral
-    assert dock.animating and not any(dock.layer.forces().values())
-    qtbot.waitUntil(lambda: not dock.animating, timeout=TIMEOUT_MS)
+    assert dock.simulation.animating and not any(dock.layer.forces().values())
+    qtbot.waitUntil(lambda: not dock.simulation.animating, timeout=TIMEOUT_MS)
     _settle(qtbot, win, dock)
     assert dock.status == "at rest"
 
@@ -308,7 +308,7 @@ def test_solver_diverged_stops_and_reports(dock, win, qtbot, monkeypatch):
 
     monkeypatch.setattr(dock.layer, "relax", boom)
     dock.row(("mentalis", "right")).slider.setValue(100)
-    qtbot.waitUntil(lambda: not dock.settling, timeout=TIMEOUT_MS)
+    qtbot.waitUntil(lambda: not dock.simulation.settling, timeout=TIMEOUT_MS)
     assert "blew up" in dock.status
     assert "blew up" in win.statusBar().currentMessage()
     assert dock.row(("mentalis", "right")).slider.value() == 100  # the layer's controls are shown
@@ -329,7 +329,7 @@ def test_same_face_new_rig_reuses_the_layer(dock, win, qtbot, default_face, defo
 
 def test_corrected_landmarks_on_the_same_face_mean_a_new_build(synthetic_face):
     """Tools > Rebuild animation hands back the same Face object with moved landmarks."""
-    from app.muscle_dock import _face_signature
+    from app.muscle_simulation import face_signature as _face_signature
 
     before = _face_signature(synthetic_face)
     assert _face_signature(synthetic_face) == before
@@ -345,3 +345,4 @@ def test_choosing_a_preset_applies_it_like_the_fap_presets(dock, win, qtbot):
     dock.preset_combo.activated.emit(index)         # what a user's choice in the list sends
     assert dock.layer.forces()[("orbicularis_oris", None)] == preset("kiss").full()[("orbicularis_oris", None)]
     assert win.undo_stack.count() == steps + 1
+
