@@ -21,8 +21,9 @@ loops (live settling, Animate, Rest), the edits and their undo steps, and the fo
 * The muscles can be drawn in the viewport ("Show muscles", :mod:`app.muscle_view`).
 
 :func:`attach_muscle_dock` adds the dock to a window: the controller builds the layer on a worker
-thread, re-builds it when the window's face changes and shuts down when the window closes. The
-widgets are built in :mod:`app.muscle_dock_ui`.
+thread and re-builds it when the window's face changes, and shuts down when the window really
+closes (``MainWindow.closing``: after any Save / Discard / Cancel question, not on a cancelled close).
+The widgets are built in :mod:`app.muscle_dock_ui`.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from __future__ import annotations
 import traceback
 from typing import TYPE_CHECKING, Hashable
 
-from PySide6.QtCore import QEvent, QObject, QSignalBlocker, Qt, Signal
+from PySide6.QtCore import QSignalBlocker, Qt, Signal
 from PySide6.QtGui import QKeySequence
 from PySide6.QtWidgets import QDockWidget, QLabel, QMessageBox, QWidget
 
@@ -241,20 +242,6 @@ class MuscleDock(MuscleDockLayout, QDockWidget):
 
 
 # ------------------------------------------------------------------ window integration
-class _CloseWatcher(QObject):
-    """Stops the dock's simulation when the window closes."""
-
-    def __init__(self, dock: MuscleDock, window):
-        super().__init__(dock)
-        self.dock = dock
-        window.installEventFilter(self)
-
-    def eventFilter(self, watched, event) -> bool:  # noqa: N802 - Qt override
-        if event.type() == QEvent.Type.Close:
-            self.dock.shutdown()
-        return False
-
-
 def attach_muscle_dock(window, *, level: int = 3) -> MuscleDock:
     """Add the muscle dock to a :class:`app.main_window.MainWindow`.
 
@@ -263,6 +250,7 @@ def attach_muscle_dock(window, *, level: int = 3) -> MuscleDock:
     * the muscle layer of the window's face is built on a worker thread ("Building the muscle
       model…" in the dock meanwhile), attached to the window's rig and re-built on
       ``window.face_changed``; without a rig the dock is disabled and says why;
+    * the controller shuts down on ``window.closing`` (a close that really happens).
 
     Returns the dock (also stored as ``window.muscle_dock``).
     """
@@ -283,7 +271,7 @@ def attach_muscle_dock(window, *, level: int = 3) -> MuscleDock:
         view_menu.addAction(toggle)
     window.muscle_dock = dock
     window.muscle_dock_action = toggle
-    dock._close_watcher = _CloseWatcher(dock, window)  # noqa: SLF001
+    window.closing.connect(dock.shutdown)
     window.face_changed.connect(lambda _face: dock.simulation.follow_document())
     if window.document.face is not None:
         dock.simulation.follow_document()

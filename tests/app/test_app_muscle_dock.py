@@ -346,3 +346,43 @@ def test_choosing_a_preset_applies_it_like_the_fap_presets(dock, win, qtbot):
     assert dock.layer.forces()[("orbicularis_oris", None)] == preset("kiss").full()[("orbicularis_oris", None)]
     assert win.undo_stack.count() == steps + 1
 
+def test_a_cancelled_close_leaves_the_muscles_working(qtbot, built, settings, error_boxes, default_face, deformer,
+                                                      monkeypatch):
+    """Closing with unsaved changes asks Save / Discard / Cancel. After Cancel the muscle dock still
+    follows the rig and settles; only a close that happens stops its simulation. (Here the dock is
+    attached after the project's question, so a dock that stopped on any Close event would be dead.)"""
+    from PySide6.QtWidgets import QMessageBox
+
+    import core.layers.muscles as muscles
+    from app.main_window import MainWindow
+    from app.timeline_dock import attach_timeline
+    from core.rig import FaceRig
+
+    twin = built[0].muscle_dock.layer.copy()   # the same model: no second build of seconds
+    monkeypatch.setattr(muscles, "MuscleLayer", lambda face, level=3, template_dense=None: twin)
+    answers = [QMessageBox.StandardButton.Cancel, QMessageBox.StandardButton.Discard]
+    monkeypatch.setattr(QMessageBox, "question", lambda *args, **kwargs: answers.pop(0))
+    w = MainWindow(settings=settings, load_default=False, tools=False)
+    qtbot.addWidget(w)
+    w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
+    w.show()
+    attach_timeline(w, check_recovery=False)
+    d = attach_muscle_dock(w)
+    qtbot.waitUntil(lambda: d.layer is twin, timeout=TIMEOUT_MS)
+    w.document.project.ask_on_close = True
+    w.rig.set_values({"fap:3": 200.0})
+    w.timeline.set_key(["fap:3"])
+    assert w.document.project.is_modified
+
+    assert not w.close() and answers == [QMessageBox.StandardButton.Discard]   # Cancel
+    assert not d.simulation.closed
+    w.rig.set_values({"muscle:risorius:left": 10.0})       # from anywhere (undo, the timeline)
+    assert d.row(("risorius", "left")).value == 10.0 and d.simulation.settling
+    qtbot.waitUntil(lambda: d.status == "equilibrium", timeout=TIMEOUT_MS)
+    d.set_control(("risorius", "right"), 5.0)              # and from the dock
+    assert twin.forces()[("risorius", "right")] == 5.0 and d.simulation.settling
+
+    assert w.close() and not answers                       # Discard: the window closes
+    assert d.simulation.closed and not d.simulation.settling and d.view is None
+    twin.set_force("risorius", "left", 20.0)
+    assert not d.simulation.settling and d.row(("risorius", "left")).value == 10.0
