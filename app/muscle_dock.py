@@ -15,7 +15,10 @@ loops (live settling, Animate, Rest), the edits and their undo steps, and the fo
 * House rules of the FAP dock: widgets forward edits to the controller and never keep their own
   copy; every widget follows ``simulation.values_changed`` with its signals blocked (no echo); the
   dock never renders: the layer's changes reach the rig and the window redraws once per burst.
-* Presets (thesis C's test expressions): choosing one applies it; "Apply again" re-applies it.
+* Presets (thesis C's test expressions): choosing one applies it. The box follows the forces from
+  anywhere (an edit, undo, the timeline): it shows the preset they match, else "Custom" ("None" at
+  rest). "Apply again" applies the shown preset, or the one applied last after edits, whose values
+  are then marked on the sliders (``ParameterRow.set_mark``), as the FAP dock marks its presets'.
 * Save / Open of force sets (JSON): dialogs here, the files in the controller; a malformed file
   shows its ``ForceFileError`` message in a warning box and leaves the forces alone.
 * The muscles can be drawn in the viewport ("Show muscles", :mod:`app.muscle_view`).
@@ -35,9 +38,9 @@ from PySide6.QtCore import QSignalBlocker, Qt, Signal
 from PySide6.QtGui import QKeySequence
 from PySide6.QtWidgets import QDockWidget, QLabel, QMessageBox, QWidget
 
-from app.muscle_dock_ui import JAW, MuscleDockLayout
+from app.muscle_dock_ui import JAW, NO_PRESET_AT_REST, NO_PRESET_EDITED, MuscleDockLayout
 from app.muscle_simulation import (  # noqa: F401 - some re-exported
-    ANIMATION_S, BUILDING_MESSAGE, NO_FACE_MESSAGE, NO_RIG_MESSAGE, RELAX_BUDGET_S, MuscleSimulation)
+    ANIMATION_S, BUILDING_MESSAGE, NO_FACE_MESSAGE, NO_RIG_MESSAGE, RELAX_BUDGET_S, MuscleSimulation, preset_title)
 from app.parameter_row import ParameterRow
 from core import parameters as P
 
@@ -142,7 +145,7 @@ class MuscleDock(MuscleDockLayout, QDockWidget):
         self.layer_changed.emit(layer)
 
     def _show_values(self, force: bool = False) -> None:
-        """Every row to the layer's values, emitting nothing
+        """Every row, the preset box and the marks to the layer's values, emitting nothing
         (``force``: rows that think they already show the value too, after a refused edit)."""
         values = self.simulation.values()
         if not values:
@@ -153,8 +156,36 @@ class MuscleDock(MuscleDockLayout, QDockWidget):
                 value = values.get(key, 0.0)
                 if force or row.value != value:
                     row.show_value(value)
+            self._show_preset()
         finally:
             self._syncing = False
+
+    def _show_preset(self) -> None:
+        """The box shows the preset the forces match (else None / Custom); while they differ from
+        the preset "Apply again" would apply, its values are marked on the sliders."""
+        from core.layers.muscles import preset
+
+        sim, combo = self.simulation, self.preset_combo
+        combo.setItemText(0, NO_PRESET_AT_REST if sim.at_rest else NO_PRESET_EDITED)
+        with QSignalBlocker(combo):
+            combo.setCurrentIndex(max(combo.findData(sim.preset), 0) if sim.preset is not None else 0)
+        target = self.preset_target()
+        self.apply_button.setEnabled(self.layer is not None and target is not None)
+        self.apply_button.setToolTip(f"Set the forces (and jaw) of {preset_title(target).lower()} again"
+                                     if target else "Choose an expression in the list first")
+        marks: dict[str, float] = {}
+        if target is not None and sim.preset != target:
+            force_set = preset(target)
+            marks = {P.key_of(k): v for k, v in force_set.full().items()}
+            marks[JAW] = force_set.jaw_deg
+        note = f"{preset_title(target)} puts it at {{:g}} (Apply again)." if target else ""
+        for key, row in self.rows.items():
+            value = marks.get(key) or None   # as in the FAP dock: only where the preset moves it
+            row.set_mark(value, note.format(value) if value is not None else "")
+
+    def preset_target(self) -> str | None:
+        """What "Apply again" applies: the preset the box shows, else the one applied last."""
+        return self.preset_combo.currentData() or self.simulation.last_preset
 
     def _on_pose_changed(self) -> None:
         self._view_dirty = True
@@ -223,10 +254,6 @@ class MuscleDock(MuscleDockLayout, QDockWidget):
         """Apply one of ``core.layers.muscles.preset_names()`` (one undo step)."""
         if self.layer is None or not name:
             return False
-        index = self.preset_combo.findData(name)
-        if index >= 0:
-            with QSignalBlocker(self.preset_combo):
-                self.preset_combo.setCurrentIndex(index)
         try:
             return self.simulation.apply_preset(name)
         except (KeyError, ValueError) as exc:

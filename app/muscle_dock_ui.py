@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from PySide6.QtCore import Qt
+from PySide6.QtGui import QStandardItemModel
 from PySide6.QtWidgets import (
     QCheckBox, QComboBox, QFileDialog, QFrame, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QMessageBox,
     QProgressBar, QPushButton, QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
@@ -19,6 +20,9 @@ from core import parameters as P
 #: The jaw's parameter key (the muscle forces are "muscle:<name>:<side>").
 JAW = "jaw"
 FILE_FILTER = "Mimica force sets (*.json);;All files (*)"
+#: The preset box's first entry, shown when the forces match no preset (at rest / edited).
+NO_PRESET_AT_REST = "None"
+NO_PRESET_EDITED = "Custom"
 
 
 def _force_unit_dyn() -> float | None:
@@ -79,16 +83,22 @@ class MuscleDockLayout:
         grid.setVerticalSpacing(4)
         self.preset_combo = QComboBox(box)
         self.preset_combo.setObjectName("musclePresetCombo")
+        # First entry: "None" / "Custom", shown while the forces match no preset; not a choice.
+        self.preset_combo.addItem(NO_PRESET_AT_REST, None)
+        model = self.preset_combo.model()
+        if isinstance(model, QStandardItemModel):
+            model.item(0).setEnabled(False)
         for name in preset_names():
             self.preset_combo.addItem(preset_title(name), name)
         self.preset_combo.setToolTip("Thesis C's test expressions (§5.2–5.6): choosing one applies it, "
-                                     "as the FAP dock's presets do")
+                                     "as the FAP dock's presets do. The box shows the preset the forces "
+                                     "match, or Custom.")
         # One rule for presets in both docks: choosing one applies it (an undo step).
         self.preset_combo.activated.connect(lambda index: self.apply_preset(self.preset_combo.itemData(index)))
         self.apply_button = QPushButton("Apply again", box)
         self.apply_button.setObjectName("musclePresetApply")
         self.apply_button.setToolTip("Set the forces (and jaw) of the chosen expression again (after edits)")
-        self.apply_button.clicked.connect(lambda: self.apply_preset(self.preset_combo.currentData()))
+        self.apply_button.clicked.connect(lambda: self.apply_preset(self.preset_target()))
         self.save_button = QPushButton("Save…", box)
         self.save_button.setObjectName("muscleSave")
         self.save_button.setToolTip("Save the current forces and jaw angle as a JSON force set")

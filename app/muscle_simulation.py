@@ -25,6 +25,8 @@ only shows what it reports (signals) and forwards the user's gestures.
   (``reset_all`` is the instant version, ``layer.reset()``).
 * ``SolverDiverged``: the loops stop, ``diverged(message)`` and the status say so; the layer has
   already restored its last good state.
+* ``preset``: the preset the forces match after any change (None: none), ``last_preset`` the one
+  applied or matched last (what the dock's "Apply again" re-applies after edits).
 * ``shutdown`` (the window really closes): timers stop, a running build is waited for.
 
 Signals: ``layer_changed(layer or None)``, ``message_changed(text)`` (why there is no layer, a build
@@ -37,6 +39,7 @@ in progress, a refused value; "" none), ``values_changed()`` (forces or jaw chan
 from __future__ import annotations
 
 import contextlib
+import functools
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Hashable, Mapping
@@ -59,6 +62,8 @@ ANIMATION_INTERVAL_MS = 33
 MAX_FRAME_S = 0.25
 #: How long Animate / Rest play the dynamics (s) before the quasi-static solve takes over.
 ANIMATION_S = 1.0
+#: Two forces closer than this (thesis units / degrees) are the same (a preset matches the layer).
+MATCH_TOLERANCE = 1e-6
 
 BUILDING_MESSAGE = "Building the muscle model…"
 NO_FACE_MESSAGE = "No face loaded yet."
@@ -78,6 +83,14 @@ def face_signature(face) -> tuple:
         marks = object()
     v = np.asarray(face.vertices)
     return names, marks, v.shape, float(v.sum())
+
+
+@functools.cache
+def _preset_controls() -> dict[str, tuple[dict, float]]:
+    """{preset name: (all 19 forces, jaw degrees)}, read once (matched on every change)."""
+    from core.layers.muscles import preset, preset_names
+
+    return {name: (preset(name).full(), float(preset(name).jaw_deg)) for name in preset_names()}
 
 
 def preset_title(name: str) -> str:
@@ -120,6 +133,10 @@ class MuscleSimulation(QObject):
         self.rig = None
         self.message = ""
         self.status = ""
+        #: The preset the forces match now (None: none) and the one applied or matched last
+        #: (what "Apply again" applies after edits).
+        self.preset: str | None = None
+        self.last_preset: str | None = None
         self._layer_face = None  # the face self.layer was built for (kept for re-use)
         self._layer_signature: tuple | None = None  # its landmarks and vertices when built
         self._builds = JobRunner(self, supersede=True)   # a newer face's build supersedes the older one
@@ -180,6 +197,18 @@ class MuscleSimulation(QObject):
         state = self.state()
         return bool(state) and not any(state[0]) and state[1] == 0.0
 
+    def matching_preset(self) -> str | None:
+        """The preset whose forces and jaw the layer holds now (None: none does)."""
+        layer = self.layer
+        if layer is None:
+            return None
+        forces, jaw = layer.forces(), float(layer.jaw_deg)
+        for name, (full, preset_jaw) in _preset_controls().items():
+            if abs(preset_jaw - jaw) <= MATCH_TOLERANCE and all(
+                    abs(full.get(k, 0.0) - v) <= MATCH_TOLERANCE for k, v in forces.items()):
+                return name
+        return None
+
     def _set_message(self, text: str) -> None:
         if text != self.message:
             self.message = text
@@ -202,7 +231,10 @@ class MuscleSimulation(QObject):
         self._relax_timer.stop()
         self._disconnect_layer()
         self._detach_from_rig()
+        if layer is not self.layer:
+            self.last_preset = None
         self.layer = layer
+        self._match_preset()
         if layer is not None:
             if rig is not None:
                 layer.attach(rig)
@@ -333,7 +365,13 @@ class MuscleSimulation(QObject):
 
     def _on_values_changed(self, *_args) -> None:
         if self.layer is not None:
+            self._match_preset()
             self.values_changed.emit()
+
+    def _match_preset(self) -> None:
+        self.preset = self.matching_preset()
+        if self.preset is not None:
+            self.last_preset = self.preset
 
     # ============================================================ edits
     def _edit(self, call) -> bool:
@@ -389,7 +427,9 @@ class MuscleSimulation(QObject):
 
         if self.layer is None or not name:
             return False
-        ok = self.apply_force_set(preset(name))
+        force_set = preset(name)
+        self.last_preset = name
+        ok = self.apply_force_set(force_set)
         if ok:
             self.notice.emit(f"Applied the {preset_title(name).lower()} forces", 4000)
         return ok

@@ -346,6 +346,52 @@ def test_choosing_a_preset_applies_it_like_the_fap_presets(dock, win, qtbot):
     assert dock.layer.forces()[("orbicularis_oris", None)] == preset("kiss").full()[("orbicularis_oris", None)]
     assert win.undo_stack.count() == steps + 1
 
+
+def test_preset_box_follows_the_forces_from_anywhere(dock, win):
+    """The box shows the preset the forces match, whoever set them (a choice in the list, an edit,
+    undo, redo, a script or a timeline frame): "Custom" when they match none, "None" at rest."""
+    from app.undo import gestures
+
+    combo = dock.preset_combo
+    assert combo.currentData() is None and combo.currentText() == "None"
+    gestures().new()
+    combo.activated.emit(combo.findData("sadness"))
+    assert combo.currentData() == "sadness"
+    gestures().new()
+    dock.set_control(("mentalis", "left"), 10.0)
+    assert combo.currentData() is None and combo.currentText() == "Custom"
+    win.undo_stack.undo()
+    assert combo.currentData() == "sadness"
+    win.undo_stack.undo()
+    assert combo.currentData() is None and combo.currentText() == "None"
+    win.undo_stack.redo()
+    assert combo.currentData() == "sadness"
+    kiss = preset("kiss")
+    win.rig.set_values({**{key_of(k): v for k, v in kiss.full().items()}, "jaw": kiss.jaw_deg})  # not via the dock
+    assert combo.currentData() == "kiss" and combo.currentText() == "Kiss"
+    dock.simulation.reset_all()
+    assert combo.currentData() is None and combo.currentText() == "None"
+    # The placeholder is not a choice: only presets can be picked.
+    assert not combo.model().item(0).isEnabled()
+
+
+def test_apply_again_marks_the_preset_on_the_sliders(dock):
+    """After edits the sliders mark where the preset "Apply again" applies puts them (set_mark, as
+    the FAP dock marks its active presets); none while the forces are the preset's."""
+    dock.apply_preset("discreet_smile")
+    assert all(row.mark is None for row in dock.rows.values())
+    assert dock.apply_button.isEnabled()
+    dock.set_control(("risorius", "left"), 10.0)
+    row = dock.row(("risorius", "left"))
+    assert dock.preset_combo.currentText() == "Custom"
+    assert row.mark == pytest.approx(42.0) and "Discreet smile puts it at 42" in row.slider.toolTip()
+    assert dock.row(("orbicularis_oris", None)).mark is None  # the preset leaves it at 0: no mark
+    dock.apply_button.click()                                # applies the marked preset again
+    assert dock.layer.forces()[("risorius", "left")] == 42.0
+    assert dock.preset_combo.currentData() == "discreet_smile"
+    assert all(row.mark is None for row in dock.rows.values()) and "puts it" not in row.slider.toolTip()
+
+
 def test_a_cancelled_close_leaves_the_muscles_working(qtbot, built, settings, error_boxes, default_face, deformer,
                                                       monkeypatch):
     """Closing with unsaved changes asks Save / Discard / Cancel. After Cancel the muscle dock still
