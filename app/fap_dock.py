@@ -31,16 +31,17 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from PySide6.QtCore import QSignalBlocker, Qt, Signal
-from PySide6.QtGui import QFontMetrics
 from PySide6.QtWidgets import (
     QCheckBox, QComboBox, QDockWidget, QFrame, QGridLayout, QGroupBox, QLabel, QPushButton, QScrollArea,
     QSlider, QSpinBox, QVBoxLayout, QWidget)
 
 from app.document import NO_RIG_MESSAGE
 
-from core.layers.fap import tables
 from app.fap_rows import (  # noqa: F401 - re-exported
-    FapGroup, FapRow, _feature_point_descriptions, fap_tooltip, row_label)
+    FapGroup, _feature_point_descriptions, fap_number, fap_row, fap_tooltip, row_label)
+from app.parameter_row import ParameterRow, align_rows
+from core import parameters as P
+from core.layers.fap import tables
 from core.layers.fap.parameters import readable_name  # noqa: F401 - re-exported
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -68,7 +69,7 @@ class FapDock(QDockWidget):
         self.setObjectName("fapDock")
         self.setAllowedAreas(Qt.DockWidgetArea.LeftDockWidgetArea | Qt.DockWidgetArea.RightDockWidgetArea)
         self.rig: "FaceRig | None" = None
-        self.rows: dict[int, FapRow] = {}
+        self.rows: dict[str, ParameterRow] = {}  # by canonical key, "fap:3"
         self.groups: dict[str, FapGroup] = {}
         self._fp_names = _feature_point_descriptions()
         self._hovered: int | None = None
@@ -228,29 +229,16 @@ class FapDock(QDockWidget):
             group = FapGroup(name, self._groups_widget)
             group.reset_requested.connect(self.reset_group)
             for spec in members:
-                row = FapRow(spec, fapu, self._fp_names, group.body)
+                row = fap_row(spec, fapu, self._fp_names, group.body)
                 row.edited.connect(self._row_edited)
                 row.reset_requested.connect(self.reset_fap)
                 row.hover_changed.connect(self._row_hover)
                 row.focus_changed.connect(self._row_focus)
                 group.add_row(row)
-                self.rows[spec.number] = row
+                self.rows[row.key] = row
             self._groups_layout.insertWidget(self._groups_layout.count() - 1, group)
             self.groups[name] = group
-        self._align_rows()
-
-    def _align_rows(self) -> None:
-        """One label width and one spin box width for every row, so sliders line up across groups."""
-        if not self.rows:
-            return
-        metrics = QFontMetrics(next(iter(self.rows.values())).label.font())
-        label_w = max(metrics.horizontalAdvance(r.label.text()) for r in self.rows.values()) + 8
-        spin_w = 0
-        for r in self.rows.values():
-            spin_w = max(spin_w, r.spin.sizeHint().width())
-        for r in self.rows.values():
-            r.label.setFixedWidth(label_w)
-            r.spin.setFixedWidth(spin_w)
+        align_rows(self.rows.values())  # sliders line up across groups
 
     # ----------------------------------------------------------- rig
     def set_rig(self, rig: "FaceRig | None", message: str = "") -> None:
@@ -296,9 +284,9 @@ class FapDock(QDockWidget):
         try:
             presets = False
             for key, value in change.values.items():
-                kind, _, ident = key.partition(":")
+                kind = key.partition(":")[0]
                 if kind == "fap":
-                    row = self.rows.get(int(ident))
+                    row = self.rows.get(key)
                     if row is not None and row.value != value:
                         row.show_value(value)
                 elif kind in ("expression", "viseme"):
@@ -315,10 +303,9 @@ class FapDock(QDockWidget):
         self._show_preset(self.viseme_combo, self.viseme_slider, self.viseme_spin, vid, vint)
         # Where the active presets put each FAP: a mark on its slider, so a user sees what Joy does.
         presets = self.rig.preset_values()
-        for number, row in self.rows.items():
-            value = presets[number - 1]
-            row.slider.set_ghost(value if value else None)
-            row.slider.setToolTip(row.label.toolTip() + (f"\n\n▲ The active preset puts it at {value:g}." if value else ""))
+        for row in self.rows.values():
+            value = float(presets[fap_number(row) - 1])
+            row.set_mark(value if value else None, f"The active preset puts it at {value:g}.")
 
     def _on_rig_changed(self, force: bool = False) -> None:
         """Every widget to the rig's values, emitting nothing (``force``: rows that think
@@ -329,9 +316,10 @@ class FapDock(QDockWidget):
         self._syncing = True
         try:
             values = rig.fap_values()
-            for n, row in self.rows.items():
-                if force or row.value != values[n - 1]:
-                    row.show_value(values[n - 1])
+            for row in self.rows.values():
+                value = float(values[fap_number(row) - 1])
+                if force or row.value != value:
+                    row.show_value(value)
             self._show_presets()
         finally:
             self._syncing = False
@@ -361,15 +349,14 @@ class FapDock(QDockWidget):
             self.show_message("")
         return True
 
-    def _row_edited(self, number: int, value: float) -> None:
+    def _row_edited(self, key: str, value: float) -> None:
         if self.rig is None or self._syncing:
             return
-        values = {number: value}
-        pair = self.rows[number].spec.pair
-        if self.link_check.isChecked() and pair in self.rows:
-            spec = self.rows[pair].spec
-            values[pair] = min(max(value, spec.minimum), spec.maximum)
-        self._apply(self.rig.set_faps, values)  # one call: one rig.changed, one redraw
+        values = {key: value}
+        mirror = self.rows[key].mirror
+        if self.link_check.isChecked() and mirror in self.rows:
+            values[mirror] = self.rows[mirror].clamp(value)
+        self._apply(self.rig.set_values, values)  # one call: one rig.changed, one redraw
 
     def _expression_edited(self, source: str = "combo") -> None:
         if self.rig is None or self._syncing:
@@ -391,9 +378,10 @@ class FapDock(QDockWidget):
         if pid == 0:  # the rig ignores neutral's intensity, so _on_rig_changed leaves these alone
             self._show_preset(combo, slider, spin, 0, 0.0)
 
-    def reset_fap(self, number: int) -> None:
+    def reset_fap(self, fap: int | str) -> None:
+        """One FAP (a number, a name or a key) back to 0."""
         if self.rig is not None:
-            self._apply(self.rig.reset_faps, [number])
+            self._apply(self.rig.reset_faps, [int(P.parse(fap).id)])
 
     def reset_group(self, name: str) -> None:
         group = self.groups.get(name)
@@ -434,14 +422,16 @@ class FapDock(QDockWidget):
             return "heat", None
         return None, None
 
-    def _row_hover(self, number: int, inside: bool) -> None:
+    def _row_hover(self, key: str, inside: bool) -> None:
+        number = int(P.parse(key).id)
         if inside:
             self._hovered = number
         elif self._hovered == number:
             self._hovered = None
         self._overlay_maybe_changed()
 
-    def _row_focus(self, number: int, focused: bool) -> None:
+    def _row_focus(self, key: str, focused: bool) -> None:
+        number = int(P.parse(key).id)
         if focused:
             self._focused = number
         elif self._focused == number:
@@ -455,12 +445,13 @@ class FapDock(QDockWidget):
             self.overlay_changed.emit()
 
     # ----------------------------------------------------------- helpers for callers/tests
-    def row(self, fap: int | str) -> FapRow:
-        """The row of a FAP by number or name (KeyError if this face does not animate it)."""
-        return self.rows[tables.fap_spec(fap).number]
+    def row(self, fap: int | str) -> ParameterRow:
+        """The row of a FAP by number, name or key (KeyError if this face does not animate it)."""
+        key = fap if isinstance(fap, str) and fap.startswith("fap:") else f"fap:{tables.fap_spec(fap).number}"
+        return self.rows[key]
 
     def group_of(self, fap: int | str) -> FapGroup:
         return self.groups[tables.fap_spec(fap).dock]
 
 
-__all__ = ["FapDock", "FapGroup", "FapRow", "NO_RIG_MESSAGE", "fap_tooltip", "readable_name", "row_label"]
+__all__ = ["FapDock", "FapGroup", "NO_RIG_MESSAGE", "fap_tooltip", "readable_name", "row_label"]

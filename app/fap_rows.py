@@ -1,23 +1,20 @@
-"""The FAP dock's rows and groups: one FAP's label, slider, spin box and reset (on the shared
-ParameterControls), its tooltip (feature point, direction, unit in mm), and collapsible groups."""
+"""The FAP dock's rows and groups: one FAP's row (the shared :class:`app.parameter_row.ParameterRow`
+of its ``fap:<n>`` key) with its tooltip (feature point, direction, unit in mm), and collapsible groups."""
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
-from PySide6.QtCore import QEvent, QObject, QSignalBlocker, Qt, Signal
-from PySide6.QtWidgets import QFrame, QHBoxLayout, QLabel, QToolButton, QVBoxLayout, QWidget
+from PySide6.QtCore import QSignalBlocker, Qt, Signal
+from PySide6.QtWidgets import QFrame, QHBoxLayout, QToolButton, QVBoxLayout, QWidget
 
-from app.parameter_row import ParameterControls
+from app.parameter_row import DEG_PER_AU, ParameterRow
 from core.layers.fap import tables
-from core.layers.fap.parameters import fap_label as row_label
+from core.layers.fap.parameters import fap_label as row_label  # noqa: F401 - re-exported
 
 if TYPE_CHECKING:  # pragma: no cover
     from core.layers.fap.tables import FapSpec
 
-#: Degrees per AU (1 AU = 1e-5 rad).
-DEG_PER_AU = math.degrees(tables.ANGLE_UNIT)
 _GROUP_TITLES = {"jaw & chin": "Jaw && chin"}  # QToolButton text: '&' marks a mnemonic
 
 
@@ -59,88 +56,16 @@ def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = N
     return "<br>".join(lines)
 
 
-def _nice_step(span: float) -> float:
-    """A 1-2-5 step of about span / 100."""
-    raw = max(span / 100.0, 1e-12)
-    exp = math.floor(math.log10(raw))
-    for m in (1, 2, 5, 10):
-        if m * 10 ** exp >= raw:
-            return m * 10 ** exp
-    return 10 ** (exp + 1)
-
-
 # ------------------------------------------------------------------ one FAP
-class FapRow(QWidget):
-    """Name, slider, spin box and reset button of one FAP (values are in the rig)."""
+def fap_row(spec: "FapSpec", fapu: dict, fp_names: dict[str, str], parent: QWidget | None = None) -> ParameterRow:
+    """The row of one FAP (``fap:<n>``): the registry's label and range, the face's tooltip."""
+    return ParameterRow(f"fap:{spec.number}", parent, tooltip=fap_tooltip(spec, fapu, fp_names),
+                        name=f"fap{spec.number}")
 
-    edited = Signal(int, float)  # FAP number, new value in FAP units (AU for rotations)
-    reset_requested = Signal(int)
-    hover_changed = Signal(int, bool)  # FAP number, mouse entered (True) / left (False)
-    focus_changed = Signal(int, bool)  # FAP number, slider or spin box got (True) / lost (False) focus
 
-    def __init__(self, spec: "FapSpec", fapu: dict, fp_names: dict[str, str], parent: QWidget | None = None):
-        super().__init__(parent)
-        self.spec = spec
-        self.number = spec.number
-        lo, hi = int(math.floor(spec.minimum)), int(math.ceil(spec.maximum))
-        step = max(1, int(_nice_step(hi - lo)))
-        self.label = QLabel(row_label(spec), self)
-        self.label.setObjectName(f"fapLabel{spec.number}")
-        rotation = spec.is_rotation
-        self.controls = ParameterControls(
-            spec.number, lo, hi, self, suffix="°" if rotation else f" {spec.unit}", slider_step=step,
-            display_scale=DEG_PER_AU if rotation else 1.0, decimals=1 if rotation else 0,
-            spin_step=0.5 if rotation else step, name=f"fap{spec.number}", reset_tip=f"Reset FAP {spec.number} to 0")
-        self.slider, self.spin, self.reset_button = self.controls.widgets()
-        self.slider.setMinimumWidth(110)
-
-        layout = QHBoxLayout(self)
-        layout.setContentsMargins(0, 0, 0, 0)
-        layout.setSpacing(6)
-        layout.addWidget(self.label)
-        layout.addWidget(self.slider, 1)
-        layout.addWidget(self.spin)
-        layout.addWidget(self.reset_button)
-
-        tip = fap_tooltip(spec, fapu, fp_names)
-        for w in (self, self.label, self.slider, self.spin):
-            w.setToolTip(tip)
-
-        self.controls.edited.connect(lambda _key, value: self.edited.emit(self.number, float(value)))
-        self.controls.reset_requested.connect(lambda _key: self.reset_requested.emit(self.number))
-        for w in (self.slider, self.spin):
-            w.installEventFilter(self)
-
-    # ----------------------------------------------------------- values
-    @property
-    def value(self) -> float:
-        """The value this row shows (FAP units; AU for rotations)."""
-        return self.controls.value
-
-    def show_value(self, value: float) -> None:
-        """Show ``value`` (from the rig) without emitting anything."""
-        self.controls.show_value(value)
-
-    # ----------------------------------------------------------- hover / focus
-    def enterEvent(self, event) -> None:  # noqa: N802 - Qt override
-        super().enterEvent(event)
-        self.hover_changed.emit(self.number, True)
-
-    def leaveEvent(self, event) -> None:  # noqa: N802 - Qt override
-        super().leaveEvent(event)
-        self.hover_changed.emit(self.number, False)
-
-    def mouseDoubleClickEvent(self, event) -> None:  # noqa: N802 - Qt override
-        if self.label.geometry().contains(event.position().toPoint()):
-            self.reset_requested.emit(self.number)
-            event.accept()
-            return
-        super().mouseDoubleClickEvent(event)
-
-    def eventFilter(self, watched: QObject, event: QEvent) -> bool:  # noqa: N802 - Qt override
-        if event.type() in (QEvent.Type.FocusIn, QEvent.Type.FocusOut):
-            self.focus_changed.emit(self.number, event.type() == QEvent.Type.FocusIn)
-        return False
+def fap_number(row: ParameterRow) -> int:
+    """The FAP number of a FAP row."""
+    return int(row.key.split(":")[1])
 
 
 # ------------------------------------------------------------------ a group
@@ -152,7 +77,7 @@ class FapGroup(QWidget):
     def __init__(self, name: str, parent: QWidget | None = None):
         super().__init__(parent)
         self.name = name
-        self.rows: list[FapRow] = []
+        self.rows: list[ParameterRow] = []
         self.toggle = QToolButton(self)
         self.toggle.setObjectName(f"group:{name}")
         self.toggle.setText(_GROUP_TITLES.get(name, name.capitalize()))
@@ -196,9 +121,9 @@ class FapGroup(QWidget):
 
     @property
     def numbers(self) -> list[int]:
-        return [r.number for r in self.rows]
+        return [fap_number(r) for r in self.rows]
 
-    def add_row(self, row: FapRow) -> None:
+    def add_row(self, row: ParameterRow) -> None:
         self.rows.append(row)
         self.body_layout.addWidget(row)
         self.toggle.setText(f"{_GROUP_TITLES.get(self.name, self.name.capitalize())}  ({len(self.rows)})")

@@ -70,6 +70,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
     face_changed = Signal(object)  # the new Face
     load_failed = Signal(str)  # user-facing message
     load_finished = Signal(bool)  # True on success
+    closing = Signal()  # the window really closes (any Save / Discard / Cancel question answered)
 
     def __init__(self, face=None, *, path=None, settings: QSettings | None = None,
                  load_default: bool = True, tools: bool = True, parent: QWidget | None = None):
@@ -339,6 +340,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self.jobs.cancel()
         self.previews.cancel()
         self._closing = True
+        self.closing.emit()
         self.viewport.stop()
         self._disconnect_rig()
         self.fap_dock.set_rig(None, "")

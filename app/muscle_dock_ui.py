@@ -1,32 +1,28 @@
 """The muscle dock's widgets: presets and force-set files, link and show toggles, Animate / Rest /
-Stop, and the grid of per-side rows (a muscle's two sides together, then the orbicularis oris and
-the jaw), built once; and the force-set file dialogs."""
+Stop, and the grid of per-side rows (the shared :class:`app.parameter_row.ParameterRow`; a muscle's
+two sides together, then the orbicularis oris and the jaw), built once; and the force-set file
+dialogs (the files themselves are read and written by :class:`app.muscle_simulation.MuscleSimulation`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from PySide6.QtCore import Qt
+from PySide6.QtGui import QStandardItemModel
 from PySide6.QtWidgets import (
     QCheckBox, QComboBox, QFileDialog, QFrame, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QMessageBox,
     QProgressBar, QPushButton, QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
 
-from app.parameter_row import ParameterControls
+from app.parameter_row import ParameterRow, align_rows, parameter_tooltip
+from app.muscle_simulation import preset_title
+from core import parameters as P
 
-
-#: Slider steps per unit (force units and degrees): 0.1 resolution.
-SLIDER_SCALE = 10
-FORCE_SUFFIX = " u"
-JAW = ("jaw", None)
+#: The jaw's parameter key (the muscle forces are "muscle:<name>:<side>").
+JAW = "jaw"
 FILE_FILTER = "Mimica force sets (*.json);;All files (*)"
-
-
-def _side_text(side: str | None) -> str:
-    return "" if side is None else side
-
-
-def _preset_title(name: str) -> str:
-    return name.replace("_", " ").capitalize()
+#: The preset box's first entry, shown when the forces match no preset (at rest / edited).
+NO_PRESET_AT_REST = "None"
+NO_PRESET_EDITED = "Custom"
 
 
 def _force_unit_dyn() -> float | None:
@@ -36,25 +32,6 @@ def _force_unit_dyn() -> float | None:
         return float(load_params().force_unit)
     except Exception:  # noqa: BLE001 - decorates a tooltip only
         return None
-
-
-class ControlRow(ParameterControls):
-    """Slider, spin box and reset button of one control (a muscle side, the orbicularis, the jaw),
-    with the side's label; the dock's grid lays the widgets out, the value lives in the layer."""
-
-    def __init__(self, key: tuple, minimum: float, maximum: float, suffix: str, tooltip: str,
-                 parent: QWidget, *, side_text: str = ""):
-        tag = "_".join(str(k) for k in key if k is not None)
-        super().__init__(key, minimum, maximum, parent, suffix=suffix, slider_scale=SLIDER_SCALE,
-                         slider_step=SLIDER_SCALE // 2, decimals=1, spin_step=0.5, name=f"muscle_{tag}")
-        self.side_label = QLabel(side_text, parent)
-        self.side_label.setObjectName(f"muscleSide_{tag}")
-        self.side_label.setStyleSheet("QLabel { color: #6b7280; }")
-        for w in (self.side_label, self.slider, self.spin):
-            w.setToolTip(tooltip)
-
-    def widgets(self) -> list[QWidget]:
-        return [self.side_label, *super().widgets()]
 
 
 class MuscleDockLayout:
@@ -106,16 +83,22 @@ class MuscleDockLayout:
         grid.setVerticalSpacing(4)
         self.preset_combo = QComboBox(box)
         self.preset_combo.setObjectName("musclePresetCombo")
+        # First entry: "None" / "Custom", shown while the forces match no preset; not a choice.
+        self.preset_combo.addItem(NO_PRESET_AT_REST, None)
+        model = self.preset_combo.model()
+        if isinstance(model, QStandardItemModel):
+            model.item(0).setEnabled(False)
         for name in preset_names():
-            self.preset_combo.addItem(_preset_title(name), name)
+            self.preset_combo.addItem(preset_title(name), name)
         self.preset_combo.setToolTip("Thesis C's test expressions (§5.2–5.6): choosing one applies it, "
-                                     "as the FAP dock's presets do")
+                                     "as the FAP dock's presets do. The box shows the preset the forces "
+                                     "match, or Custom.")
         # One rule for presets in both docks: choosing one applies it (an undo step).
         self.preset_combo.activated.connect(lambda index: self.apply_preset(self.preset_combo.itemData(index)))
         self.apply_button = QPushButton("Apply again", box)
         self.apply_button.setObjectName("musclePresetApply")
         self.apply_button.setToolTip("Set the forces (and jaw) of the chosen expression again (after edits)")
-        self.apply_button.clicked.connect(lambda: self.apply_preset(self.preset_combo.currentData()))
+        self.apply_button.clicked.connect(lambda: self.apply_preset(self.preset_target()))
         self.save_button = QPushButton("Save…", box)
         self.save_button.setObjectName("muscleSave")
         self.save_button.setToolTip("Save the current forces and jaw angle as a JSON force set")
@@ -147,7 +130,7 @@ class MuscleDockLayout:
         self.reset_all_button = QPushButton("Reset all", w)
         self.reset_all_button.setObjectName("muscleResetAll")
         self.reset_all_button.setToolTip("Every force and the jaw to 0, the face at rest at once")
-        self.reset_all_button.clicked.connect(self.reset_all)
+        self.reset_all_button.clicked.connect(self.simulation.reset_all)
         row.addWidget(self.link_check)
         row.addWidget(self.show_check)
         row.addStretch(1)
@@ -163,16 +146,16 @@ class MuscleDockLayout:
         self.animate_button.setObjectName("muscleAnimate")
         self.animate_button.setToolTip("Play the transition from rest to the current forces in real time "
                                        "(thesis C's Execute)")
-        self.animate_button.clicked.connect(self.animate)
+        self.animate_button.clicked.connect(self.simulation.animate)
         self.stop_button = QPushButton("■ Stop", w)
         self.stop_button.setObjectName("muscleStop")
         self.stop_button.setToolTip("Stop the animation where it is")
-        self.stop_button.clicked.connect(self.stop)
+        self.stop_button.clicked.connect(lambda: self.simulation.stop())
         self.rest_button = QPushButton("Rest", w)
         self.rest_button.setObjectName("muscleRest")
         self.rest_button.setToolTip("Every force and the jaw to 0, relaxing back in real time "
                                     "(thesis C's Initialise; Reset all does it at once)")
-        self.rest_button.clicked.connect(self.rest)
+        self.rest_button.clicked.connect(self.simulation.rest)
         self.status_label = QLabel(w)
         self.status_label.setObjectName("muscleStatus")
         self.status_label.setStyleSheet("QLabel { color: #6b7280; }")
@@ -187,15 +170,10 @@ class MuscleDockLayout:
     def _build_rows(self) -> QWidget:
         from core.layers.muscles import muscle_specs
 
-        try:
-            from core.layers.muscles.muscles import jaw_range
-
-            jaw_lo, jaw_hi = jaw_range()
-        except Exception:  # noqa: BLE001 - the contract does not export it; thesis-like default
-            jaw_lo, jaw_hi = 0.0, 25.0
         unit_dyn = _force_unit_dyn()
-        unit_note = (f"Thesis force units: 1 u = {unit_dyn:g} dyn at the muscle's mobile end (per reference node)"
-                     if unit_dyn else "Thesis force units")
+        unit_note = (f"<i>Thesis force units: 1 u = {unit_dyn:g} dyn at the muscle's mobile end (per reference "
+                     "node)</i>" if unit_dyn else "<i>Thesis force units</i>")
+        sides_note = "Sides are the face's own: its left is on the right of the screen in the front view."
         body = QWidget()
         body.setObjectName("muscleRows")
         grid = QGridLayout(body)
@@ -205,7 +183,7 @@ class MuscleDockLayout:
         r = 0
         for spec in muscle_specs():
             tip = (f"<b>{spec.label}</b><br>{spec.description}<br>Range {spec.minimum:g} to {spec.maximum:g} u"
-                   f"<br><i>{unit_note}</i>")
+                   f"<br>{unit_note}")
             name = QLabel(spec.label, body)
             name.setObjectName(f"muscleName_{spec.name}")
             name.setWordWrap(True)
@@ -215,44 +193,43 @@ class MuscleDockLayout:
             sides = ("left", "right") if spec.paired else (None,)
             grid.addWidget(name, r, 0, len(sides), 1, Qt.AlignmentFlag.AlignVCenter)
             for side in sides:
-                side_tip = tip
-                if side is not None:
-                    side_tip += ("<br>Sides are the face's own: its left is on the right of the screen "
-                                 "in the front view.")
-                row = ControlRow((spec.name, side), spec.minimum, spec.maximum, FORCE_SUFFIX, side_tip, body,
-                                 side_text=_side_text(side))
-                self._add_row(grid, r, row)
+                key = str(P.ParamKey("muscle", spec.name, side))
+                notes = [unit_note] + ([sides_note] if side else [])
+                self._add_row(grid, r, key, side or "", notes)
                 r += 1
             if spec.paired:
                 line = QFrame(body)
                 line.setFrameShape(QFrame.Shape.HLine)
                 line.setStyleSheet("QFrame { color: #3a3c40; }")
-                grid.addWidget(line, r, 0, 1, 5)
+                grid.addWidget(line, r, 0, 1, 2)
                 r += 1
-        jaw_tip = ("<b>Jaw opening</b><br>Rotates the lower lip and chin about an axis behind the ears "
-                   f"(thesis C §3.4).<br>Range {jaw_lo:g}° to {jaw_hi:g}°")
+        jaw = P.describe(JAW)
         name = QLabel("Jaw opening", body)
         name.setObjectName("muscleName_jaw")
-        name.setToolTip(jaw_tip)
+        name.setToolTip(parameter_tooltip(jaw))
         self.name_labels["jaw"] = name
         grid.addWidget(name, r, 0)
-        self._add_row(grid, r, ControlRow(JAW, jaw_lo, jaw_hi, "°", jaw_tip, body))
+        self._add_row(grid, r, JAW, "", [])
         r += 1
         grid.setRowStretch(r, 1)
-        grid.setColumnStretch(2, 1)
-        # One width for the name column (long names wrap onto the pair's two lines) and the spins.
+        grid.setColumnStretch(1, 1)
+        # One width for the name column (long names wrap onto the pair's two lines), the side labels
+        # and the spin boxes, so every slider has the same length.
         metrics = name.fontMetrics()
         grid.setColumnMinimumWidth(0, metrics.horizontalAdvance("Levator labii sup. ") + 4)
         for label in self.name_labels.values():
             label.setMaximumWidth(metrics.horizontalAdvance("Levator labii sup. alaeque") + 4)
-        spin_w = max(row.spin.sizeHint().width() for row in self.rows.values())
-        for row in self.rows.values():
-            row.spin.setFixedWidth(spin_w)
+        side_width = max(row.label.sizeHint().width() for row in self.rows.values())
+        align_rows(self.rows.values(), label_width=side_width)
         return body
 
-    def _add_row(self, grid: QGridLayout, r: int, row: ControlRow) -> None:
-        for c, w in enumerate(row.widgets(), start=1):
-            grid.addWidget(w, r, c)
+    def _add_row(self, grid: QGridLayout, r: int, key: str, side_text: str, notes: list[str]) -> None:
+        tag = key.replace(":", "_")
+        row = ParameterRow(key, grid.parentWidget(), text=side_text, name=tag,
+                           tooltip=parameter_tooltip(P.describe(key), notes))
+        row.label.setObjectName(f"muscleSide_{tag}")
+        row.label.setStyleSheet("QLabel { color: #6b7280; }")
+        grid.addWidget(row, r, 1)
         row.edited.connect(self._row_edited)
         row.reset_requested.connect(self.reset_control)
         self.rows[row.key] = row
@@ -261,7 +238,7 @@ class MuscleDockLayout:
         for w in (self.preset_combo, self.apply_button, self.save_button, self.open_button, self.link_check,
                   self.reset_all_button, self.animate_button, self.rest_button, self.show_check):
             w.setEnabled(enabled)
-        self.stop_button.setEnabled(enabled and self._animating)
+        self.stop_button.setEnabled(enabled and self.simulation.animating)
         self.scroll.setEnabled(enabled)
 
     # ============================================================ files
@@ -297,33 +274,18 @@ class MuscleDockLayout:
 
     def save_force_file(self, path) -> bool:
         """Write the current forces and jaw to ``path`` (JSON); errors become a warning box."""
-        from core.layers.muscles import ForceSet, save_force_set
-
-        layer = self.layer
-        if layer is None:
-            return False
-        force_set = ForceSet(dict(layer.forces()), jaw_deg=float(layer.jaw_deg), name=Path(path).stem)
         try:
-            save_force_set(path, force_set)
+            return self.simulation.save_force_file(path)
         except (OSError, ValueError) as exc:
             QMessageBox.warning(self, f"Could not save {Path(path).name}", str(exc))
             return False
-        self._status_bar(f"Saved the force set {path}", 5000)
-        return True
 
     def open_force_file(self, path) -> bool:
-        """Load a force set from ``path`` and apply it; a bad file leaves the forces untouched."""
-        from core.layers.muscles import ForceFileError, load_force_set
+        """Load a force set from ``path`` and apply it; a bad file is a warning box and changes nothing."""
+        from core.layers.muscles import ForceFileError
 
-        layer = self.layer
-        if layer is None:
-            return False
         try:
-            force_set = load_force_set(path)
+            return self.simulation.open_force_file(path)
         except (ForceFileError, OSError) as exc:
             QMessageBox.warning(self, f"Could not open {Path(path).name}", str(exc))
             return False
-        ok = self._edit(f"open force set {Path(path).name}", lambda: layer.apply(force_set))
-        if ok:
-            self._status_bar(f"Loaded the force set {Path(path).name}", 5000)
-        return ok

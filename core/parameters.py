@@ -14,8 +14,9 @@ a :class:`ParamKey`. The timeline's tracks, undo labels, project files, the dock
 line all name parameters this way.
 
 Each family (a :class:`ParameterKind`) is registered by the module that animates it (its rig
-layer) with :func:`register_kind`; :func:`describe` gives a parameter's label, unit, range and
-default, :func:`check_value` validates a value (never clamps). The built-in kinds are defined in
+layer) with :func:`register_kind`; :func:`describe` gives a parameter's label, unit, range,
+default, description and left/right mirror (what "Link left/right" moves with it),
+:func:`check_value` validates a value (never clamps). The built-in kinds are defined in
 ``core.layers.fap.parameters`` and ``core.layers.muscles.parameters`` and load on first use.
 """
 
@@ -61,6 +62,8 @@ class Parameter:
     default: float = 0.0
     group: str = ""     # e.g. the FAP group or "muscles", for docks and timeline groups
     simulated: bool = False  # drives a dynamic layer (its value at t depends on the history)
+    description: str = ""    # one sentence on what it does (tooltips)
+    mirror: str | None = None  # the canonical key of its left/right partner ("Link left/right"), if any
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,24 @@ def test_every_old_spelling_is_one_key():
         P.check_value("muscle:risorius:left", 1e300)
 
 
+
+def test_each_parameter_names_its_mirror_and_says_what_it_does():
+    """"Link left/right" in both docks moves a parameter's mirror: the registry names it, both ways."""
+    from core.layers.fap import tables
+    from core.layers.muscles import control_keys
+
+    keys = [f"fap:{s.number}" for s in tables.fap_specs() if s.dock] + [P.key_of(k) for k in control_keys()]
+    keys.append("jaw")
+    for key in keys:
+        p = P.describe(key)
+        assert p.description, key
+        if p.mirror is not None:
+            assert P.describe(p.mirror).mirror == key and P.describe(p.mirror).unit == p.unit
+    assert P.describe("fap:6").mirror == "fap:7" and P.describe("fap:3").mirror is None
+    assert P.describe("muscle:risorius:left").mirror == "muscle:risorius:right"
+    assert P.describe("muscle:orbicularis_oris").mirror is None and P.describe("jaw").mirror is None
+    assert "2.1" in P.describe("fap:3").description and "down" in P.describe("fap:3").description
+
 def test_events_carry_keys_and_values(rig):
     seen = []
     rig.parameters_changed.connect(seen.append)

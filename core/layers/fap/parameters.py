@@ -46,8 +46,12 @@ def _fap_key(args: list[str]) -> ParamKey:
 
 def _fap_describe(key: ParamKey) -> Parameter:
     spec = tables.fap_spec(int(key.id))
+    verb = "rotates about" if spec.is_rotation else "moves"
+    description = (f"FAP {spec.number} {spec.name} {verb} feature point {spec.fp.strip(';').replace(';', ', ')};"
+                   f" positive is {spec.direction}.")
     return Parameter(str(key), fap_label(spec), spec.unit, float(spec.minimum), float(spec.maximum), 0.0,
-                     spec.dock)
+                     spec.dock, description=description,
+                     mirror=f"fap:{spec.pair}" if spec.pair is not None else None)
 
 
 def _preset_key(kind: str, to_id, usage: str, neutral: str, name_of):

@@ -30,8 +30,9 @@ def _muscle_key(args: list[str]) -> ParamKey:
 def _muscle_describe(key: ParamKey) -> Parameter:
     spec = spec_by_name()[key.id]
     label = spec.label + (f" ({key.side[0].upper()})" if key.side else "")
+    mirror = None if key.side is None else str(ParamKey("muscle", key.id, "right" if key.side == "left" else "left"))
     return Parameter(str(key), label, "force", float(spec.minimum), float(spec.maximum), 0.0, "muscles",
-                     simulated=True)
+                     simulated=True, description=spec.description, mirror=mirror)
 
 
 def _jaw_key(args: list[str]) -> ParamKey:
@@ -42,7 +43,9 @@ def _jaw_key(args: list[str]) -> ParamKey:
 
 def _jaw_describe(key: ParamKey) -> Parameter:
     lo, hi = jaw_range()
-    return Parameter("jaw", "jaw angle (°)", "°", lo, hi, 0.0, "muscles", simulated=True)
+    return Parameter("jaw", "jaw angle (°)", "°", lo, hi, 0.0, "muscles", simulated=True,
+                     description="Opens the jaw: rotates the lower lip and chin about an axis behind the ears "
+                                 "(thesis C §3.4)")
 
 
 def control_of(key: str) -> tuple[str, str | None]:
