@@ -32,4 +32,5 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   PYTHONWARNINGS=ignore "$VENV/bin/python" -m pip install --quiet -e "$ROOT${EXTRAS:+[$EXTRAS]}" 2>&1 | grep -v "^WARNING: Location" || true
   "$VENV/bin/python" -c "import app, core, resources" || { echo "Installation failed (see messages above)." >&2; exit 1; }
   echo "$want" > "$stamp"
+  MIMICA_JUST_INSTALLED=1
 fi

@@ -5,6 +5,11 @@
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/bootstrap.sh" ""
 cd "$ROOT"
+if [ "${MIMICA_JUST_INSTALLED:-0}" = 1 ]; then
+  # The default face's FAP table and viewport draft go to the cache now, so the first start is quick.
+  echo "Preparing the default face for animation (once, about ten seconds)"
+  "$VENV/bin/mimica" prepare || echo "(not prepared: the window will build it at start-up)"
+fi
 if [ -z "${DISPLAY:-}" ] && [ -z "${WAYLAND_DISPLAY:-}" ]; then
   echo "No display found: starting Mimica on a virtual X screen (Xvfb)."
   exec xvfb-run -a -s "-screen 0 1600x1000x24" "$VENV/bin/mimica" "$@"

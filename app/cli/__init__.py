@@ -19,12 +19,12 @@ import argparse
 import sys
 from typing import Sequence
 
-from app.cli import demo, evaluate, export, gui, landmarks, lipsync, register, render
+from app.cli import demo, evaluate, export, gui, landmarks, lipsync, prepare, register, render
 from app.cli.common import PROG, CliError, load_face_or_default, parse_muscle_forces, parse_size
 
 _parse_size = parse_size  # the name tests and scripts used
 
-SUBCOMMANDS = (gui, render, landmarks, register, evaluate, export, lipsync, demo)
+SUBCOMMANDS = (gui, render, landmarks, register, evaluate, export, lipsync, demo, prepare)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -158,3 +158,21 @@ def test_landmarks_then_register_a_scan_in_other_units(tmp_path, capsys):
     (tmp_path / "bad.png").write_text("no image")
     assert cli.main(["landmarks", str(scan_path), "--texture", str(tmp_path / "bad.png"), "-o", str(landmarks)]) == 1
     assert "not an image" in capsys.readouterr().err
+
+
+def test_prepare_fills_the_cache_the_window_reads(tmp_path, monkeypatch):
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("MIMICA_CACHE_DIR", str(cache))
+    first = run_mimica("prepare", headless=True)
+    assert first.returncode == 0, first.stderr
+    assert "ready to animate" in first.stdout
+    assert len(list((cache / "fap").iterdir())) == 1 and len(list((cache / "preview").iterdir())) == 1
+    from app.document import build_rig
+    from core.cache import DiskCache
+    from core.default_face import load_default_face
+
+    reader = DiskCache(cache)
+    rig, message = build_rig(load_default_face(), reader)
+    assert rig is not None and message == "" and reader.notes == []
+    missing = run_mimica("prepare", str(tmp_path / "nope.obj"), headless=True)
+    _assert_clean_error(missing, "no such file")
