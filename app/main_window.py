@@ -7,7 +7,8 @@ Its state lives in ``window.document`` (:mod:`app.document`: face, rig with its 
 stack and the rig recorder); ``window.face``, ``window.rig``, ``window.undo_stack`` read it. The
 window's other parts each have their module:
 
-* :mod:`app.face_files`  loading faces in the background (:mod:`app.jobs`), recent files, Open/Save
+* :mod:`app.face_files`  loading faces in the background (:mod:`app.jobs`), recent files, Open/Save,
+  drag and drop
 * :mod:`app.face_view`   what the viewport shows of the face (pose, overlays), view modes, cameras
 * :mod:`app.viewport`    one scheduler: ``rig.changed`` only requests ``"mesh"``; one 0 ms timer
   pulls ``rig.vertices()`` once, writes it into the actor in place and renders once, so a burst of
@@ -30,7 +31,6 @@ from PySide6.QtWidgets import (
     QAbstractSpinBox,
     QApplication,
     QDialog,
-    QDockWidget,
     QLabel,
     QLineEdit,
     QMainWindow,
@@ -416,15 +416,6 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
             self.statusBar().clearMessage()
         self.viewport.request("overlay")
 
-    def _take_drops(self) -> None:
-        """Drops anywhere in the window (viewport, any dock) reach :meth:`dropEvent`: Qt would
-        otherwise hand them to whichever child happens to accept drops, or to nobody."""
-        for widget in (self.plotter, *self.findChildren(QDockWidget)):
-            if not widget.property("mimicaDrops"):
-                widget.setProperty("mimicaDrops", True)
-                widget.setAcceptDrops(True)
-                widget.installEventFilter(self)
-
     def eventFilter(self, watched, event) -> bool:  # noqa: N802 - Qt override
         kind = event.type()
         if kind in (QEvent.Type.DragEnter, QEvent.Type.DragMove, QEvent.Type.Drop) and watched.property("mimicaDrops"):
@@ -526,34 +517,6 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
     def last_tick_ms(self) -> tuple[float, float] | None:
         """(compute ms, draw ms) of the last viewport update that moved the face."""
         return self.viewport.last_tick_ms
-
-    # ------------------------------------------------------------ drag & drop
-    @staticmethod
-    def _dropped_files(mime) -> list[str]:
-        if not mime.hasUrls():
-            return []
-        return [u.toLocalFile() for u in mime.urls() if u.isLocalFile() and Path(u.toLocalFile()).is_file()]
-
-    def dragEnterEvent(self, event) -> None:  # noqa: N802 - Qt override
-        # Any local file is taken: what it is decides on drop, and a file Mimica cannot open gets a
-        # message there instead of a silent "no entry" cursor.
-        if self._dropped_files(event.mimeData()):
-            event.acceptProposedAction()
-        else:
-            event.ignore()
-
-    def dragMoveEvent(self, event) -> None:  # noqa: N802 - Qt override
-        self.dragEnterEvent(event)
-
-    def dropEvent(self, event) -> None:  # noqa: N802 - Qt override
-        files = self._dropped_files(event.mimeData())
-        if not files:
-            event.ignore()
-            return
-        event.acceptProposedAction()
-        if len(files) > 1:
-            self.statusBar().showMessage(f"Opening the first of {len(files)} dropped files", 5000)
-        self.open_path(files[0])
 
     # ------------------------------------------------------------ help
     def about_text(self) -> str:
