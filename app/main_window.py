@@ -3,9 +3,9 @@
 The Mimica main window: a pyvistaqt viewport showing one :class:`core.face.Face`, the docks, the
 menus, a status bar and persisted settings.
 
-Its state lives in ``window.document`` (:mod:`app.document`: face, rig with its layers, the one undo
-stack and the rig recorder); ``window.face``, ``window.rig``, ``window.undo_stack`` read it. The
-window's other parts each have their module:
+Its state lives in ``window.document`` (:mod:`app.document`: face, rig with its layers, landmark
+model, the one undo stack and the rig recorder); ``window.face``, ``window.rig``,
+``window.undo_stack`` read it. The window's other parts each have their module:
 
 * :mod:`app.face_files`  loading faces in the background (:mod:`app.jobs`), recent files, Open/Save,
   drag and drop
@@ -83,6 +83,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         from app.document import Document
 
         self.document = Document(self)
+        self.document.face_changed.connect(self.face_changed)   # the window's signal follows the document's
         self.face_actor = None
         self._mode = "textured"
         self._closing = False
@@ -127,8 +128,8 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self._create_docks()
         self._create_menus()
         self._create_status_bar()
-        if tools:  # tests of one dock attach it alone (tools=False)
-            self._attach_tools()
+        if tools:  # tests of one dock build it alone (tools=False)
+            self._create_tool_docks()
         self._restore_window_state()
         self._take_drops()
 
@@ -392,7 +393,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self.setWindowTitle(f"{APP_NAME} — {face.metadata.name}")
         self._update_status_labels()
         self.set_camera_view("front")
-        self.face_changed.emit(face)
+        self.document.announce_face()   # face_changed, now that the viewport shows it
 
     # ------------------------------------------------------------ animation
     def _disconnect_rig(self) -> None:
@@ -431,7 +432,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
                 self.plotter.setFocus(Qt.FocusReason.MouseFocusReason)
         return super().eventFilter(watched, event)
 
-    # The document's state, read through the window by the docks' older code paths.
+    # The document's state, read through the window (the window's own parts and scripts).
     face = property(lambda self: self.document.face)
     face_path = property(lambda self: self.document.face_path,
                          lambda self, path: setattr(self.document, "face_path", path))
@@ -460,17 +461,17 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
             self.timeline.play()
             self.statusBar().showMessage("Playing the Mimica demo (Space pauses).", 8000)
 
-    # ------------------------------------------------------------ tools (landmarks, muscles, timeline)
-    def _attach_tools(self) -> None:
-        """Docks that live in their own modules attach themselves (menus and signals included)."""
-        from app.landmark_dock import attach_landmark_editor
-
+    # ------------------------------------------------------------ tool docks (landmarks, muscles, timeline)
+    def _create_tool_docks(self) -> None:
+        """The docks of their own modules, each built with the document (and this window, where it
+        adds its dock, actions and menus)."""
+        from app.landmark_dock import LandmarkDock
         from app.muscle_dock import attach_muscle_dock
-
-        self.landmark_editor = attach_landmark_editor(self)
-        self.muscle_dock = attach_muscle_dock(self)  # after the landmark editor: it uses window.undo_stack
         from app.timeline_dock import attach_timeline
 
+        self.landmark_dock = LandmarkDock(self.document, self)
+        self.landmark_editor = self.landmark_dock.editor
+        self.muscle_dock = attach_muscle_dock(self)
         attach_timeline(self)  # sets self.timeline; reuses the undo stack and Edit menu
         # The timeline starts tall enough to show a few tracks.
         self.resizeDocks([self.timeline.dock], [260], Qt.Orientation.Vertical)

@@ -21,7 +21,7 @@ def shared_window(qapp, tmp_path_factory):
     from PySide6.QtCore import QSettings
     from PySide6.QtTest import QTest
 
-    from app.landmark_dock import attach_landmark_editor
+    from app.landmark_dock import LandmarkDock
     from app.main_window import MainWindow
     from app_helpers import make_synthetic_face
 
@@ -29,7 +29,8 @@ def shared_window(qapp, tmp_path_factory):
     win = MainWindow(make_synthetic_face(), settings=settings, load_default=False, tools=False)
     win.show()
     QTest.qWaitForWindowExposed(win)
-    attach_landmark_editor(win)
+    dock = LandmarkDock(win.document, win)   # as the window builds it (tools=True)
+    win.landmark_dock, win.landmark_editor = dock, dock.editor
     QTest.qWait(30)
     yield win
     win.close()
