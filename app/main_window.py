@@ -4,8 +4,10 @@ The Mimica main window: a pyvistaqt viewport showing one :class:`core.face.Face`
 menus, a status bar and persisted settings.
 
 Its state lives in ``window.document`` (:mod:`app.document`: face, rig with its layers, landmark
-model, the one undo stack and the rig recorder); ``window.face``, ``window.rig``,
-``window.undo_stack`` read it. The window's other parts each have their module:
+model, timeline, the one undo stack, the rig recorder and the project path); ``window.face``,
+``window.rig``, ``window.undo_stack``, ``window.timeline`` read it. The window builds the document
+first, then the docks, each constructed with the document (and the window, where it adds its
+actions and menus). The window's other parts each have their module:
 
 * :mod:`app.face_files`  loading faces in the background (:mod:`app.jobs`), recent files, Open/Save,
   drag and drop
@@ -440,6 +442,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
     rig_message = property(lambda self: self.document.rig_message)
     undo_stack = property(lambda self: self.document.undo_stack)
     rig_edits = property(lambda self: self.document.rig_edits)
+    timeline = property(lambda self: self.document.timeline)   # TimelineController, once its dock exists
 
     @property
     def muscle_layer(self):
@@ -467,14 +470,14 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         adds its dock, actions and menus)."""
         from app.landmark_dock import LandmarkDock
         from app.muscle_dock import attach_muscle_dock
-        from app.timeline_dock import attach_timeline
+        from app.timeline_dock import TimelineDock
 
         self.landmark_dock = LandmarkDock(self.document, self)
         self.landmark_editor = self.landmark_dock.editor
         self.muscle_dock = attach_muscle_dock(self)
-        attach_timeline(self)  # sets self.timeline; reuses the undo stack and Edit menu
+        self.timeline_dock = TimelineDock(self.document, self)   # registers document.timeline / .project
         # The timeline starts tall enough to show a few tracks.
-        self.resizeDocks([self.timeline.dock], [260], Qt.Orientation.Vertical)
+        self.resizeDocks([self.timeline_dock], [260], Qt.Orientation.Vertical)
         self.landmark_dock.detect_requested.connect(self.detect_landmarks)
         self.landmark_dock.build_requested.connect(self.build_correspondence)
 

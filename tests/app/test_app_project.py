@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from PySide6.QtWidgets import QMessageBox
 
-from app.timeline_dock import attach_timeline
+from app.timeline_dock import TimelineDock
 from core.formats import project as cp
 
 
@@ -33,7 +33,7 @@ def shared(qapp, default_face, deformer, tmp_path_factory):
     w = MainWindow(settings=settings, load_default=False, tools=False)
     w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
     w.show()
-    controller = attach_timeline(w, check_recovery=False)  # autosaves go beside the test settings
+    controller = TimelineDock(w.document, w, check_recovery=False).controller  # autosaves beside the test settings
     yield w, controller
     w.close()
     w.deleteLater()
@@ -274,7 +274,7 @@ def test_closing_with_unsaved_work_autosaves_instead_of_blocking(qtbot, qapp, de
 
     w = MainWindow(settings=settings, load_default=False, tools=False)
     w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
-    ctl = attach_timeline(w, state_dir=tmp_path / "state", check_recovery=False)
+    ctl = TimelineDock(w.document, w, state_dir=tmp_path / "state", check_recovery=False).controller
     w.rig.set_fap(3, 300.0)
     ctl.set_key(["fap:3"], 0.0)
     target = ctl.project.autosave_path()
