@@ -33,7 +33,6 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
-import threading
 import traceback
 from pathlib import Path
 
@@ -44,6 +43,7 @@ from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox
 
 from core.formats import project as cp
 from core.timeline import Timeline
+from app.jobs import JobRunner
 from app.project_recovery import ProjectRecoveryMixin
 
 AUTOSAVE_MS = 3 * 60 * 1000
@@ -56,11 +56,6 @@ def default_state_dir(window) -> Path:
     if isinstance(settings, QSettings) and settings.fileName():
         return Path(settings.fileName()).resolve().parent / "autosave"
     return cp.default_state_dir()
-
-
-class _Relay(QObject):
-    opened = Signal(int, object)  # generation, (face, rig, rig message, notes)
-    failed = Signal(int, str)
 
 
 class ProjectActions(ProjectRecoveryMixin, QObject):
@@ -87,10 +82,8 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         self._autosaved = None  # (stack index, dirty) at the last autosave
         self._face_ref: tuple | None = None  # (id(face), FaceRef) of a face loaded from / embedded for a project
         self._applying_face = False
-        self._generation = 0
-        self._relay = _Relay(self)
-        self._relay.opened.connect(self._on_face_opened)
-        self._relay.failed.connect(self._on_face_failed)
+        # An opened project's face loads (with its rig) in the background; a newer open supersedes it.
+        self._loads = JobRunner(self, supersede=True)
         self._pending: tuple | None = None
         self._pending_values: dict[str, float] = {}  # opened values of layers not built yet
         self._closed = False
@@ -362,36 +355,24 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         if self._same_face(project):
             self._finish_open(project, path, [], dirty=dirty, offer_recovery=offer_recovery)
             return True
-        # Another face: load it and build its rig off the GUI thread, then finish on it.
-        self._generation += 1
-        generation = self._generation
+        # Another face: load it and build its rig off the GUI thread (app.jobs: a ProjectError is a
+        # message, a newer open wins), then finish on it.
         self._pending = (project, path, dirty, offer_recovery)
-        status = self.window.statusBar
-        if status is not None:
-            self.window.statusBar().showMessage("Opening the project: loading its face and preparing the rig…")
-        relay = self._relay
+        self.window.statusBar().showMessage("Opening the project: loading its face and preparing the rig…")
 
-        def work():
+        def work(_job):
+            from app.document import build_rig
+
             notes: list[str] = []
-            try:
-                face = cp.open_face(project, notes)
-                from app.document import build_rig
+            face = cp.open_face(project, notes)
+            rig, message = build_rig(face)
+            return face, rig, message, notes
 
-                rig, message = build_rig(face)
-            except cp.ProjectError as exc:
-                relay.failed.emit(generation, str(exc))
-                return
-            except Exception as exc:  # noqa: BLE001 - becomes a message box
-                traceback.print_exc()
-                relay.failed.emit(generation, f"{type(exc).__name__}: {exc}")
-                return
-            relay.opened.emit(generation, (face, rig, message, notes))
-
-        threading.Thread(target=work, name="mimica-open-project", daemon=True).start()
+        self._loads.start(work, self._on_face_opened, self._on_face_failed)
         return False
 
-    def _on_face_opened(self, generation: int, result) -> None:
-        if generation != self._generation or self._pending is None:
+    def _on_face_opened(self, result) -> None:
+        if self._pending is None or self._closed:
             return
         project, path, dirty, offer = self._pending
         self._pending = None
@@ -424,9 +405,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             except ValueError as exc:
                 self._warn("Some rig values could not be restored", str(exc))
 
-    def _on_face_failed(self, generation: int, message: str) -> None:
-        if generation != self._generation:
-            return
+    def _on_face_failed(self, message: str) -> None:
         name = self._pending[1].name if self._pending is not None and self._pending[1] is not None else "the project"
         self._pending = None
         self._warn(f"Could not open {name}", message)
@@ -545,6 +524,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
                 return True
             self.autosave_timer.stop()
             self.c.pause()
+            self._loads.cancel()   # a project's face still loading is not shown any more
             self._closed = True
             if self.is_modified:
                 self.autosave_now()  # offered at the next start
