@@ -2,8 +2,9 @@
 ----
 The Qt side of export (:mod:`app.export` does the work):
 
-* :class:`ExportJob` runs :func:`app.export.export_in_subprocess` on a Python
-  worker thread and reports through Qt signals (queued to the GUI thread):
+* :class:`ExportJob` (:mod:`app.export_job`) runs :func:`app.export.export_in_subprocess`
+  as a job of the window's shared job class (:mod:`app.jobs`: cancellation, generation
+  counter, user-facing errors) and reports through Qt signals on the GUI thread:
   ``progress(done, total)``, ``finished(ExportResult)``, ``failed(message)``,
   ``cancelled()``; :meth:`ExportJob.cancel` stops it within about one frame.
   The frame source ``frame_vertices(t)`` is called on the GUI thread by

@@ -1,11 +1,15 @@
 """A running export in the GUI: frames computed on the GUI thread a few ahead (prefetch), handed to
 the off-screen render and encode in a child process (app.export), with progress, cancel and a result
-or a message; the window stays responsive throughout."""
+or a message; the window stays responsive throughout.
+
+The worker side runs as one :class:`app.jobs.Job` (the window's shared job class: cancellation,
+generation counter, user-facing errors): an :class:`ExportJob` owns a one-thread
+:class:`app.jobs.JobRunner`, :meth:`ExportJob.cancel` cancels its job, and the runner says when
+the cancelled worker has stopped (after the child removed its partial output)."""
 
 from __future__ import annotations
 
 import queue
-import threading
 import traceback
 from typing import Callable
 
@@ -14,6 +18,7 @@ from PySide6.QtCore import QObject, Qt, QTimer, Signal, Slot
 
 from app.export import (
     ExportCancelled, ExportError, ExportResult, ExportSettings, export_frame_times, export_in_subprocess)
+from app.jobs import JobRunner
 
 
 # ------------------------------------------------------------------ job
@@ -21,6 +26,9 @@ from app.export import (
 PREFETCH = 3
 #: Jobs still running (a job must outlive the function that started it).
 _RUNNING: set = set()
+#: Jobs that just ended, kept for one more event-loop pass: their runner's slot is still on the stack,
+#: and the runner is the job's child (it must not be deleted inside its own slot).
+_ENDING: set = set()
 
 
 class ExportJob(QObject):
@@ -34,7 +42,10 @@ class ExportJob(QObject):
         ``frame_vertices(t) -> (n, 3)`` mm.
     settings : ExportSettings
     evaluate_in : "gui" or "worker"
-        Thread that calls ``frame_vertices`` (see the module docstring).
+        Thread that calls ``frame_vertices`` (see :mod:`app.export_dialog`).
+
+    Signals: ``progress(frames done, total)``, then one of ``finished(ExportResult)``,
+    ``failed(message for the user)`` or ``cancelled()``.
     """
 
     progress = Signal(int, int)  # frames done, total
@@ -54,9 +65,9 @@ class ExportJob(QObject):
         self.evaluate_in = evaluate_in
         self.result: ExportResult | None = None
         self.error: str | None = None
-        self._cancel = threading.Event()
-        self._done = threading.Event()
-        self._thread: threading.Thread | None = None
+        self.generation: int | None = None   # the runner's number for this export's job
+        self._runner = JobRunner(self)
+        self._started = self._done = self._cancel_requested = False
         self._queue: queue.Queue = queue.Queue(maxsize=PREFETCH)
         self._times = np.zeros(0)
         self._next = 0
@@ -65,38 +76,45 @@ class ExportJob(QObject):
     # ------------------------------------------------------------ control
     def start(self) -> None:
         """Start the export (returns at once). Bad settings are reported through ``failed``."""
-        if self._thread is not None:
+        if self._started:
             raise RuntimeError("an ExportJob runs once; create a new one")
+        self._started = True
         try:
             self._times = export_frame_times(self.settings)
         except ExportError as exc:
             self.error = str(exc)
-            self._done.set()
+            self._done = True
             QTimer.singleShot(0, lambda: self.failed.emit(self.error))
             return
         _RUNNING.add(self)
-        self._thread = threading.Thread(target=self._run, name="mimica-export", daemon=True)
-        self._thread.start()
+        self.generation = self._runner.start(self._work, self._on_done, self._on_failed, self._on_progress,
+                                             cancelled=self._on_stopped)
         if self.evaluate_in == "gui":
             self._pump()
 
     def cancel(self) -> None:
         """Ask the export to stop; ``cancelled`` follows once the partial output is removed."""
-        self._cancel.set()
+        if self._started and not self._done:
+            self._cancel_requested = True
+            self._runner.cancel()
+
+    @property
+    def total_frames(self) -> int:
+        return len(self._times)
 
     @property
     def is_running(self) -> bool:
-        return self._thread is not None and not self._done.is_set()
+        return self._started and not self._done
 
     @property
     def is_cancelling(self) -> bool:
-        return self._cancel.is_set() and not self._done.is_set()
+        return self._cancel_requested and not self._done
 
     # ------------------------------------------------------------ GUI-thread frame source
     @Slot()
     def _pump(self) -> None:
         """Compute the next frame's vertices (GUI thread) while the prefetch queue has room."""
-        if self._cancel.is_set() or self._done.is_set() or self._next >= len(self._times):
+        if self._cancel_requested or self._done or self._next >= len(self._times):
             return
         if self._queue.full():
             return  # the worker asks again after taking a frame
@@ -111,10 +129,10 @@ class ExportJob(QObject):
         if not isinstance(item, Exception) and not self._queue.full():
             QTimer.singleShot(0, self._pump)  # one frame per event-loop pass keeps the window live
 
-    def _take(self, t: float) -> np.ndarray:
+    def _take(self, job) -> np.ndarray:
         """Worker side of the GUI-thread source: the next queued frame (in time order)."""
         while True:
-            if self._cancel.is_set():
+            if job.cancelled():
                 raise ExportCancelled()
             try:
                 item = self._queue.get(timeout=0.05)
@@ -126,30 +144,49 @@ class ExportJob(QObject):
             raise item
         return item
 
-    # ------------------------------------------------------------ worker thread
-    def _run(self) -> None:
-        source = self._take if self.evaluate_in == "gui" else self.frame_vertices
+    # ------------------------------------------------------------ worker thread (the job's work)
+    def _work(self, job) -> ExportResult:
+        source = (lambda _t: self._take(job)) if self.evaluate_in == "gui" else self.frame_vertices
+
+        def progress(done: int, total: int) -> None:
+            # The job's progress is a fraction: the total is the plan's frame count, known here too.
+            job.progress(done / total if total else 1.0, f"{done} of {total}")
+
         try:
-            result = export_in_subprocess(self.face, source, self.settings,
-                                          progress=lambda done, total: self.progress.emit(done, total),
-                                          cancelled=self._cancel.is_set)
+            return export_in_subprocess(self.face, source, self.settings, progress=progress,
+                                        cancelled=job.cancelled)
+        except ExportError:
+            raise   # a message for the user (the job class reports it)
         except ExportCancelled:
-            self._finish()
-            self.cancelled.emit()
-        except ExportError as exc:
-            self.error = str(exc)
-            self._finish()
-            self.failed.emit(self.error)
-        except Exception as exc:  # noqa: BLE001 - a bug; the user still gets a message
+            raise
+        except Exception as exc:  # noqa: BLE001 - a bug; the user still gets a sentence, the log the traceback
             traceback.print_exc()
-            self.error = f"The export failed: {type(exc).__name__}: {exc}"
-            self._finish()
-            self.failed.emit(self.error)
-        else:
-            self.result = result
-            self._finish()
-            self.finished.emit(result)
+            raise ExportError(f"The export failed: {type(exc).__name__}: {exc}") from exc
+
+    # ------------------------------------------------------------ results (GUI thread)
+    def _on_progress(self, fraction, _message: str) -> None:
+        total = self.total_frames
+        self.progress.emit(int(round((fraction or 0.0) * total)), total)
 
     def _finish(self) -> None:
-        self._done.set()
+        self._done = True
         _RUNNING.discard(self)
+        _ENDING.add(self)
+        QTimer.singleShot(0, lambda: _ENDING.discard(self))
+
+    def _on_done(self, result: ExportResult) -> None:
+        self.result = result
+        self._finish()
+        self.finished.emit(result)
+
+    def _on_failed(self, message: str) -> None:
+        self.error = message
+        self._finish()
+        self.failed.emit(message)
+
+    def _on_stopped(self, result: ExportResult | None) -> None:
+        if result is not None:   # cancelled as the file was being committed: it is there
+            self._on_done(result)
+            return
+        self._finish()
+        self.cancelled.emit()

@@ -2,7 +2,8 @@
 ----
 Faces in and out of the main window: loading a face file or the built-in face in the background
 (the rig is built there too, so the GUI thread never waits; a newer load supersedes an older one),
-the recent-files menu, Open / Save as / Export screenshot dialogs. Every failure is a message box
+the recent-files menu, Open / Save as / Export screenshot dialogs, and files dropped anywhere on the
+window (opened by what they are: :meth:`FaceFilesMixin.open_path`). Every failure is a message box
 naming the file and what to do; the face shown stays.
 
 A mixin of :class:`app.main_window.MainWindow` (it uses the window's settings, status bar, progress
@@ -17,7 +18,7 @@ from typing import Callable
 
 from PySide6.QtCore import Qt
 from PySide6.QtGui import QAction
-from PySide6.QtWidgets import QApplication, QFileDialog
+from PySide6.QtWidgets import QApplication, QDockWidget, QFileDialog
 
 from app.document import build_rig
 
@@ -133,6 +134,44 @@ class FaceFilesMixin:
         return True
 
     # ------------------------------------------------------------ loading
+    # ------------------------------------------------------------ drag & drop
+    def _take_drops(self) -> None:
+        """Drops anywhere in the window (viewport, any dock) reach :meth:`dropEvent` (through the
+        window's event filter): Qt would otherwise hand them to whichever child happens to accept
+        drops, or to nobody."""
+        for widget in (self.plotter, *self.findChildren(QDockWidget)):
+            if not widget.property("mimicaDrops"):
+                widget.setProperty("mimicaDrops", True)
+                widget.setAcceptDrops(True)
+                widget.installEventFilter(self)
+
+    @staticmethod
+    def _dropped_files(mime) -> list[str]:
+        if not mime.hasUrls():
+            return []
+        return [u.toLocalFile() for u in mime.urls() if u.isLocalFile() and Path(u.toLocalFile()).is_file()]
+
+    def dragEnterEvent(self, event) -> None:  # noqa: N802 - Qt override
+        # Any local file is taken: what it is decides on drop, and a file Mimica cannot open gets a
+        # message there instead of a silent "no entry" cursor.
+        if self._dropped_files(event.mimeData()):
+            event.acceptProposedAction()
+        else:
+            event.ignore()
+
+    def dragMoveEvent(self, event) -> None:  # noqa: N802 - Qt override
+        self.dragEnterEvent(event)
+
+    def dropEvent(self, event) -> None:  # noqa: N802 - Qt override
+        files = self._dropped_files(event.mimeData())
+        if not files:
+            event.ignore()
+            return
+        event.acceptProposedAction()
+        if len(files) > 1:
+            self.statusBar().showMessage(f"Opening the first of {len(files)} dropped files", 5000)
+        self.open_path(files[0])
+
     @property
     def is_loading(self) -> bool:
         return self._loading

@@ -8,12 +8,16 @@ ones by clicking on the surface.
   status chip, detector confidence, x/y/z in mm on the neutral face), Pick /
   Mirror / Names toggles, navigation and confirm buttons, detection and file
   buttons. It only shows state and emits requests; it never edits anything.
-* :class:`app.landmark_editor.LandmarkEditor` — the controller: owns the
-  :class:`core.landmark_editing.LandmarkEditModel` of the current face, the
-  viewport interaction (:mod:`app.picking`), the status-coloured markers, and
-  pushes every edit onto the shared undo stack (:mod:`app.undo`).
+  Built by the main window with the document and the window
+  (``LandmarkDock(document, window)``), it creates its editor and takes its
+  place in the window: right dock area (a tab beside the FAP dock), View ▸
+  Landmark picker and View ▸ Landmark editing.
+* :class:`app.landmark_editor.LandmarkEditor` (``dock.editor``) — the
+  controller over the document's landmark model
+  (:class:`core.landmark_editing.LandmarkEditModel`, ``document.landmarks``):
+  the viewport interaction (:mod:`app.picking`), the status-coloured markers,
+  and every edit pushed onto the document's undo stack (:mod:`app.undo`).
 * :class:`app.landmark_table.LandmarkTableModel` — the list's model.
-* :func:`attach_landmark_editor` (here) — installs all of it in a ``MainWindow``.
 
 What a click does (written in the dock's help line and tooltips):
 
@@ -50,7 +54,7 @@ from app.landmark_editor import LandmarkEditor
 from app.landmark_table import COLUMNS, LandmarkTableModel
 from core.landmark_editing import LandmarkStatus
 
-__all__ = ["LandmarkDock", "LandmarkEditor", "LandmarkTableModel", "attach_landmark_editor", "registration_available"]
+__all__ = ["LandmarkDock", "LandmarkEditor", "LandmarkTableModel", "registration_available"]
 
 HELP_TEXT = ("Select a landmark (list, N/P, or click its marker). Turn on <b>Pick</b> (M) and click the "
              "surface to move it there — or Shift+click without Pick. Dragging always turns the view. "
@@ -71,6 +75,12 @@ def registration_available() -> bool:
 class LandmarkDock(QDockWidget):
     """The landmark list and its buttons (see the module docstring). State comes from the editor.
 
+    Parameters
+    ----------
+    document : app.document.Document
+    window : app.main_window.MainWindow
+        Gives the viewport (plotter, scheduler, face actor), the status bar and the menus.
+
     Signals
     -------
     detect_requested(dict)
@@ -85,8 +95,10 @@ class LandmarkDock(QDockWidget):
     detect_requested = Signal(dict)
     build_requested = Signal()
 
-    def __init__(self, parent: QWidget | None = None):
-        super().__init__("Landmarks", parent)
+    def __init__(self, document, window):
+        super().__init__("Landmarks", window)
+        self.document = document
+        self.main_window = window
         self.setObjectName("landmarkDock")
         self.setAllowedAreas(Qt.DockWidgetArea.LeftDockWidgetArea | Qt.DockWidgetArea.RightDockWidgetArea)
         root = QWidget(self)
@@ -226,6 +238,10 @@ class LandmarkDock(QDockWidget):
         self.detect_button.clicked.connect(lambda: self.detect_requested.emit({}))
         self.build_button.clicked.connect(self.build_requested)
 
+        self.editor = LandmarkEditor(document, self, window.plotter, viewport=window.viewport, parent=self,
+                                     status_callback=lambda text, ms=0: window.statusBar().showMessage(text, ms))
+        self._install(window)
+
     # ------------------------------------------------------------ state shown
     def set_registration_available(self, available: bool) -> None:
         """Enable the matching buttons, or disable them with the reason as tooltip."""
@@ -271,95 +287,68 @@ class LandmarkDock(QDockWidget):
         self.message_label.setVisible(bool(text))
 
 
-# ------------------------------------------------------------------ window integration
-def attach_landmark_editor(window) -> LandmarkEditor:
-    """Add the landmark dock and picking to a :class:`app.main_window.MainWindow`.
-
-    * the dock goes to the right dock area, tabified with the FAP dock (Landmarks tab);
-    * landmark edits go on the document's one undo stack (``window.document.undo_stack``);
-    * ``window.face_changed`` re-targets the editor at the new face;
-    * the editor is active (markers drawn, clicks handled) while the dock is showing; the scene's
-      own landmark markers are hidden meanwhile.
-
-    Returns the editor (also stored as ``window.landmark_editor``; the dock as ``window.landmark_dock``).
-    """
-    stack = window.document.undo_stack
-
-    dock = LandmarkDock(window)
-    window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, dock)
-    fap_dock = window.fap_dock
-    if fap_dock is not None:
-        window.tabifyDockWidget(fap_dock, dock)
-
-    def status(text: str, ms: int = 0) -> None:
-        window.statusBar().showMessage(text, ms)
-
-    editor = LandmarkEditor(window.plotter, dock, stack, status_callback=status, viewport=window.viewport,
-                            parent=window)
-    for act in editor.window_actions:
-        window.addAction(act)
-    window.landmark_editor = editor
-    window.landmark_dock = dock
-
-    toggle = dock.toggleViewAction()
-    toggle.setText("&Landmark picker")
-    toggle.setStatusTip("Show or hide the landmark-correction dock")
-    toggle.setShortcut(QKeySequence("Ctrl+Shift+L"))
-    toggle.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
-    window.addAction(toggle)
-    view_menu = window.view_menu
-    if view_menu is not None:
-        view_menu.addAction(toggle)
-        landmark_menu = view_menu.addMenu("Landmark &editing")
+    # ------------------------------------------------------------ place in the window
+    def _install(self, window) -> None:
+        """Right dock area (tabified with the FAP dock), View menu entries and window shortcuts; the
+        editor follows the document's face and is active (markers drawn, clicks handled) while the
+        dock is showing, the scene's own landmark markers hidden meanwhile."""
+        editor = self.editor
+        window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self)
+        window.tabifyDockWidget(window.fap_dock, self)
+        for act in editor.window_actions:
+            window.addAction(act)
+        toggle = self.toggleViewAction()
+        toggle.setText("&Landmark picker")
+        toggle.setStatusTip("Show or hide the landmark-correction dock")
+        toggle.setShortcut(QKeySequence("Ctrl+Shift+L"))
+        toggle.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
+        window.addAction(toggle)
+        window.view_menu.addAction(toggle)
+        landmark_menu = window.view_menu.addMenu("Landmark &editing")
         for act in editor.window_actions:
             landmark_menu.addAction(act)
-    window.landmark_dock_action = toggle
+        self.toggle_action = toggle
 
-    def hide_scene_landmarks() -> None:
-        actor = window.face_actor
-        if actor is not None and editor.active and actor.landmarks_visible:
+        self.visibilityChanged.connect(self._on_visibility)
+        self.document.face_changed.connect(self._on_face)
+        window.landmarks_action.toggled.connect(lambda _on: self._hide_scene_landmarks())
+        if self.document.face is not None:
+            editor.show_face(window.face_actor)
+        editor.set_active(False)
+        # After the layout exists (a tab raised earlier is ignored): FAPs for an animatable face,
+        # the landmarks for a face that cannot be animated yet.
+        QTimer.singleShot(0, self, self._initial_tab)
+
+    def _hide_scene_landmarks(self) -> None:
+        actor = self.main_window.face_actor
+        if actor is not None and self.editor.active and actor.landmarks_visible:
             actor.set_landmarks_visible(False)
 
-    def show_scene_landmarks() -> None:
-        actor = window.face_actor
-        action = window.landmarks_action
+    def _show_scene_landmarks(self) -> None:
+        actor = self.main_window.face_actor
         if actor is not None:
-            actor.set_landmarks_visible(action is not None and action.isChecked())
+            actor.set_landmarks_visible(self.main_window.landmarks_action.isChecked())
             # The scene's markers were placed before the edits: re-place them from the face.
             actor.update_vertices(np.array(actor.mesh.points))
 
-    def on_visibility(visible: bool) -> None:
-        editor.set_active(visible)
+    def _on_visibility(self, visible: bool) -> None:
+        self.editor.set_active(visible)
         if visible:
-            hide_scene_landmarks()
+            self._hide_scene_landmarks()
         else:
-            show_scene_landmarks()
-        editor.request_render()
+            self._show_scene_landmarks()
+        self.editor.request_render()
 
-    def on_face(face) -> None:
-        editor.set_face(face, window.face_actor)
-        hide_scene_landmarks()
-        if window.document.rig is None and face is not None:
-            dock.raise_()  # nothing to animate: correcting landmarks is what this face needs
+    def _on_face(self, face) -> None:
+        self.editor.show_face(self.main_window.face_actor)
+        self._hide_scene_landmarks()
+        if self.document.rig is None and face is not None:
+            self.raise_()  # nothing to animate: correcting landmarks is what this face needs
 
-    dock.visibilityChanged.connect(on_visibility)
-    window.face_changed.connect(on_face)
-    landmarks_action = window.landmarks_action
-    if landmarks_action is not None:
-        landmarks_action.toggled.connect(lambda _on: hide_scene_landmarks())
-    if window.document.face is not None:
-        editor.set_face(window.face, window.face_actor)
-    editor.set_active(False)
-
-    def initial_tab() -> None:
-        # After the layout exists (a tab raised earlier is ignored): FAPs for an animatable face,
-        # the landmarks for a face that cannot be animated yet.
-        no_rig = window.document.face is not None and window.document.rig is None
-        (dock if no_rig or fap_dock is None else fap_dock).raise_()
-        on_visibility(_dock_showing(dock))
-
-    QTimer.singleShot(0, window, initial_tab)
-    return editor
+    def _initial_tab(self) -> None:
+        no_rig = self.document.face is not None and self.document.rig is None
+        (self if no_rig else self.main_window.fap_dock).raise_()
+        self._on_visibility(_dock_showing(self))
 
 
 def _dock_showing(dock: QDockWidget) -> bool:

@@ -1,6 +1,7 @@
-"""The landmark editor: the picker's markers and labels in the viewport, clicks and hovers on them,
-moving a landmark to the exact surface point clicked, mirror edits, confirm, and their undo steps
-on the document's stack."""
+"""The landmark editor: a controller over the document's landmark model (:class:`app.document.Document`
+``.landmarks``) — the picker's markers and labels in the viewport, clicks and hovers on them, moving
+a landmark to the exact surface point clicked, mirror edits, confirm, files, and their undo steps on
+the document's stack. It keeps no landmark state of its own: it shows and edits the document's."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import traceback
 from pathlib import Path
 
 import numpy as np
-from PySide6.QtCore import QItemSelectionModel, QModelIndex, QObject, QSignalBlocker, Qt, QTimer, Signal
+from PySide6.QtCore import QItemSelectionModel, QModelIndex, QObject, QSignalBlocker, Qt, QTimer
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QAbstractItemView, QFileDialog, QMessageBox
 
@@ -26,27 +27,30 @@ FILE_FILTER = "Landmark files (*.json *.csv);;Mimica landmarks JSON (*.json);;CS
 
 # ------------------------------------------------------------------ the controller
 class LandmarkEditor(QObject):
-    """Landmark correction on a plotter: model, markers, picking, undo (see the module docstring).
+    """Landmark correction of the document's face on a plotter: markers, picking, undo (see the
+    module docstring).
 
     Parameters
     ----------
-    plotter : pyvistaqt.QtInteractor
+    document : app.document.Document
+        Its ``landmarks`` are edited, its ``undo_stack`` gets the steps.
     dock : LandmarkDock
-    stack : QUndoStack
+    plotter : pyvistaqt.QtInteractor
     status_callback : callable(str, int ms) or None
         Where short messages go (the window's status bar).
+
+    ``model`` and ``face`` are the document's landmark model and face as last shown
+    (:meth:`show_face`): between the document taking a new face and the viewport showing it,
+    the markers keep following the face on screen.
     """
 
-    #: The landmark set changed (any edit, undo, load): the rig/registration may want to know.
-    landmarks_changed = Signal()
-
-    def __init__(self, plotter, dock, stack, *, status_callback=None, viewport=None,
+    def __init__(self, document, dock, plotter, *, status_callback=None, viewport=None,
                  parent: QObject | None = None):
         super().__init__(parent)
+        self.document = document
         self.plotter = plotter
         self.viewport = viewport
         self.dock = dock
-        self.stack = stack
         self._status = status_callback or (lambda _text, _ms=0: None)
         self.model: LandmarkEditModel | None = None
         self.face = None
@@ -78,7 +82,14 @@ class LandmarkEditor(QObject):
         dock.rerun_button.clicked.connect(self._rerun)
         dock.load_button.clicked.connect(self.load_dialog)
         dock.save_button.clicked.connect(self.save_dialog)
+        document.landmarks_changed.connect(self._model_changed)
+        document.landmark_selected.connect(self._selection_changed)
         self._create_actions()
+
+    @property
+    def stack(self):
+        """The document's undo stack (every edit is a step there)."""
+        return self.document.undo_stack
 
     # ------------------------------------------------------------ actions
     def _create_actions(self) -> None:
@@ -114,20 +125,13 @@ class LandmarkEditor(QObject):
             self.local_actions += [enter, escape]
 
     # ------------------------------------------------------------ face
-    def set_face(self, face, face_actor=None) -> None:
-        """Edit ``face``'s landmarks; ``face_actor`` (app.scene.FaceActor: ``.actor``, ``.mesh``) is what
-        the user sees and clicks. Clears the undo stack (its commands belong to the old face)."""
-        if self.model is not None:
-            with contextlib.suppress(ValueError, RuntimeError, TypeError):
-                self.model.changed.disconnect(self._model_changed)
-                self.model.selection_changed.disconnect(self._selection_changed)
-        self.stack.clear()
+    def show_face(self, face_actor=None) -> None:
+        """Follow the document's face and landmark model, shown by ``face_actor`` (app.scene.FaceActor:
+        ``.actor``, ``.mesh``: what the user sees and clicks)."""
+        face = self.document.face
         self.face, self.face_actor = face, face_actor
         self._hovered = None
-        self.model = LandmarkEditModel(face) if face is not None else None
-        if self.model is not None:
-            self.model.changed.connect(self._model_changed)
-            self.model.selection_changed.connect(self._selection_changed)
+        self.model = self.document.landmarks
         self.picker = None
         if face_actor is not None and face is not None:
             self.picker = picking.SurfacePicker(face_actor.actor, face_actor.mesh, face.triangles)
@@ -171,6 +175,8 @@ class LandmarkEditor(QObject):
             self.select(name)
 
     def _selection_changed(self, name) -> None:
+        if self.document.landmarks is not self.model:
+            return  # the document's next face, not shown yet (show_face syncs everything)
         table = self.dock.table
         row = self.dock.table_model.row_of(name)
         with QSignalBlocker(table.selectionModel()):
@@ -235,15 +241,7 @@ class LandmarkEditor(QObject):
 
     def apply_detection(self, points: dict, confidence: dict | None = None) -> list[str]:
         """Put a detector's result in (auto landmarks replaced, yours kept) as one undo step."""
-        model = self.model
-        if model is None:
-            return []
-        before = model.snapshot()
-        changed = model.apply_detection(points, confidence)
-        if changed:
-            self.stack.push(LandmarkSetCommand.from_snapshots(model, "detect landmarks", before, model.snapshot(),
-                                                              applied=True))
-        return changed
+        return self.document.apply_landmark_detection(points, confidence)
 
     def _typed_position(self, name: str, xyz) -> None:
         if self.model is None or self.face is None:
@@ -334,6 +332,8 @@ class LandmarkEditor(QObject):
 
     # ------------------------------------------------------------ model -> views
     def _model_changed(self, name: str) -> None:
+        if self.document.landmarks is not self.model:
+            return  # the document's next face, not shown yet
         self.dock.table_model.refresh(name)
         if not name and self.model is not None:
             self.markers.set_names(self.model.names, face_height_mm=self._face_height())
@@ -341,7 +341,6 @@ class LandmarkEditor(QObject):
         self._update_counts()
         self._update_markers(force=True)
         self.request_render()
-        self.landmarks_changed.emit()
 
     def _sync_all(self) -> None:
         self._selection_changed(self.model.selected if self.model is not None else None)

@@ -3,11 +3,14 @@
 The Mimica main window: a pyvistaqt viewport showing one :class:`core.face.Face`, the docks, the
 menus, a status bar and persisted settings.
 
-Its state lives in ``window.document`` (:mod:`app.document`: face, rig with its layers, the one undo
-stack and the rig recorder); ``window.face``, ``window.rig``, ``window.undo_stack`` read it. The
-window's other parts each have their module:
+Its state lives in ``window.document`` (:mod:`app.document`: face, rig with its layers, landmark
+model, timeline, the one undo stack, the rig recorder and the project path); ``window.face``,
+``window.rig``, ``window.undo_stack``, ``window.timeline`` read it. The window builds the document
+first, then the docks, each constructed with the document (and the window, where it adds its
+actions and menus). The window's other parts each have their module:
 
-* :mod:`app.face_files`  loading faces in the background (:mod:`app.jobs`), recent files, Open/Save
+* :mod:`app.face_files`  loading faces in the background (:mod:`app.jobs`), recent files, Open/Save,
+  drag and drop
 * :mod:`app.face_view`   what the viewport shows of the face (pose, overlays), view modes, cameras
 * :mod:`app.viewport`    one scheduler: ``rig.changed`` only requests ``"mesh"``; one 0 ms timer
   pulls ``rig.vertices()`` once, writes it into the actor in place and renders once, so a burst of
@@ -30,7 +33,6 @@ from PySide6.QtWidgets import (
     QAbstractSpinBox,
     QApplication,
     QDialog,
-    QDockWidget,
     QLabel,
     QLineEdit,
     QMainWindow,
@@ -84,6 +86,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         from app.document import Document
 
         self.document = Document(self)
+        self.document.face_changed.connect(self.face_changed)   # the window's signal follows the document's
         self.face_actor = None
         self._mode = "textured"
         self._closing = False
@@ -132,8 +135,8 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self._create_docks()
         self._create_menus()
         self._create_status_bar()
-        if tools:  # tests of one dock attach it alone (tools=False)
-            self._attach_tools()
+        if tools:  # tests of one dock build it alone (tools=False)
+            self._create_tool_docks()
         self._restore_window_state()
         self._take_drops()
 
@@ -401,7 +404,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self._update_status_labels()
         self.set_camera_view("front")
         self._start_preview(face)
-        self.face_changed.emit(face)
+        self.document.announce_face()   # face_changed, now that the viewport shows it
 
     # ------------------------------------------------------------ animation
     def _disconnect_rig(self) -> None:
@@ -425,15 +428,6 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
             self.statusBar().clearMessage()
         self.viewport.request("overlay")
 
-    def _take_drops(self) -> None:
-        """Drops anywhere in the window (viewport, any dock) reach :meth:`dropEvent`: Qt would
-        otherwise hand them to whichever child happens to accept drops, or to nobody."""
-        for widget in (self.plotter, *self.findChildren(QDockWidget)):
-            if not widget.property("mimicaDrops"):
-                widget.setProperty("mimicaDrops", True)
-                widget.setAcceptDrops(True)
-                widget.installEventFilter(self)
-
     def eventFilter(self, watched, event) -> bool:  # noqa: N802 - Qt override
         kind = event.type()
         if kind in (QEvent.Type.DragEnter, QEvent.Type.DragMove, QEvent.Type.Drop) and watched.property("mimicaDrops"):
@@ -449,7 +443,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
                 self.plotter.setFocus(Qt.FocusReason.MouseFocusReason)
         return super().eventFilter(watched, event)
 
-    # The document's state, read through the window by the docks' older code paths.
+    # The document's state, read through the window (the window's own parts and scripts).
     face = property(lambda self: self.document.face)
     face_path = property(lambda self: self.document.face_path,
                          lambda self, path: setattr(self.document, "face_path", path))
@@ -457,6 +451,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
     rig_message = property(lambda self: self.document.rig_message)
     undo_stack = property(lambda self: self.document.undo_stack)
     rig_edits = property(lambda self: self.document.rig_edits)
+    timeline = property(lambda self: self.document.timeline)   # TimelineController, once its dock exists
 
     @property
     def muscle_layer(self):
@@ -478,20 +473,20 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
             self.timeline.play()
             self.statusBar().showMessage("Playing the Mimica demo (Space pauses).", 8000)
 
-    # ------------------------------------------------------------ tools (landmarks, muscles, timeline)
-    def _attach_tools(self) -> None:
-        """Docks that live in their own modules attach themselves (menus and signals included)."""
-        from app.landmark_dock import attach_landmark_editor
-
+    # ------------------------------------------------------------ tool docks (landmarks, muscles, timeline)
+    def _create_tool_docks(self) -> None:
+        """The docks of their own modules, each built with the document (and this window, where it
+        adds its dock, actions and menus)."""
+        from app.landmark_dock import LandmarkDock
         from app.muscle_dock import attach_muscle_dock
+        from app.timeline_dock import TimelineDock
 
-        self.landmark_editor = attach_landmark_editor(self)
-        self.muscle_dock = attach_muscle_dock(self)  # after the landmark editor: it uses window.undo_stack
-        from app.timeline_dock import attach_timeline
-
-        attach_timeline(self)  # sets self.timeline; reuses the undo stack and Edit menu
+        self.landmark_dock = LandmarkDock(self.document, self)
+        self.landmark_editor = self.landmark_dock.editor
+        self.muscle_dock = attach_muscle_dock(self)
+        self.timeline_dock = TimelineDock(self.document, self)   # registers document.timeline / .project
         # The timeline starts tall enough to show a few tracks.
-        self.resizeDocks([self.timeline.dock], [260], Qt.Orientation.Vertical)
+        self.resizeDocks([self.timeline_dock], [260], Qt.Orientation.Vertical)
         self.landmark_dock.detect_requested.connect(self.detect_landmarks)
         self.landmark_dock.build_requested.connect(self.build_correspondence)
 
@@ -535,34 +530,6 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
     def last_tick_ms(self) -> tuple[float, float] | None:
         """(compute ms, draw ms) of the last viewport update that moved the face."""
         return self.viewport.last_tick_ms
-
-    # ------------------------------------------------------------ drag & drop
-    @staticmethod
-    def _dropped_files(mime) -> list[str]:
-        if not mime.hasUrls():
-            return []
-        return [u.toLocalFile() for u in mime.urls() if u.isLocalFile() and Path(u.toLocalFile()).is_file()]
-
-    def dragEnterEvent(self, event) -> None:  # noqa: N802 - Qt override
-        # Any local file is taken: what it is decides on drop, and a file Mimica cannot open gets a
-        # message there instead of a silent "no entry" cursor.
-        if self._dropped_files(event.mimeData()):
-            event.acceptProposedAction()
-        else:
-            event.ignore()
-
-    def dragMoveEvent(self, event) -> None:  # noqa: N802 - Qt override
-        self.dragEnterEvent(event)
-
-    def dropEvent(self, event) -> None:  # noqa: N802 - Qt override
-        files = self._dropped_files(event.mimeData())
-        if not files:
-            event.ignore()
-            return
-        event.acceptProposedAction()
-        if len(files) > 1:
-            self.statusBar().showMessage(f"Opening the first of {len(files)} dropped files", 5000)
-        self.open_path(files[0])
 
     # ------------------------------------------------------------ help
     def about_text(self) -> str:

@@ -33,7 +33,6 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
-import threading
 import traceback
 from pathlib import Path
 
@@ -44,6 +43,7 @@ from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox
 
 from core.formats import project as cp
 from core.timeline import Timeline
+from app.jobs import JobRunner
 from app.project_recovery import ProjectRecoveryMixin
 
 AUTOSAVE_MS = 3 * 60 * 1000
@@ -58,26 +58,23 @@ def default_state_dir(window) -> Path:
     return cp.default_state_dir()
 
 
-class _Relay(QObject):
-    opened = Signal(int, object)  # generation, (face, rig, rig message, notes)
-    failed = Signal(int, str)
-
-
 class ProjectActions(ProjectRecoveryMixin, QObject):
-    """The project side of a MainWindow with a :class:`~app.timeline_controller.TimelineController`.
+    """The project of a :class:`app.document.Document` with its
+    :class:`~app.timeline_controller.TimelineController`, in a MainWindow (menus, view, status bar).
 
-    Attributes: ``path`` (Path or None = untitled), ``new_action``, ``open_action``, ``save_action``,
-    ``save_as_action``, ``autosave_timer``, ``ask_on_close``.
+    Attributes: ``path`` (the document's ``project_path``: Path or None = untitled), ``new_action``,
+    ``open_action``, ``save_action``, ``save_as_action``, ``autosave_timer``, ``ask_on_close``.
     """
 
     project_opened = Signal(object)  # Path or None
 
-    def __init__(self, window, controller, *, state_dir=None, autosave_ms: int = AUTOSAVE_MS):
+    def __init__(self, document, window, controller, *, state_dir=None, autosave_ms: int = AUTOSAVE_MS):
         super().__init__(window)
+        self.document = document
         self.window = window
         self.c = controller
-        self.stack = controller.undo_stack
-        self.path: Path | None = None
+        self.stack = document.undo_stack
+        self.path = None
         self.state_dir = Path(state_dir) if state_dir is not None else default_state_dir(window)
         self.untitled_id = f"untitled-{os.getpid()}-{next(_UNTITLED)}"
         self.ask_on_close = False
@@ -85,19 +82,17 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         self._autosaved = None  # (stack index, dirty) at the last autosave
         self._face_ref: tuple | None = None  # (id(face), FaceRef) of a face loaded from / embedded for a project
         self._applying_face = False
-        self._generation = 0
-        self._relay = _Relay(self)
-        self._relay.opened.connect(self._on_face_opened)
-        self._relay.failed.connect(self._on_face_failed)
+        # An opened project's face loads (with its rig) in the background; a newer open supersedes it.
+        self._loads = JobRunner(self, supersede=True)
         self._pending: tuple | None = None
         self._pending_values: dict[str, float] = {}  # opened values of layers not built yet
         self._closed = False
-        self._had_face = window.document.face is not None
+        self._had_face = document.face is not None
 
         self._create_actions()
         self.stack.cleanChanged.connect(self._on_stack_changed)
         self.stack.indexChanged.connect(self._on_stack_changed)
-        window.face_changed.connect(self._on_face_changed)
+        document.face_changed.connect(self._on_face_changed)
         self.autosave_timer = QTimer(self)
         self.autosave_timer.setInterval(int(autosave_ms))
         self.autosave_timer.timeout.connect(self.autosave_if_needed)
@@ -143,6 +138,15 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
 
     # ------------------------------------------------------------ state
     @property
+    def path(self) -> Path | None:
+        """The open project's file (None: untitled); kept by the document."""
+        return self.document.project_path
+
+    @path.setter
+    def path(self, path) -> None:
+        self.document.project_path = Path(path) if path is not None else None
+
+    @property
     def is_modified(self) -> bool:
         return self._dirty or not self.stack.isClean()
 
@@ -157,7 +161,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         w = self.window
         if self._closed or not shiboken6.isValid(w):
             return  # the stack emits while the window is being destroyed
-        face = getattr(w, "face", None)
+        face = self.document.face
         face_name = f" — {face.metadata.name}" if face is not None else ""
         w.setWindowTitle(f"{self.name}[*]{face_name} — Mimica")
         w.setWindowModified(self.is_modified)
@@ -166,7 +170,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         # The first face of a session (the start-up load) is not an edit; replacing it is.
         if not self._applying_face and self._had_face:
             self._dirty = True
-        self._had_face = self.window.document.face is not None
+        self._had_face = self.document.face is not None
         self.update_title()
 
     def _mark_clean(self) -> None:
@@ -177,12 +181,12 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
     # ------------------------------------------------------------ project <-> window
     def _face_ref_for(self, target: Path):
         """How to reference the shown face from a project written at ``target``."""
-        face = self.window.face
+        face = self.document.face
         if getattr(face.metadata, "source", None) == "built-in":
             return cp.FaceRef.default_face()
         if self._face_ref is not None and self._face_ref[0] == id(face) and Path(self._face_ref[1].path).is_file():
             return self._face_ref[1]
-        source = self.window.document.face_path
+        source = self.document.face_path
         if source and Path(source).is_file():
             ref = cp.FaceRef.for_file(source)
         else:
@@ -192,14 +196,14 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
 
     def current_project(self, target: Path | None = None) -> cp.Project:
         """The open project as a :class:`core.formats.project.Project` (``target``: where it will be written)."""
-        w = self.window
-        if w.face is None:
+        doc = self.document
+        if doc.face is None:
             raise cp.ProjectError("there is no face to save yet; wait until it is loaded")
         target = Path(target) if target is not None else (self.path or cp.autosave_path(
             None, untitled_id=self.untitled_id, state_dir=self.state_dir))
-        project = cp.Project.from_state(w.face, self._face_ref_for(target), w.rig, self.c.timeline,
+        project = cp.Project.from_state(doc.face, self._face_ref_for(target), doc.rig, self.c.timeline,
                                         speech=self.c.speech, view=self.view_state())
-        if self._pending_values and w.rig is not None:   # opened, but their layer is still being built
+        if self._pending_values and doc.rig is not None:   # opened, but their layer is still being built
             project.rig.values.update(self._pending_values)
         return project
 
@@ -286,7 +290,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         if not self._maybe_save("starting a new project"):
             return False
         self._discard_own_autosave()
-        rig = self.window.rig
+        rig = self.document.rig
         if rig is not None:
             with self.c._not_recorded():  # noqa: SLF001 - the controller's own guard
                 rig.reset_faps()
@@ -329,15 +333,15 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         return self._apply_project(project, path, offer_recovery=True)
 
     def _same_face(self, project: cp.Project) -> bool:
-        face = self.window.face
-        if face is None or self.window.rig is None:
+        face = self.document.face
+        if face is None or self.document.rig is None:
             return False
         ref = project.face
         if ref.builtin is not None:
             same = getattr(face.metadata, "source", None) == "built-in"
         else:
             known = self._face_ref[1] if self._face_ref is not None and self._face_ref[0] == id(face) else None
-            shown = self.window.document.face_path
+            shown = self.document.face_path
             same = ((known is not None and known.path is not None and Path(known.path) == Path(ref.path)
                      and known.sha256 == ref.sha256)
                     or (shown is not None and Path(shown).is_file() and Path(shown).resolve() == Path(ref.path)
@@ -351,36 +355,24 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         if self._same_face(project):
             self._finish_open(project, path, [], dirty=dirty, offer_recovery=offer_recovery)
             return True
-        # Another face: load it and build its rig off the GUI thread, then finish on it.
-        self._generation += 1
-        generation = self._generation
+        # Another face: load it and build its rig off the GUI thread (app.jobs: a ProjectError is a
+        # message, a newer open wins), then finish on it.
         self._pending = (project, path, dirty, offer_recovery)
-        status = self.window.statusBar
-        if status is not None:
-            self.window.statusBar().showMessage("Opening the project: loading its face and preparing the rig…")
-        relay = self._relay
+        self.window.statusBar().showMessage("Opening the project: loading its face and preparing the rig…")
 
-        def work():
+        def work(_job):
+            from app.document import build_rig
+
             notes: list[str] = []
-            try:
-                face = cp.open_face(project, notes)
-                from app.document import build_rig
+            face = cp.open_face(project, notes)
+            rig, message = build_rig(face)
+            return face, rig, message, notes
 
-                rig, message = build_rig(face)
-            except cp.ProjectError as exc:
-                relay.failed.emit(generation, str(exc))
-                return
-            except Exception as exc:  # noqa: BLE001 - becomes a message box
-                traceback.print_exc()
-                relay.failed.emit(generation, f"{type(exc).__name__}: {exc}")
-                return
-            relay.opened.emit(generation, (face, rig, message, notes))
-
-        threading.Thread(target=work, name="mimica-open-project", daemon=True).start()
+        self._loads.start(work, self._on_face_opened, self._on_face_failed)
         return False
 
-    def _on_face_opened(self, generation: int, result) -> None:
-        if generation != self._generation or self._pending is None:
+    def _on_face_opened(self, result) -> None:
+        if self._pending is None or self._closed:
             return
         project, path, dirty, offer = self._pending
         self._pending = None
@@ -397,7 +389,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
 
     def _apply_pending_values(self, _change=None) -> None:
         """A layer joined the rig (the muscles, built in the background): give it the opened values."""
-        rig = self.window.rig
+        rig = self.document.rig
         if rig is None or not self._pending_values:
             return
         ready = {k: v for k, v in self._pending_values.items() if k in set(rig.parameters())}
@@ -413,9 +405,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             except ValueError as exc:
                 self._warn("Some rig values could not be restored", str(exc))
 
-    def _on_face_failed(self, generation: int, message: str) -> None:
-        if generation != self._generation:
-            return
+    def _on_face_failed(self, message: str) -> None:
         name = self._pending[1].name if self._pending is not None and self._pending[1] is not None else "the project"
         self._pending = None
         self._warn(f"Could not open {name}", message)
@@ -429,7 +419,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             time = float(tview["time"])
         c._set_speech(list(project.speech))  # noqa: SLF001
         c.set_timeline(project.timeline, time=time)
-        rig = w.rig
+        rig = self.document.rig
         self._pending_values = {}
         if rig is not None:
             with c._not_recorded():  # noqa: SLF001
@@ -471,8 +461,9 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         w = self.window
         folder = str(w.settings.value("projectDirectory", str(Path.home()))) if hasattr(w, "settings") \
             else str(Path.home())
+        face = self.document.face
         name = self.path.name if self.path is not None else (
-            f"{w.face.metadata.name}{cp.SUFFIX}" if w.face is not None else f"untitled{cp.SUFFIX}")
+            f"{face.metadata.name}{cp.SUFFIX}" if face is not None else f"untitled{cp.SUFFIX}")
         path, _ = QFileDialog.getSaveFileName(w, "Save project as", str(Path(folder) / name), PROJECT_FILTER)
         if not path:
             return False
@@ -533,6 +524,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
                 return True
             self.autosave_timer.stop()
             self.c.pause()
+            self._loads.cancel()   # a project's face still loading is not shown any more
             self._closed = True
             if self.is_modified:
                 self.autosave_now()  # offered at the next start

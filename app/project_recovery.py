@@ -46,7 +46,7 @@ class ProjectRecoveryMixin:
 
     def autosave_now(self) -> Path | None:
         """Write the autosave now (whatever the modified state); None if there is nothing to save."""
-        if self.window.face is None:
+        if self.document.face is None:
             return None
         try:
             target = self.autosave_path()

@@ -5,8 +5,8 @@ MPEG-4 landmarks, build the dense correspondence (the canonical face), scale a f
 units, load or flip its texture image, rebuild the rig from corrected landmarks. Slow steps run in
 the background (``MainWindow.run_job`` / the window's loader); every failure is a message box.
 
-A mixin of :class:`app.main_window.MainWindow`: it uses the window's face, loader, status bar and
-landmark editor.
+A mixin of :class:`app.main_window.MainWindow`: it uses the window's document (face, landmark
+model), loader and status bar.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ class ScanToolsMixin:
             if detection.scale_hint and self._accept_scale_hint(detection.scale_hint):
                 self._rescale_with_detection(detection)
                 return
-            self.landmark_editor.apply_detection(detection.landmarks, detection.confidence)
+            self.document.apply_landmark_detection(detection.landmarks, detection.confidence)
             self._report_detection(detection)
 
         what = "Re-running matching with your edits fixed…" if fixed else "Detecting landmarks…"
@@ -63,7 +63,7 @@ class ScanToolsMixin:
         def reapply(ok: bool) -> None:
             self.load_finished.disconnect(reapply)
             if ok:
-                self.landmark_editor.apply_detection(detection.landmarks, detection.confidence)
+                self.document.apply_landmark_detection(detection.landmarks, detection.confidence)
                 self._report_detection(detection)
 
         self.load_finished.connect(reapply)

@@ -1,17 +1,18 @@
 """timeline_controller.py
 ----
-Ties a :class:`core.timeline.Timeline` to the window's rig, a playback clock and the undo stack.
+Ties a :class:`core.timeline.Timeline` to the document's rig (:class:`app.document.Document`), a
+playback clock and the document's undo stack.
 No widgets here: :mod:`app.timeline_dock` draws it, :mod:`app.project_actions` saves it; its undo
 commands are in :mod:`app.timeline_commands`, its imports, exports and speech in :mod:`app.timeline_io`.
 
 * **Posing.** :meth:`TimelineController.seek` evaluates the timeline at t and applies it to the rig
-  (``core.timeline.apply_to_rig``; the muscle layer through ``MuscleSimulationCache`` when the window
-  has ``muscle_layer``). Everything one time step changes reaches the rig with ``rig.changed``
+  (``core.timeline.apply_to_rig``; the muscle layer through ``MuscleSimulationCache`` when the rig
+  has one). Everything one time step changes reaches the rig with ``rig.changed``
   blocked and is announced by one ``rig.touch()``, so the viewport redraws once per step. FAP tracks
   the rig cannot animate (a face without eyeballs has no gaze) are skipped, not an error.
-  Posing is never recorded as an undo step (the window's ``UndoableRigEdits`` is suspended).
+  Posing is never recorded as an undo step (the document's ``UndoableRigEdits`` is suspended).
 * **Edits.** Every change of the timeline (keys, interpolation, settings, lip-sync) is a
-  :class:`TimelineEditCommand` on the window's one ``QUndoStack``; it holds the ``core.timeline.Edit``
+  :class:`TimelineEditCommand` on the document's one ``QUndoStack``; it holds the ``core.timeline.Edit``
   (whole tracks before/after) and undoes with ``edit.inverse()``. After an edit the rig is posed
   again for the tracks that edit touched (other tracks keep what the user did to the rig).
 * **Set key** (button, K) keys the *selected controls* at the cursor, with the rig's current values:
@@ -21,7 +22,7 @@ commands are in :mod:`app.timeline_commands`, its imports, exports and speech in
   parameters too makes a slider returned to 0 get a 0 key instead of silently holding its old key.
 * **Auto-key**: while it is on and nothing plays, every user change of the rig (FAP dock sliders,
   presets) keys the parameters that changed at the cursor. The rig change and its keys are one undo
-  step (merged per gesture, so a slider drag is one step); the window's rig recorder is paused
+  step (merged per gesture, so a slider drag is one step); the document's rig recorder is paused
   meanwhile so the change is not recorded twice.
 * **Playback** keeps wall-clock time: a ``QTimer`` ticks about once per frame, the time shown is
   ``start + elapsed × speed`` from a ``QElapsedTimer``, snapped to the frame grid; frames that are
@@ -62,13 +63,13 @@ FPS_WINDOW_S = 1.0  # achieved fps = frames shown during the last second
 
 # ------------------------------------------------------------------ controller
 class TimelineController(TimelineIO, QObject):
-    """The timeline of the window's project, its cursor and playback.
+    """The timeline of the document's project, its cursor and playback.
 
     Parameters
     ----------
-    window : MainWindow (or any object with ``rig``, ``face_changed`` and optionally ``muscle_layer``,
-        ``rig_edits``, ``statusBar()``)
-    undo_stack : QUndoStack
+    document : app.document.Document
+        Its rig is posed (followed through ``face_changed``), its ``rig_edits`` paused while the
+        timeline poses, its ``undo_stack`` gets the edits.
     timeline : Timeline, optional (a 10 s, 30 fps one by default)
 
     Signals
@@ -93,10 +94,10 @@ class TimelineController(TimelineIO, QObject):
     speech_changed = Signal()
     rig_values_changed = Signal()  # the user changed the rig (not the timeline posing it)
 
-    def __init__(self, window, undo_stack, timeline: Timeline | None = None, parent: QObject | None = None):
-        super().__init__(parent if parent is not None else window)
-        self.window = window
-        self.undo_stack = undo_stack
+    def __init__(self, document, timeline: Timeline | None = None, parent: QObject | None = None):
+        super().__init__(parent if parent is not None else document)
+        self.document = document
+        self.undo_stack = document.undo_stack
         self.timeline: Timeline = timeline if timeline is not None else Timeline()
         self.timeline.changed.connect(self._on_timeline_changed)
         self.current_time = 0.0
@@ -125,10 +126,8 @@ class TimelineController(TimelineIO, QObject):
         self._frame_stamps: collections.deque = collections.deque()
         self.achieved_fps = 0.0
         self.frames_shown = 0
-        face_changed = window.face_changed
-        if face_changed is not None:
-            face_changed.connect(self._on_face_changed)
-        self.set_rig(window.document.rig)
+        document.face_changed.connect(self._on_face_changed)
+        self.set_rig(document.rig)
 
     # ------------------------------------------------------------ wiring
     @property
@@ -136,7 +135,7 @@ class TimelineController(TimelineIO, QObject):
         return self._rig
 
     def set_rig(self, rig) -> None:
-        """Follow ``rig`` (the window's, after a face change) and pose it at the cursor."""
+        """Follow ``rig`` (the document's, after a face change) and pose it at the cursor."""
         if self._rig is not None:
             with contextlib.suppress(ValueError, RuntimeError, TypeError):
                 self._rig.parameters_changed.disconnect(self._on_rig_changed)
@@ -147,7 +146,7 @@ class TimelineController(TimelineIO, QObject):
             self.apply_time(self.current_time)
 
     def _on_face_changed(self, _face=None) -> None:
-        self.set_rig(self.window.document.rig)
+        self.set_rig(self.document.rig)
 
     def set_timeline(self, timeline: Timeline, *, time: float = 0.0) -> None:
         """Replace the timeline (new / opened project): stops playback, clears selections."""
@@ -164,31 +163,16 @@ class TimelineController(TimelineIO, QObject):
         self.selection_changed.emit()
         self.seek(time)
 
-    def _rig_recorder(self):
-        """The window's UndoableRigEdits (None if it has none)."""
-        rec = self.window.document.rig_edits
-        if rec is not None:
-            return rec
-        try:
-            from app.undo import UndoableRigEdits
-
-            found = self.window.findChildren(UndoableRigEdits)
-        except Exception:  # noqa: BLE001 - not a QObject window (tests with stand-ins)
-            return None
-        return found[0] if found else None
-
     @contextlib.contextmanager
     def _not_recorded(self):
         """Rig changes inside are the timeline's doing: no undo step, no auto-key."""
-        rec = self._rig_recorder()
+        rec = self.document.rig_edits
         self._applying += 1
-        if rec is not None:
-            rec.pause()
+        rec.pause()
         try:
             yield
         finally:
-            if rec is not None:
-                rec.resume()
+            rec.resume()
             self._applying -= 1
 
     # ------------------------------------------------------------ muscle layer
@@ -459,8 +443,8 @@ class TimelineController(TimelineIO, QObject):
         if on == self._auto_key:
             return
         self._auto_key = on
-        rec = self._rig_recorder()
-        if on and rec is not None:
+        rec = self.document.rig_edits
+        if on:
             rec.pause()
             self._auto_key_paused_recorder = rec
         elif not on and self._auto_key_paused_recorder is not None:

@@ -1,9 +1,11 @@
 """timeline_dock.py
 ----
 The timeline dock (bottom of the window): transport bar and a custom-painted track view over a
-:class:`app.timeline_controller.TimelineController`, plus :func:`attach_timeline`, which wires the
-dock, the project actions, the Edit / View / Tools menu items and the face changes into a
-:class:`app.main_window.MainWindow`.
+:class:`app.timeline_controller.TimelineController`. Built by the main window with the document and
+the window (``TimelineDock(document, window)``), it creates the controller over the document
+(``dock.controller``, registered as ``document.timeline``) and the project actions
+(:class:`app.project_actions.ProjectActions`, ``document.project``), and adds the File / Edit /
+View / Tools menu items to the window.
 
 Track view (:class:`TrackView`)
     Rows are grouped like the docks: the FAP dock's groups (``core.layers.fap.tables.DOCK_GROUPS``), then
@@ -44,12 +46,28 @@ from app.timeline_view import (  # noqa: F401 - re-exported
 
 # ------------------------------------------------------------------ the dock
 class TimelineDock(QDockWidget):
-    """Transport bar + :class:`TrackView` for a :class:`TimelineController`."""
+    """Transport bar + :class:`TrackView` for the document's :class:`TimelineController`.
 
-    def __init__(self, controller: TimelineController, parent: QWidget | None = None):
-        super().__init__("Timeline", parent)
+    Parameters
+    ----------
+    document : app.document.Document
+    window : app.main_window.MainWindow
+        Gets the dock (bottom), the menu items and the window shortcuts; parent of the dialogs.
+    state_dir : where untitled projects autosave (default: ``autosave/`` beside the window's settings file).
+    check_recovery : offer to recover an autosave left by a Mimica that did not close (after the face loads).
+    autosave_ms : autosave interval (default :data:`app.project_actions.AUTOSAVE_MS`).
+    """
+
+    def __init__(self, document, window, *, state_dir=None, check_recovery: bool = True,
+                 autosave_ms: int | None = None):
+        super().__init__("Timeline", window)
         self.setObjectName("timelineDock")
-        self.c = controller
+        self.document = document
+        self.main_window = window
+        self.lipsync_dialog = None
+        controller = TimelineController(document)
+        controller.dock = self
+        self.c = self.controller = controller
         self.setAllowedAreas(Qt.DockWidgetArea.BottomDockWidgetArea | Qt.DockWidgetArea.TopDockWidgetArea)
         body = QWidget(self)
         outer = QVBoxLayout(body)
@@ -176,6 +194,7 @@ class TimelineDock(QDockWidget):
         controller.fps_measured.connect(lambda f: self.fps_label.setText(f"shown {f:.1f} fps"))
         self.view.rows_changed.connect(self._place_empty_label)
         self.sync()
+        self._install(window, state_dir=state_dir, check_recovery=check_recovery, autosave_ms=autosave_ms)
 
     # ------------------------------------------------------------ sync
     def sync(self) -> None:
@@ -231,8 +250,143 @@ class TimelineDock(QDockWidget):
             self.view.fit()
         self.sync()
 
+    # ------------------------------------------------------------ place in the window
+    def _install(self, window, *, state_dir, check_recovery: bool, autosave_ms: int | None) -> None:
+        """The dock at the bottom, File ▸ project / import / export actions, Edit ▸ key actions,
+        View ▸ Timeline / playback, Tools ▸ Lip-sync; the project actions; ``controller.actions``."""
+        from app.project_actions import AUTOSAVE_MS, ProjectActions
 
-# ------------------------------------------------------------------ wiring into the window
+        c = self.controller
+        window.addDockWidget(Qt.DockWidgetArea.BottomDockWidgetArea, self)
+        self.show()
+        self.raise_()
+        window.resizeDocks([self], [300], Qt.Orientation.Vertical)
+        c.message.connect(lambda text: window.statusBar().showMessage(text, 8000))
+
+        acts = {}
+        acts["set_key"] = _action(window, "Set &key", c.set_key, "K",
+                                  "Key the selected tracks (or every animated / non-neutral control) at the cursor")
+        acts["auto_key"] = _action(window, "&Auto-key", c.set_auto_key, None,
+                                   "Key every slider change at the cursor", checkable=True)
+        acts["copy_keys"] = _action(window, "&Copy keys", c.copy_selected, QKeySequence.StandardKey.Copy,
+                                    "Copy the selected keys")
+        acts["paste_keys"] = _action(window, "&Paste keys", c.paste, QKeySequence.StandardKey.Paste,
+                                     "Paste the copied keys at the cursor")
+        acts["delete_keys"] = _action(window, "&Delete keys", c.delete_selected, QKeySequence.StandardKey.Delete,
+                                      "Delete the selected keys")
+        acts["select_all_keys"] = _action(window, "Select all &keys", c.select_all_keys, None,
+                                          "Select every key of every track")
+        acts["play"] = _action(window, "&Play / pause", c.toggle_play, "Space", "Play or pause the timeline")
+        acts["stop"] = _action(window, "&Stop", c.stop, None, "Pause and go back to the start")
+        acts["loop"] = _action(window, "&Loop playback", lambda on: (setattr(c, "loop", bool(on)), self.sync()),
+                               None, "Start again at the end", checkable=True)
+        c.auto_key_changed.connect(lambda on: (acts["auto_key"].blockSignals(True), acts["auto_key"].setChecked(on),
+                                               acts["auto_key"].blockSignals(False)))
+        self.loop_check.toggled.connect(lambda on: (acts["loop"].blockSignals(True), acts["loop"].setChecked(on),
+                                                    acts["loop"].blockSignals(False)))
+        c.playing_changed.connect(lambda playing: acts["play"].setText("&Pause" if playing else "&Play"))
+
+        edit = _menu(window, "&Edit", before="View")
+        if edit.actions() and not edit.actions()[-1].isSeparator():
+            edit.addSeparator()
+        for name in ("set_key", "auto_key", "copy_keys", "paste_keys", "delete_keys", "select_all_keys"):
+            edit.addAction(acts[name])
+
+        view = window.view_menu
+        toggle = self.toggleViewAction()
+        toggle.setText("&Timeline")
+        toggle.setShortcut(QKeySequence("Ctrl+Shift+T"))
+        toggle.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
+        toggle.setStatusTip("Show or hide the timeline")
+        window.addAction(toggle)
+        view.addAction(toggle)
+        playback = view.addMenu("Play&back")
+        for name in ("play", "stop", "loop"):
+            playback.addAction(acts[name])
+        acts["timeline"] = toggle
+
+        tools = _menu(window, "&Tools", before="Help")
+        acts["lipsync"] = _action(window, "&Lip-sync from text…", self.open_lipsync_dialog, None,
+                                  "Make viseme (and blink) tracks from typed text, spoken by eSpeak NG")
+        tools.addAction(acts["lipsync"])
+        file_menu = _menu(window, "&File")
+        acts["import_animation"] = _action(window, "&Import animation (.fap, .dpc)…", self.import_dialog,
+                                           "Ctrl+Shift+O", "Add a .fap or DPC control-point animation as tracks at the cursor")
+        acts["export_fap"] = _action(window, "Export .&fap…", self.export_fap_dialog, "Ctrl+Shift+E",
+                                     "Write the timeline (or the current pose) as an MPEG-4 .fap animation")
+        acts["export_video"] = _action(window, "Export &video…", self.export_video, "Ctrl+E",
+                                       "Render the timeline to MP4 (with speech), GIF, AVI or PNG images")
+        acts["export_still"] = _action(window, "Export s&till…", lambda: self.export_video(still=True), None,
+                                       "Render the face at the timeline's current time to PNG or JPEG")
+        anchor = window.screenshot_action
+        for name in ("import_animation", "export_fap", "export_video", "export_still"):
+            if anchor in file_menu.actions():
+                file_menu.insertAction(anchor, acts[name])
+            else:
+                file_menu.addAction(acts[name])
+        self.lipsync_button.clicked.connect(self.open_lipsync_dialog)
+        c.actions = acts
+
+        project = ProjectActions(self.document, window, c, state_dir=state_dir,
+                                 autosave_ms=AUTOSAVE_MS if autosave_ms is None else autosave_ms)
+        c.project = project
+        self.document.timeline, self.document.project = c, project
+        if check_recovery:
+            project.check_startup_recovery_when_ready()
+
+    # ------------------------------------------------------------ dialogs
+    def import_dialog(self) -> None:
+        from PySide6.QtWidgets import QFileDialog
+
+        path, _ = QFileDialog.getOpenFileName(self.main_window, "Import animation", "",
+                                              "Animations (*.fap *.dpc *.txt);;All files (*)")
+        if path:
+            self.controller.import_animation(path)
+
+    def export_video(self, *, still: bool = False):
+        """File ▸ Export video… / still: the export dialog for the timeline, rendered from a copy of the
+        rig (``controller.animation()``), with the speech track. Returns the export job, or None."""
+        from app.export_dialog import run_export_dialog
+
+        controller = self.controller
+        if controller.rig is None:
+            controller.message.emit("This face has no rig: nothing to export.")
+            return None
+        controller.pause()
+        try:
+            audio = controller.audio_path()
+        except Exception as exc:  # noqa: BLE001 - export without sound rather than not at all
+            traceback.print_exc()
+            controller.message.emit(f"The speech audio could not be prepared ({exc}); exporting without sound.")
+            audio = None
+        animation = controller.animation()
+        return run_export_dialog(self.main_window, self.document.face, animation.vertices,
+                                 controller.timeline.duration, controller.timeline.fps, audio, still=still,
+                                 current_time_s=controller.current_time, content_end_s=controller.content_end(audio))
+
+    def export_fap_dialog(self) -> None:
+        from PySide6.QtWidgets import QFileDialog
+
+        path, _ = QFileDialog.getSaveFileName(self.main_window, "Export .fap animation", "animation.fap",
+                                              "MPEG-4 FAP animation (*.fap)")
+        if path:
+            self.controller.export_fap(path if path.lower().endswith(".fap") else path + ".fap")
+
+    def open_lipsync_dialog(self):
+        """Show (or raise) the lip-sync dialog."""
+        from app.lipsync_dialog import LipSyncDialog
+
+        if self.lipsync_dialog is None:
+            self.lipsync_dialog = LipSyncDialog(self.controller, self.main_window)
+        dialog = self.lipsync_dialog
+        dialog.set_start_time(self.controller.current_time)
+        dialog.show()
+        dialog.raise_()
+        dialog.activateWindow()
+        return dialog
+
+
+# ------------------------------------------------------------------ menus
 def _menu(window, title: str, before: str | None = None) -> QMenu:
     """The window's top-level menu called ``title`` ("&Edit"), created (before ``before``) if missing."""
     bar = window.menuBar()
@@ -270,158 +424,4 @@ def _action(window, text: str, slot, shortcut=None, tip: str = "", checkable: bo
     return act
 
 
-def attach_timeline(window, *, state_dir=None, check_recovery: bool = True, autosave_ms: int | None = None
-                    ) -> TimelineController:
-    """Add the timeline to a MainWindow: the dock (bottom; the .fap player dock is tabified behind it and
-    hidden), File ▸ project actions, Edit ▸ key actions, View ▸ Timeline / playback, Tools ▸ Lip-sync.
-
-    state_dir : where untitled projects autosave (default: ``autosave/`` beside the window's settings file).
-    check_recovery : offer to recover an autosave left by a Mimica that did not close (after the face loads).
-    Returns the controller; ``controller.dock``, ``controller.project`` and ``window.timeline`` give the rest.
-    """
-    from app.project_actions import AUTOSAVE_MS, ProjectActions
-
-    stack = window.document.undo_stack
-    controller = TimelineController(window, stack)
-    dock = TimelineDock(controller, window)
-    controller.dock = dock
-    window.addDockWidget(Qt.DockWidgetArea.BottomDockWidgetArea, dock)
-    dock.show()
-    dock.raise_()
-    window.resizeDocks([dock], [300], Qt.Orientation.Vertical)
-
-    status = window.statusBar
-    if status is not None:
-        controller.message.connect(lambda text: window.statusBar().showMessage(text, 8000))
-
-    c = controller
-    acts = {}
-    acts["set_key"] = _action(window, "Set &key", c.set_key, "K",
-                              "Key the selected tracks (or every animated / non-neutral control) at the cursor")
-    acts["auto_key"] = _action(window, "&Auto-key", c.set_auto_key, None,
-                               "Key every slider change at the cursor", checkable=True)
-    acts["copy_keys"] = _action(window, "&Copy keys", c.copy_selected, QKeySequence.StandardKey.Copy,
-                                "Copy the selected keys")
-    acts["paste_keys"] = _action(window, "&Paste keys", c.paste, QKeySequence.StandardKey.Paste,
-                                 "Paste the copied keys at the cursor")
-    acts["delete_keys"] = _action(window, "&Delete keys", c.delete_selected, QKeySequence.StandardKey.Delete,
-                                  "Delete the selected keys")
-    acts["select_all_keys"] = _action(window, "Select all &keys", c.select_all_keys, None,
-                                      "Select every key of every track")
-    acts["play"] = _action(window, "&Play / pause", c.toggle_play, "Space", "Play or pause the timeline")
-    acts["stop"] = _action(window, "&Stop", c.stop, None, "Pause and go back to the start")
-    acts["loop"] = _action(window, "&Loop playback", lambda on: (setattr(c, "loop", bool(on)), dock.sync()),
-                           None, "Start again at the end", checkable=True)
-    c.auto_key_changed.connect(lambda on: (acts["auto_key"].blockSignals(True), acts["auto_key"].setChecked(on),
-                                           acts["auto_key"].blockSignals(False)))
-    dock.loop_check.toggled.connect(lambda on: (acts["loop"].blockSignals(True), acts["loop"].setChecked(on),
-                                                acts["loop"].blockSignals(False)))
-    c.playing_changed.connect(lambda playing: acts["play"].setText("&Pause" if playing else "&Play"))
-
-    edit = _menu(window, "&Edit", before="View")
-    if edit.actions() and not edit.actions()[-1].isSeparator():
-        edit.addSeparator()
-    for name in ("set_key", "auto_key", "copy_keys", "paste_keys", "delete_keys", "select_all_keys"):
-        edit.addAction(acts[name])
-
-    view = window.view_menu or _menu(window, "&View")
-    toggle = dock.toggleViewAction()
-    toggle.setText("&Timeline")
-    toggle.setShortcut(QKeySequence("Ctrl+Shift+T"))
-    toggle.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
-    toggle.setStatusTip("Show or hide the timeline")
-    window.addAction(toggle)
-    view.addAction(toggle)
-    playback = view.addMenu("Play&back")
-    for name in ("play", "stop", "loop"):
-        playback.addAction(acts[name])
-    acts["timeline"] = toggle
-
-    tools = _menu(window, "&Tools", before="Help")
-    acts["lipsync"] = _action(window, "&Lip-sync from text…", lambda: open_lipsync_dialog(c), None,
-                              "Make viseme (and blink) tracks from typed text, spoken by eSpeak NG")
-    tools.addAction(acts["lipsync"])
-    file_menu = _menu(window, "&File")
-    acts["import_animation"] = _action(window, "&Import animation (.fap, .dpc)…", lambda: _import_dialog(c),
-                                       "Ctrl+Shift+O", "Add a .fap or DPC control-point animation as tracks at the cursor")
-    acts["export_fap"] = _action(window, "Export .&fap…", lambda: _export_fap_dialog(c), "Ctrl+Shift+E",
-                                 "Write the timeline (or the current pose) as an MPEG-4 .fap animation")
-    acts["export_video"] = _action(window, "Export &video…", lambda: export_video(c), "Ctrl+E",
-                                   "Render the timeline to MP4 (with speech), GIF, AVI or PNG images")
-    acts["export_still"] = _action(window, "Export s&till…", lambda: export_video(c, still=True), None,
-                                   "Render the face at the timeline's current time to PNG or JPEG")
-    anchor = window.screenshot_action
-    for name in ("import_animation", "export_fap", "export_video", "export_still"):
-        if anchor is not None and anchor in file_menu.actions():
-            file_menu.insertAction(anchor, acts[name])
-        else:
-            file_menu.addAction(acts[name])
-    dock.lipsync_button.clicked.connect(lambda: open_lipsync_dialog(c))
-    c.actions = acts
-
-    project = ProjectActions(window, controller, state_dir=state_dir,
-                             autosave_ms=AUTOSAVE_MS if autosave_ms is None else autosave_ms)
-    c.project = project
-    window.timeline = controller
-    window.document.timeline, window.document.project = controller, project
-    if check_recovery:
-        project.check_startup_recovery_when_ready()
-    return controller
-
-
-def _import_dialog(controller: TimelineController) -> None:
-    from PySide6.QtWidgets import QFileDialog
-
-    path, _ = QFileDialog.getOpenFileName(controller.window, "Import animation", "",
-                                          "Animations (*.fap *.dpc *.txt);;All files (*)")
-    if path:
-        controller.import_animation(path)
-
-
-def export_video(controller: TimelineController, *, still: bool = False):
-    """File ▸ Export video… / still: the export dialog for the timeline, rendered from a copy of the rig
-    (``controller.animation()``), with the speech track. Returns the export job, or None."""
-    from app.export_dialog import run_export_dialog
-
-    if controller.rig is None:
-        controller.message.emit("This face has no rig: nothing to export.")
-        return None
-    controller.pause()
-    try:
-        audio = controller.audio_path()
-    except Exception as exc:  # noqa: BLE001 - export without sound rather than not at all
-        traceback.print_exc()
-        controller.message.emit(f"The speech audio could not be prepared ({exc}); exporting without sound.")
-        audio = None
-    animation = controller.animation()
-    return run_export_dialog(controller.window, controller.window.face, animation.vertices,
-                             controller.timeline.duration, controller.timeline.fps, audio, still=still,
-                             current_time_s=controller.current_time, content_end_s=controller.content_end(audio))
-
-
-def _export_fap_dialog(controller: TimelineController) -> None:
-    from PySide6.QtWidgets import QFileDialog
-
-    path, _ = QFileDialog.getSaveFileName(controller.window, "Export .fap animation", "animation.fap",
-                                          "MPEG-4 FAP animation (*.fap)")
-    if path:
-        controller.export_fap(path if path.lower().endswith(".fap") else path + ".fap")
-
-
-def open_lipsync_dialog(controller: TimelineController):
-    """Show (or raise) the lip-sync dialog for ``controller``."""
-    from app.lipsync_dialog import LipSyncDialog
-
-    dialog = getattr(controller, "lipsync_dialog", None)
-    if dialog is None:
-        dialog = LipSyncDialog(controller, controller.window)
-        controller.lipsync_dialog = dialog
-    dialog.set_start_time(controller.current_time)
-    dialog.show()
-    dialog.raise_()
-    dialog.activateWindow()
-    return dialog
-
-
-__all__ = ["TimelineDock", "TrackView", "Row", "build_rows", "attach_timeline", "open_lipsync_dialog",
-           "group_of"]
+__all__ = ["TimelineDock", "TrackView", "Row", "build_rows", "group_of"]

@@ -56,7 +56,7 @@ def all_parameters(controller: TimelineController) -> list[str]:
                 keys.append(f"fap:{spec.number}")
         keys += [f"expression:{n}" for n in tables.expression_names()[1:]]
         keys += [f"viseme:{i}" for i in range(1, len(tables.viseme_names()))]
-    if getattr(controller.window, "muscle_layer", None) is not None:
+    if controller.document.muscle_layer is not None:
         keys += list(muscle_keys())
     return keys
 

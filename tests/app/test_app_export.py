@@ -336,17 +336,61 @@ def test_export_job_signals_finished_and_cancelled(qtbot, tmp_path, face):
     with Image.open(tmp_path / "job.gif") as gif:
         assert gif.n_frames == 5
 
+    assert job.generation == 1 and not job.is_running and job.total_frames == 5
+
     slow = ExportJob(face, source, ExportSettings(tmp_path / "slow.mp4", end_s=60.0, size=SMALL, fps=10))
-    slow.progress.connect(lambda d, n: slow.cancel() if d >= 2 else None)
+    cancelling = []
+    slow.progress.connect(lambda d, n: (slow.cancel(), cancelling.append(slow.is_cancelling)) if d >= 2 else None)
+    slow.finished.connect(lambda _r: pytest.fail("a cancelled export finished"))
     with qtbot.waitSignal(slow.cancelled, timeout=60000):
         slow.start()
-    assert not slow.is_running
+    assert cancelling[:1] == [True] and not slow.is_running and not slow.is_cancelling
+    assert slow.result is None and slow.error is None
     assert leftovers(tmp_path) == ["job.gif"]
 
     bad = ExportJob(face, source, ExportSettings(tmp_path / "x.mp4", end_s=1.0, size=(161, 120)))
     with qtbot.waitSignal(bad.failed, timeout=5000) as failed:
         bad.start()
     assert "even width and height" in failed.args[0]
+
+
+def test_export_job_outcomes_through_the_shared_job_class(qtbot, tmp_path, face, monkeypatch, capsys):
+    """The job's worker is an app.jobs job: a bug becomes a sentence (its traceback in the log), a
+    cancel that comes as the file is committed reports the file, not a cancel."""
+    import threading
+
+    from app import export_job
+    from app.export_dialog import ExportJob
+
+    settings = ExportSettings(tmp_path / "fake.gif", end_s=0.3, size=SMALL, fps=10)
+    committing, proceed = threading.Event(), threading.Event()
+
+    def committed_anyway(face, source, settings, *, progress, cancelled):
+        progress(3, 3)
+        committing.set()
+        proceed.wait(5)   # cancelled meanwhile, but the file is already there
+        return "result"
+
+    monkeypatch.setattr(export_job, "export_in_subprocess", committed_anyway)
+    late = ExportJob(face, lambda t: face.vertices, settings, evaluate_in="worker")
+    late.cancelled.connect(lambda: pytest.fail("the file was written: not a cancel"))
+    with qtbot.waitSignal(late.finished, timeout=5000) as finished:
+        late.start()
+        assert committing.wait(5)
+        late.cancel()
+        proceed.set()
+    assert finished.args == ["result"] and late.result == "result"
+
+    def bug(face, source, settings, *, progress, cancelled):
+        raise KeyError("frame")
+
+    monkeypatch.setattr(export_job, "export_in_subprocess", bug)
+    broken = ExportJob(face, lambda t: face.vertices, settings, evaluate_in="worker")
+    with qtbot.waitSignal(broken.failed, timeout=5000) as failed:
+        broken.start()
+    assert failed.args[0] == "The export failed: KeyError: 'frame'"
+    assert "Traceback" in capsys.readouterr().err
+    qtbot.waitUntil(lambda: not export_job._RUNNING and not export_job._ENDING, timeout=5000)
 
 
 def test_dialog_validates_and_builds_settings(qtbot, tmp_path):

@@ -21,7 +21,7 @@ def shared_window(qapp, tmp_path_factory):
     from PySide6.QtCore import QSettings
     from PySide6.QtTest import QTest
 
-    from app.landmark_dock import attach_landmark_editor
+    from app.landmark_dock import LandmarkDock
     from app.main_window import MainWindow
     from app_helpers import make_synthetic_face
 
@@ -29,7 +29,8 @@ def shared_window(qapp, tmp_path_factory):
     win = MainWindow(make_synthetic_face(), settings=settings, load_default=False, tools=False)
     win.show()
     QTest.qWaitForWindowExposed(win)
-    attach_landmark_editor(win)
+    dock = LandmarkDock(win.document, win)   # as the window builds it (tools=True)
+    win.landmark_dock, win.landmark_editor = dock, dock.editor
     QTest.qWait(30)
     yield win
     win.close()
@@ -378,6 +379,37 @@ def test_new_face_retargets_editor_and_clears_history(editor, window, qtbot):
     assert editor.picker.mesh is window.face_actor.mesh
 
 
+def test_the_landmark_model_lives_in_the_document(editor, window):
+    """The editor is a controller over ``document.landmarks``: edits reach the document's signals,
+    the scan tools' detections go in through the document (one undo step) and show in the dock, and a
+    new face brings a new model."""
+    from app_helpers import make_synthetic_face
+
+    doc = window.document
+    assert editor.model is doc.landmarks and doc.landmarks.face is doc.face
+    changed, selected = [], []
+    doc.landmarks_changed.connect(changed.append)
+    doc.landmark_selected.connect(selected.append)
+    try:
+        editor.select("9.3")
+        editor.move("9.3", doc.face.surface_point((5.0, 0.0, 90.0)))
+        assert selected == ["9.3"] and changed == ["9.3"]
+        assert doc.landmarks.status("9.3") is LandmarkStatus.EDITED
+        assert editor.dock.table_model.index(editor.dock.table_model.row_of("9.3"), 1).data() == "edited"
+        assert doc.apply_landmark_detection({"2.1": doc.face.surface_point((0.0, -60.0, 60.0))}, {"2.1": 0.3}) \
+            == ["2.1"]
+        assert editor.dock.table_model.index(editor.dock.table_model.row_of("2.1"), 2).data() == "0.30"
+        assert window.undo_stack.undoText() == "detect landmarks"
+        window.undo_action.trigger()
+        assert doc.landmarks.confidence("2.1") is None
+        old = doc.landmarks
+        window.set_face(make_synthetic_face(40, 50, name="other"))
+        assert doc.landmarks is not old and editor.model is doc.landmarks and window.undo_stack.count() == 0
+    finally:
+        doc.landmarks_changed.disconnect(changed.append)
+        doc.landmark_selected.disconnect(selected.append)
+
+
 # ------------------------------------------------------------------ undo machinery
 class FakeRig:
     """The part of core.rig.FaceRig that UndoableRigEdits uses: keys, set_values, parameters_changed."""
@@ -452,6 +484,9 @@ def test_rig_edits_merge_per_gesture_and_undo(qtbot):
     stack.undo()
     assert rig.value("fap:3") == 0.0 and rig.value("fap:6") == 0.0
     edits.set_rig(None)
+    # The stack has no Qt parent: emptied here, not by the garbage collector at exit, where
+    # ~QUndoStack -> clear() deleting Python commands inside a collected cycle segfaulted.
+    stack.clear()
 
 
 def test_set_value_command_merges_only_within_a_gesture():

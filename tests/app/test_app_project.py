@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from PySide6.QtWidgets import QMessageBox
 
-from app.timeline_dock import attach_timeline
+from app.timeline_dock import TimelineDock
 from core.formats import project as cp
 
 
@@ -33,7 +33,7 @@ def shared(qapp, default_face, deformer, tmp_path_factory):
     w = MainWindow(settings=settings, load_default=False, tools=False)
     w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
     w.show()
-    controller = attach_timeline(w, check_recovery=False)  # autosaves go beside the test settings
+    controller = TimelineDock(w.document, w, check_recovery=False).controller  # autosaves beside the test settings
     yield w, controller
     w.close()
     w.deleteLater()
@@ -274,7 +274,7 @@ def test_closing_with_unsaved_work_autosaves_instead_of_blocking(qtbot, qapp, de
 
     w = MainWindow(settings=settings, load_default=False, tools=False)
     w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
-    ctl = attach_timeline(w, state_dir=tmp_path / "state", check_recovery=False)
+    ctl = TimelineDock(w.document, w, state_dir=tmp_path / "state", check_recovery=False).controller
     w.rig.set_fap(3, 300.0)
     ctl.set_key(["fap:3"], 0.0)
     target = ctl.project.autosave_path()
@@ -346,3 +346,55 @@ def test_open_recent_lists_projects_and_opens_them(qtbot, win, c, rig, tmp_path,
     win.open_recent(str(path))
     qtbot.waitUntil(lambda: "fap:3" in c.timeline.tracks, timeout=30_000)
     assert c.project.path == path
+
+
+def test_a_project_with_another_face_opens_it_in_the_background(qtbot, settings, tmp_path, answers, error_boxes,
+                                                                 monkeypatch):
+    """The project's face is not the one shown: it loads (and its rig is built) as a background job of
+    app.jobs; a newer open supersedes an older one, and a face that cannot be read is a message."""
+    from app_helpers import make_synthetic_face
+
+    from app.main_window import MainWindow
+
+    w = MainWindow(make_synthetic_face(name="first"), settings=settings, load_default=False, tools=False)
+    qtbot.addWidget(w)
+    ctl = TimelineDock(w.document, w, state_dir=tmp_path / "state", check_recovery=False).controller
+    path = tmp_path / "first.mimica"
+    assert ctl.project.save_project(path)   # the face exists only in memory: written beside the project
+    assert (tmp_path / "first.face.ply").is_file()
+    w.set_face(make_synthetic_face(30, 40, name="other"))
+    with qtbot.waitSignal(ctl.project.project_opened, timeout=20000):
+        assert not ctl.project.open_project(path, ask=False)   # False: still loading
+    assert w.face.n_vertices == 48 * 64 and ctl.project.path == path and w.document.project_path == path
+    assert not error_boxes
+
+    # A newer open wins over one still loading.
+    slow_then_fast = []
+    real_open_face = cp.open_face
+
+    def open_face(project, notes=None):
+        slow_then_fast.append(project.face.path)
+        if len(slow_then_fast) == 1:
+            import time
+            time.sleep(0.5)
+        return real_open_face(project, notes)
+
+    monkeypatch.setattr(cp, "open_face", open_face)
+    w.set_face(make_synthetic_face(30, 40, name="other"))
+    opened = []
+    ctl.project.project_opened.connect(opened.append)
+    second = tmp_path / "second.mimica"
+    w2 = make_synthetic_face(20, 30, name="second")
+    cp.save_project(second, cp.Project.from_state(w2, cp.embed_face(w2, second), None, ctl.timeline))
+    ctl.project.open_project(path, ask=False)
+    ctl.project.open_project(second, ask=False)
+    qtbot.waitUntil(lambda: opened == [second], timeout=20000)
+    qtbot.wait(800)
+    assert opened == [second] and w.face.n_vertices == 20 * 30
+
+    # The face file went away: the message names the project, the face shown stays.
+    (tmp_path / "first.face.ply").unlink()
+    ctl.project.open_project(path, ask=False)
+    qtbot.waitUntil(lambda: bool(error_boxes), timeout=20000)
+    assert "first.mimica" in error_boxes[-1][0] and w.face.n_vertices == 20 * 30
+    w.close()

@@ -2,7 +2,7 @@
 auto-key, clipboard, interpolation, settings and lip-sync.
 
 The FAP deformer of the default face is built once per module; every test gets a fresh FaceRig in a
-fresh MainWindow with :func:`app.timeline_dock.attach_timeline`.
+fresh MainWindow with an :class:`app.timeline_dock.TimelineDock` built on its document.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 from PySide6.QtCore import QPoint, Qt
 from PySide6.QtWidgets import QMessageBox
 
-from app.timeline_dock import TrackView, attach_timeline
+from app.timeline_dock import TimelineDock, TrackView
 from core.timeline import Track
 
 TICK_TIMEOUT_MS = 5000
@@ -33,7 +33,7 @@ def shared(qapp, default_face, deformer, tmp_path_factory):
     w = MainWindow(settings=settings, load_default=False, tools=False)
     w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
     w.show()
-    controller = attach_timeline(w, state_dir=folder / "state", check_recovery=False)
+    controller = TimelineDock(w.document, w, state_dir=folder / "state", check_recovery=False).controller
     yield w, controller
     w.close()
     w.deleteLater()
@@ -47,7 +47,7 @@ def reset_timeline_window(w, c) -> None:
     c.set_auto_key(False)
     c.loop = False
     c.set_speed(1.0)
-    dialog = getattr(c, "lipsync_dialog", None)
+    dialog = c.dock.lipsync_dialog
     if dialog is not None:
         dialog.close()
     c.set_selected_tracks(set())
@@ -120,8 +120,8 @@ def _points(win) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ layout
-def test_attach_adds_dock_menus_and_the_fap_actions(win, c):
-    assert win.timeline is c and c.dock.isVisible()
+def test_dock_adds_itself_menus_and_the_fap_actions(win, c):
+    assert win.timeline is c and win.document.timeline is c and c.dock.isVisible()
     assert win.dockWidgetArea(c.dock) == Qt.DockWidgetArea.BottomDockWidgetArea
     assert not hasattr(win, "fap_player_dock")   # the timeline plays .fap files; the player is retired
     assert c.actions["import_animation"].shortcut().toString() == "Ctrl+Shift+O"
@@ -390,10 +390,8 @@ def test_fps_and_duration_settings_are_undoable(qtbot, win, c, rig):
 
 
 def test_lipsync_dialog_adds_viseme_tracks_as_one_undo_step(qtbot, win, c, rig):
-    from app.timeline_dock import open_lipsync_dialog
-
     c.seek(9.0)
-    dialog = open_lipsync_dialog(c)
+    dialog = c.dock.open_lipsync_dialog()
     assert dialog.start_spin.value() == 9.0
     dialog.text_edit.setPlainText("Olá, como vai você?")
     dialog.set_language("pt-br")
@@ -426,9 +424,7 @@ def test_lipsync_dialog_adds_viseme_tracks_as_one_undo_step(qtbot, win, c, rig):
 
 
 def test_lipsync_reports_empty_text(qtbot, c):
-    from app.timeline_dock import open_lipsync_dialog
-
-    dialog = open_lipsync_dialog(c)
+    dialog = c.dock.open_lipsync_dialog()
     dialog.text_edit.setPlainText("   ")
     assert not dialog.generate() and "Type some text" in dialog.status_label.text()
     with pytest.raises(ValueError, match="unknown lip-sync language"):
