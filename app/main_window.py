@@ -478,12 +478,12 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         """The docks of their own modules, each built with the document (and this window, where it
         adds its dock, actions and menus)."""
         from app.landmark_dock import LandmarkDock
-        from app.muscle_dock import attach_muscle_dock
+        from app.muscle_dock import MuscleDock
         from app.timeline_dock import TimelineDock
 
         self.landmark_dock = LandmarkDock(self.document, self)
         self.landmark_editor = self.landmark_dock.editor
-        self.muscle_dock = attach_muscle_dock(self)
+        self.muscle_dock = MuscleDock(self.document, self)
         self.timeline_dock = TimelineDock(self.document, self)   # registers document.timeline / .project
         # The timeline starts tall enough to show a few tracks.
         self.resizeDocks([self.timeline_dock], [260], Qt.Orientation.Vertical)

@@ -23,8 +23,8 @@ loops (live settling, Animate, Rest), the edits and their undo steps, and the fo
   shows its ``ForceFileError`` message in a warning box and leaves the forces alone.
 * The muscles can be drawn in the viewport ("Show muscles", :mod:`app.muscle_view`).
 
-:func:`attach_muscle_dock` adds the dock to a window: the controller builds the layer on a worker
-thread and re-builds it when the window's face changes, and shuts down when the window really
+``MuscleDock(document, window)`` joins the window: the controller builds the layer on a worker
+thread and re-builds it when the document's face changes, and shuts down when the window really
 closes (``MainWindow.closing``: after any Save / Discard / Cancel question, not on a cancelled close).
 The widgets are built in :mod:`app.muscle_dock_ui`.
 """
@@ -53,10 +53,11 @@ class MuscleDock(MuscleDockLayout, QDockWidget):
 
     Parameters
     ----------
+    document : app.document.Document, optional
+        The face and rig whose muscle layer the dock builds and drives; without one the dock
+        drives whatever layer ``dock.simulation.set_layer`` receives (no build).
     window : MainWindow, optional
-        Gives the document (face, rig), the plotter, the status bar and the settings; without one
-        the dock drives whatever layer ``dock.simulation.set_layer`` receives (no build, no
-        viewport drawing).
+        The window the dock joins (see :meth:`_join`): its plotter, status bar, settings, View menu.
     level : int
         Template level of the muscle model (passed to ``MuscleLayer``).
 
@@ -71,13 +72,14 @@ class MuscleDock(MuscleDockLayout, QDockWidget):
     layer_changed = Signal(object)
     settled = Signal()
 
-    def __init__(self, window=None, parent: QWidget | None = None, *, level: int = 3):
-        super().__init__("Muscles", parent if parent is not None else window)
+    def __init__(self, document=None, window=None, *, level: int = 3):
+        super().__init__("Muscles", window)
         self.setObjectName("muscleDock")
         self.setAllowedAreas(Qt.DockWidgetArea.LeftDockWidgetArea | Qt.DockWidgetArea.RightDockWidgetArea)
         self.window_ = window
+        self.document = document
         self.simulation = sim = MuscleSimulation(
-            self, level=level, document=window.document if window is not None else None,
+            self, level=level, document=document,
             redraw_ms=(lambda: window.last_tick_ms) if window is not None else None)
         self.view = None  # MuscleView, while a layer and a plotter exist
         self.rows: dict[str, ParameterRow] = {}   # by canonical key: "muscle:risorius:left", "jaw"
@@ -97,6 +99,32 @@ class MuscleDock(MuscleDockLayout, QDockWidget):
         sim.notice.connect(self._status_bar)
         sim.settled.connect(self.settled)
         sim.set_layer(None, NO_FACE_MESSAGE)
+        if window is not None and document is not None:
+            self._join(window)
+
+    def _join(self, window) -> None:
+        """Take the dock's place in the window: the right dock area, tabified with the FAP dock
+        ("Muscles" tab); View ▸ Muscles (Ctrl+Shift+M); the layer is built on a worker thread for
+        each new face (``document.face_changed``); the controller shuts down on ``window.closing``
+        (a close that really happens, after any Save / Discard / Cancel question)."""
+        window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self)
+        fap_dock = window.fap_dock
+        if fap_dock is not None:
+            window.tabifyDockWidget(fap_dock, self)
+            fap_dock.raise_()
+        toggle = self.toggleViewAction()
+        toggle.setText("&Muscles")
+        toggle.setStatusTip("Show or hide the muscle dock (thesis C forces, jaw, presets)")
+        toggle.setShortcut(QKeySequence("Ctrl+Shift+M"))
+        toggle.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
+        window.addAction(toggle)
+        if window.view_menu is not None:
+            window.view_menu.addAction(toggle)
+        window.muscle_dock_action = toggle
+        window.closing.connect(self.shutdown)
+        self.document.face_changed.connect(lambda _face: self.simulation.follow_document())
+        if self.document.face is not None:
+            self.simulation.follow_document()
 
     # ============================================================ what the controller holds
     @property
@@ -268,42 +296,5 @@ class MuscleDock(MuscleDockLayout, QDockWidget):
             self.view = None
 
 
-# ------------------------------------------------------------------ window integration
-def attach_muscle_dock(window, *, level: int = 3) -> MuscleDock:
-    """Add the muscle dock to a :class:`app.main_window.MainWindow`.
-
-    * the dock goes to the right dock area, tabified with the FAP dock ("Muscles" tab);
-    * View ▸ Muscles (Ctrl+Shift+M) shows/hides it;
-    * the muscle layer of the window's face is built on a worker thread ("Building the muscle
-      model…" in the dock meanwhile), attached to the window's rig and re-built on
-      ``window.face_changed``; without a rig the dock is disabled and says why;
-    * the controller shuts down on ``window.closing`` (a close that really happens).
-
-    Returns the dock (also stored as ``window.muscle_dock``).
-    """
-    dock = MuscleDock(window, level=level)
-    window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, dock)
-    fap_dock = window.fap_dock
-    if fap_dock is not None:
-        window.tabifyDockWidget(fap_dock, dock)
-        fap_dock.raise_()
-    toggle = dock.toggleViewAction()
-    toggle.setText("&Muscles")
-    toggle.setStatusTip("Show or hide the muscle dock (thesis C forces, jaw, presets)")
-    toggle.setShortcut(QKeySequence("Ctrl+Shift+M"))
-    toggle.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
-    window.addAction(toggle)
-    view_menu = window.view_menu
-    if view_menu is not None:
-        view_menu.addAction(toggle)
-    window.muscle_dock = dock
-    window.muscle_dock_action = toggle
-    window.closing.connect(dock.shutdown)
-    window.face_changed.connect(lambda _face: dock.simulation.follow_document())
-    if window.document.face is not None:
-        dock.simulation.follow_document()
-    return dock
-
-
-__all__ = ["MuscleDock", "MuscleSimulation", "attach_muscle_dock", "RELAX_BUDGET_S", "ANIMATION_S", "JAW",
+__all__ = ["MuscleDock", "MuscleSimulation", "RELAX_BUDGET_S", "ANIMATION_S", "JAW",
            "BUILDING_MESSAGE", "NO_FACE_MESSAGE", "NO_RIG_MESSAGE"]

@@ -14,7 +14,7 @@ import pytest
 from PySide6.QtCore import QSettings
 from PySide6.QtWidgets import QApplication
 
-from app.muscle_dock import BUILDING_MESSAGE, JAW, NO_FACE_MESSAGE, MuscleDock, attach_muscle_dock
+from app.muscle_dock import BUILDING_MESSAGE, JAW, NO_FACE_MESSAGE, MuscleDock
 from core.layers.muscles import SolverDiverged, control_keys, preset, preset_names
 from core.parameters import key_of
 
@@ -46,7 +46,7 @@ def built(qapp, default_face, deformer, tmp_path_factory):
     win.resize(900, 600)
     win.plotter.disable_anti_aliasing()
     win.show()
-    dock = attach_muscle_dock(win)
+    dock = MuscleDock(win.document, win)
     dock.simulation.animation_s = 0.4  # keep the playback tests short
     first = {"message": dock.message_label.text(), "building": dock.is_building,
              "enabled": dock.apply_button.isEnabled()}
@@ -99,7 +99,7 @@ def test_no_face_and_no_rig_disable_the_dock_with_the_reason(window, qtbot):
 
     empty = MainWindow(settings=window.settings, load_default=False, tools=False)
     qtbot.addWidget(empty)
-    d = attach_muscle_dock(empty)
+    d = MuscleDock(empty.document, empty)
     assert d.layer is None and d.message_label.text() == NO_FACE_MESSAGE and not d.apply_button.isEnabled()
     empty.close()
 
@@ -401,7 +401,7 @@ def test_a_cancelled_close_leaves_the_muscles_working(qtbot, built, settings, er
 
     import core.layers.muscles as muscles
     from app.main_window import MainWindow
-    from app.timeline_dock import attach_timeline
+    from app.timeline_dock import TimelineDock
     from core.rig import FaceRig
 
     twin = built[0].muscle_dock.layer.copy()   # the same model: no second build of seconds
@@ -412,8 +412,8 @@ def test_a_cancelled_close_leaves_the_muscles_working(qtbot, built, settings, er
     qtbot.addWidget(w)
     w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
     w.show()
-    attach_timeline(w, check_recovery=False)
-    d = attach_muscle_dock(w)
+    TimelineDock(w.document, w, check_recovery=False)
+    d = MuscleDock(w.document, w)
     qtbot.waitUntil(lambda: d.layer is twin, timeout=TIMEOUT_MS)
     w.document.project.ask_on_close = True
     w.rig.set_values({"fap:3": 200.0})
