@@ -32,14 +32,16 @@ from app.undo import LandmarkSetCommand, UndoableRigEdits, make_undo_stack
 from core.cache import DiskCache
 from core.landmark_editing import LandmarkEditModel
 
+PREPARING_MESSAGE = "Preparing the face for animation…"
 NO_RIG_MESSAGE = "This face has no MPEG-4 feature points yet: mark them (landmark picker) to animate it."
 
 
-def build_rig(face, cache: DiskCache | None = None) -> tuple[object | None, str]:
+def build_rig(face, cache: DiskCache | None = None, progress=None) -> tuple[object | None, str]:
     """(FaceRig for ``face``, "") or (None, a message for the user saying why not).
 
     The FAP table comes from ``cache`` (default: the user's cache folder) when this face was
-    animated before; what the cache had to say (a damaged entry rebuilt) joins the face's notes.
+    animated before (else it is built, reporting to ``progress(fraction, message)``); what the cache
+    had to say (a damaged entry rebuilt) joins the face's notes.
     Never raises: a face without the MPEG-4 feature points is a normal state (the user marks them
     later), and anything unexpected is reported on stderr.
     """
@@ -55,7 +57,7 @@ def build_rig(face, cache: DiskCache | None = None) -> tuple[object | None, str]
         from core.normal_kernels import warm_up
 
         warm_up()   # build_rig runs on a loader thread: compile the per-tick normals there
-        rig = FaceRig(face, cache=cache)
+        rig = FaceRig(face, cache=cache, progress=progress)
         notes = getattr(face.metadata, "notes", None)
         if cache.notes and isinstance(notes, list):
             notes.extend(n for n in cache.notes if n not in notes)
@@ -72,6 +74,7 @@ class Document(QObject):
     """Face, rig, landmark model, undo stack and project path (see the module docstring)."""
 
     face_changed = Signal(object)       # the new Face, once it is shown
+    rig_changed = Signal(object)        # the face's rig arrived later (a background build), or None
     landmarks_changed = Signal(str)     # a landmark's name, or "" for several / added / removed
     landmark_selected = Signal(object)  # the selected landmark's name, or None
 
@@ -81,6 +84,7 @@ class Document(QObject):
         self.face_path: str | None = None
         self.rig = None
         self.rig_message = ""
+        self.rig_pending = False   # the face is shown and its rig is being built (set_rig follows)
         self.landmarks: LandmarkEditModel | None = None
         self.project_path: Path | None = None   # the open project's file (None: untitled)
         self.undo_stack = make_undo_stack(self)
@@ -88,16 +92,26 @@ class Document(QObject):
         self.timeline = None   # app.timeline_controller.TimelineController, once its dock exists
         self.project = None    # app.project_actions.ProjectActions, once they exist
 
-    def set_face(self, face, *, path: str | None, rig, rig_message: str = "") -> None:
+    def set_face(self, face, *, path: str | None, rig, rig_message: str = "", rig_pending: bool = False) -> None:
         """Make ``face`` (with its ``rig``, None when it cannot be animated and ``rig_message`` says
-        why) the document's face, with a new landmark model; clears the undo history. Announced
-        later by :meth:`announce_face`."""
+        why, or ``rig_pending``: it is being built and :meth:`set_rig` follows) the document's face,
+        with a new landmark model; clears the undo history. Announced later by :meth:`announce_face`."""
         self.face, self.face_path = face, path
         self.rig = rig
         self.rig_message = "" if rig is not None else rig_message
+        self.rig_pending = rig is None and rig_pending
         self.rig_edits.set_rig(rig)
         self._set_landmarks(LandmarkEditModel(face) if face is not None else None)
         self.undo_stack.clear()
+
+    def set_rig(self, rig, message: str = "") -> None:
+        """Give the current face its rig once built in the background (``None`` and ``message``:
+        it cannot be animated, and why); announced by ``rig_changed``."""
+        self.rig = rig
+        self.rig_message = "" if rig is not None else message
+        self.rig_pending = False
+        self.rig_edits.set_rig(rig)
+        self.rig_changed.emit(rig)
 
     def announce_face(self) -> None:
         """Emit ``face_changed`` (the window calls it once the viewport shows the new face)."""
@@ -140,4 +154,4 @@ class Document(QObject):
         return changed
 
 
-__all__ = ["Document", "build_rig", "NO_RIG_MESSAGE"]
+__all__ = ["Document", "build_rig", "NO_RIG_MESSAGE", "PREPARING_MESSAGE"]

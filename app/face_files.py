@@ -20,7 +20,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtGui import QAction
 from PySide6.QtWidgets import QApplication, QDockWidget, QFileDialog
 
-from app.document import build_rig
+from app.document import PREPARING_MESSAGE, build_rig
 
 MAX_RECENT = 8
 #: Suffixes accepted by Open / drag-and-drop, and by Save as.
@@ -208,8 +208,9 @@ class FaceFilesMixin:
         self._start_load("", loader, "Loading the default face…")
 
     def _start_load(self, path: str, loader: Callable, message: str) -> None:
-        """Run ``loader(progress)`` in the background, then build the face's rig there too (seconds for
-        a 50k-vertex face), so the GUI thread never waits; a newer load supersedes this one."""
+        """Run ``loader(progress)`` in the background and show the face as soon as it is loaded;
+        then build its rig in the background too (from the disk cache in a moment, else seconds for
+        a 50k-vertex face, with progress), and hand it to the docks. A newer load supersedes this one."""
         self._loading = True
         self.progress_bar.setRange(0, 1000)
         self.progress_bar.setValue(0)
@@ -217,13 +218,9 @@ class FaceFilesMixin:
         self.statusBar().showMessage(message)
 
         def work(job):
-            face = loader(job.progress)
-            if job.cancelled():
-                return None
-            job.progress(None, "Preparing the face for animation…")
-            return face, build_rig(face)   # build_rig never raises
+            return loader(job.progress)
 
-        self.loads.start(work, lambda result: self._on_loaded(result, path),
+        self.loads.start(work, lambda face: self._on_loaded(face, path),
                          lambda text: self._on_load_failed(text, path), self._on_load_progress)
 
     def _on_load_progress(self, fraction: float | None, message: str) -> None:
@@ -236,10 +233,10 @@ class FaceFilesMixin:
         self._loading = False
         self.progress_bar.hide()
 
-    def _on_loaded(self, result, path: str) -> None:
-        self._finish_load()
-        face, (rig, rig_message) = result
-        self.set_face(face, path=path or None, rig=rig, rig_message=rig_message)
+    def _on_loaded(self, face, path: str) -> None:
+        if face is None:
+            return
+        self.set_face(face, path=path or None, rig=None, rig_message=PREPARING_MESSAGE, rig_pending=True)
         if path:
             self.add_recent_file(path)
         notes = list(getattr(face.metadata, "notes", []) or [])
@@ -251,8 +248,27 @@ class FaceFilesMixin:
             self.statusBar().showMessage(f"Loaded {shown} — " + "; ".join(notes), 15000)
             if path:  # the built-in face's notes are not news: status bar only
                 self._show_notes(notes, shown)
-        elif self.rig is None and self.rig_message:
-            self.statusBar().showMessage(f"Loaded {shown} — {self.rig_message.splitlines()[0]}", 15000)
+        self.progress_bar.setValue(0)
+
+        def work(job):
+            return build_rig(face, progress=job.progress)   # build_rig never raises
+
+        self.loads.start(work, lambda result: self._on_rig_built(face, result, shown, notes),
+                         lambda text: self._on_load_failed(text, path), self._on_load_progress)
+
+    def _on_rig_built(self, face, result, shown: str, notes: list[str]) -> None:
+        self._finish_load()
+        if self.face is not face:   # the user moved on
+            return
+        rig, message = result
+        self.document.set_rig(rig, message)
+        cache_notes = [n for n in getattr(face.metadata, "notes", []) or [] if "cache" in n.lower()]
+        if cache_notes:
+            self.statusBar().showMessage(cache_notes[0], 15000)
+        elif notes:   # back to the load notes, after the build's progress messages
+            self.statusBar().showMessage(f"Loaded {shown} — " + "; ".join(notes), 15000)
+        elif rig is None and message:
+            self.statusBar().showMessage(f"Loaded {shown} — {message.splitlines()[0]}", 15000)
         else:
             self.statusBar().showMessage(f"Loaded {shown}", 5000)
         self.load_finished.emit(True)

@@ -87,6 +87,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
 
         self.document = Document(self)
         self.document.face_changed.connect(self.face_changed)   # the window's signal follows the document's
+        self.document.rig_changed.connect(self._on_rig_arrived)
         self.face_actor = None
         self._mode = "textured"
         self._closing = False
@@ -376,12 +377,13 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self._notes_box = box
 
     # ------------------------------------------------------------ face
-    def set_face(self, face, *, path: str | None = None, rig=_BUILD_RIG, rig_message: str = "") -> None:
+    def set_face(self, face, *, path: str | None = None, rig=_BUILD_RIG, rig_message: str = "",
+                 rig_pending: bool = False) -> None:
         """Display ``face`` (replacing the current one), framed from the front.
 
-        ``rig`` is the face's :class:`core.rig.FaceRig` when already built (the
-        background loader builds it); by default it is built here. ``None``
-        means the face cannot be animated, ``rig_message`` says why.
+        ``rig`` is the face's :class:`core.rig.FaceRig` when already built; by default it is built
+        here. ``None`` means the face cannot be animated, ``rig_message`` says why, or with
+        ``rig_pending`` that it is being built (``document.set_rig`` follows: the loader does that).
         """
         if rig is _BUILD_RIG:
             QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
@@ -394,7 +396,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
             self.face_actor.remove()
         self._disconnect_rig()
         self.document.set_face(face, path=path if path is not None else getattr(face.metadata, "source", None),
-                               rig=rig, rig_message=rig_message)
+                               rig=rig, rig_message=rig_message, rig_pending=rig_pending)
         self.face_actor = self._scene.add_face_actor(
             self.plotter, face, self._mode, show_landmarks=self.landmarks_action.isChecked())
         self.landmarks_action.setEnabled(bool(face.landmark_names))
@@ -413,6 +415,11 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
                 self.rig.changed.disconnect(self._on_rig_changed)
             except (ValueError, RuntimeError):
                 pass
+
+    def _on_rig_arrived(self, rig) -> None:
+        """The shown face's rig, built in the background after the face appeared."""
+        self._disconnect_rig()
+        self._set_rig(rig)   # the dock shows document.rig_message; the loader words the status bar
 
     def _set_rig(self, rig, message: str = "") -> None:
         self._shown_overlay = (None, None)
@@ -535,8 +542,8 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
     def about_text(self) -> str:
         import PySide6
         import pyvista as pv
-        import vtk
         from PySide6.QtCore import qVersion
+        from vtkmodules.vtkCommonCore import vtkVersion
 
         return (
             f"<h3>Mimica {__version__}</h3>"
@@ -544,7 +551,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
             "<p>"
             f"Python {sys.version.split()[0]}<br>"
             f"Qt {qVersion()} / PySide6 {PySide6.__version__}<br>"
-            f"VTK {vtk.vtkVersion.GetVTKVersion()}<br>"
+            f"VTK {vtkVersion.GetVTKVersion()}<br>"
             f"PyVista {pv.__version__}"
             "</p>"
             "<p><b>Data credits</b><br>"

@@ -120,9 +120,10 @@ class MuscleDock(MuscleDockLayout, QDockWidget):
         window.addAction(toggle)
         if window.view_menu is not None:
             window.view_menu.addAction(toggle)
-        window.muscle_dock_action = toggle
+        self.toggle_action = toggle
         window.closing.connect(self.shutdown)
         self.document.face_changed.connect(lambda _face: self.simulation.follow_document())
+        self.document.rig_changed.connect(lambda _rig: self.simulation.follow_document())
         if self.document.face is not None:
             self.simulation.follow_document()
 

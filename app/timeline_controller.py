@@ -127,6 +127,7 @@ class TimelineController(TimelineIO, QObject):
         self.achieved_fps = 0.0
         self.frames_shown = 0
         document.face_changed.connect(self._on_face_changed)
+        document.rig_changed.connect(self._on_face_changed)
         self.set_rig(document.rig)
 
     # ------------------------------------------------------------ wiring

@@ -25,6 +25,7 @@ import time
 from typing import Callable
 
 from PySide6.QtCore import QObject, QTimer, Signal
+from PySide6.QtOpenGLWidgets import QOpenGLWidget
 
 __all__ = ["Viewport", "PARTS"]
 
@@ -147,7 +148,13 @@ class Viewport(QObject):
             self.timed.emit(*self.last_tick_ms)
 
     def render(self) -> None:
-        """Render now. A never-shown VTK widget has no GL context to draw into; its first paint renders."""
+        """Render now, once. A never-shown VTK widget has no GL context to draw into; its first paint renders."""
         plotter = self.plotter
         if self._alive() and plotter.isVisible() and not getattr(plotter, "_closed", False):
-            plotter.render()
+            if isinstance(plotter, QOpenGLWidget):
+                # pyvistaqt's QOpenGLWidget interactor renders in every paint, and a VTK render
+                # schedules a paint: plotter.render() drew each frame twice. A synchronous repaint
+                # renders and shows it once.
+                plotter.repaint()
+            else:
+                plotter.render()

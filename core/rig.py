@@ -73,14 +73,17 @@ class FaceRig:
         A prebuilt FAP deformer for ``face`` (built here otherwise: seconds for 50k vertices).
     cache : core.cache.DiskCache, optional
         Where to find the deformer built on an earlier run, and to store it (no cache: always built).
+    progress : callable(fraction, message), optional
+        Hears how a deformer build goes (not called when it comes from the cache).
     """
 
     changed = Signal(object)             # ParameterChange (empty when only a dynamic layer moved)
     parameters_changed = Signal(object)  # ParameterChange with the keys whose values changed
 
-    def __init__(self, face: Face, deformer: FapDeformer | None = None, *, cache: DiskCache | None = None):
+    def __init__(self, face: Face, deformer: FapDeformer | None = None, *, cache: DiskCache | None = None,
+                 progress: Callable[[float, str], None] | None = None):
         self.face = face
-        self.deformer = deformer if deformer is not None else FapDeformer.for_face(face, cache)
+        self.deformer = deformer if deformer is not None else FapDeformer.for_face(face, cache, progress)
         self.specs = tables.fap_specs()
         self.fapu = self.deformer.fapu
         self.faps = FapLayer(self.deformer)

@@ -46,7 +46,7 @@ def built(qapp, default_face, deformer, tmp_path_factory):
     win.resize(900, 600)
     win.plotter.disable_anti_aliasing()
     win.show()
-    dock = MuscleDock(win.document, win)
+    dock = win.muscle_dock = MuscleDock(win.document, win)   # the window's tool docks, as _create_tool_docks does
     dock.simulation.animation_s = 0.4  # keep the playback tests short
     first = {"message": dock.message_label.text(), "building": dock.is_building,
              "enabled": dock.apply_button.isEnabled()}
@@ -83,7 +83,7 @@ def test_built_off_thread_tabified_with_the_fap_dock_and_in_the_view_menu(built,
     win, first = built
     assert first["building"] and first["message"] == BUILDING_MESSAGE and not first["enabled"]
     assert dock in win.tabifiedDockWidgets(win.fap_dock)
-    assert win.muscle_dock_action in win.view_menu.actions()
+    assert win.muscle_dock.toggle_action in win.view_menu.actions()
     assert dock.layer is not None and dock.preset_combo.isEnabled() and not dock.message_label.isVisible()
     assert "muscles" in dock.rig._layers and dock.rig is win.rig  # attached to the window's rig
     # 9 pairs x 2 + orbicularis + jaw

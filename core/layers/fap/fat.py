@@ -70,15 +70,21 @@ class FapDeformer:
     Raises TemplateError (a ValueError with a user message) if the face lacks feature points.
     """
 
-    def __init__(self, face: Face, template: BaseTemplate | None = None):
+    def __init__(self, face: Face, template: BaseTemplate | None = None,
+                 progress: Callable[[float, str], None] | None = None):
+        report = progress or (lambda _fraction, _message: None)
         self.face = face
         self.template = template or load_template()
+        report(0.0, "Placing the FAP template on the face…")
         self.dense: DenseTemplate = densify(face, self.template)
         positions = {n: face.landmark_position(n) for n in face.landmark_names}
         self.fapu = tables.measure_fapu(positions)
         self.specs = tables.fap_specs()
+        report(0.45, "Weighting each FAP's influence region…")
         self.template_matrix, self.template_weights = self._template_fat()
+        report(0.55, "Binding the skin to the template…")
         self.binding = self._bind()
+        report(0.95, "Finishing the FAP table…")
         n = face.n_vertices
         B3 = scipy.sparse.kron(self.binding, scipy.sparse.identity(3, format="csr"), format="csr")
         F = (B3 @ self.template_matrix).tocsr()
@@ -361,21 +367,23 @@ class FapDeformer:
         self._rest = None
 
     @classmethod
-    def for_face(cls, face: Face, cache: DiskCache | None = None) -> "FapDeformer":
-        """The deformer of ``face``, read from ``cache`` when built before (else built and stored).
+    def for_face(cls, face: Face, cache: DiskCache | None = None,
+                 progress: Callable[[float, str], None] | None = None) -> "FapDeformer":
+        """The deformer of ``face``, read from ``cache`` when built before (else built and stored;
+        ``progress(fraction, message)`` hears how the build goes).
 
         Keyed by the face's vertices, triangles, feature points and parts, the template file and
         the source of the modules that build the table: any change there builds afresh.
         """
         if cache is None:
-            return cls(face)
+            return cls(face, progress=progress)
         key = deformer_key(face)
         found = cache.get("fap", key)
         if isinstance(found, cls):
             found.face = face
             found._rest = face.vertices.ravel()
             return found
-        deformer = cls(face)
+        deformer = cls(face, progress=progress)
         cache.put("fap", key, deformer)
         return deformer
 
