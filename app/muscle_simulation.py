@@ -275,12 +275,11 @@ class MuscleSimulation(QObject):
             self._release_layer()
             self.set_layer(None, NO_FACE_MESSAGE)
             return
-        if rig is None and document.rig_pending:
-            self._release_layer()
-            self.set_layer(None, BUILDING_MESSAGE)   # the rig is on its way (document.rig_changed)
-            return
         if rig is None:
             self._release_layer()
+            if document.rig_pending:   # the rig is on its way (document.rig_changed)
+                self.set_layer(None, BUILDING_MESSAGE)
+                return
             reason = document.rig_message or NO_RIG_MESSAGE
             self.set_layer(None, f"Muscles are not available for this face.\n\n{reason}")
             return

@@ -10,7 +10,9 @@ back from the render window), and to the full-quality frame drawn once input pau
     slider_to_pixels_ms median=<x>       FAP slider clicks (Jaw & chin, open jaw)
     full_quality_ms median=<x>           the same inputs to the full-quality frame
     muscle_slider_to_pixels_ms median=<x>
+    muscle_animate_fps=<x> wall_s=<x>     Animate (the first preset from rest): frames shown, wall time of the replay
     preset_to_pixels_ms median=<x>       expression presets chosen with the keyboard
+    pick_to_pixels_ms median=<x>         landmark picks: a click on the face moves the selected landmark
     playback_fps=<x> behind_s=<x>        frames shown per second while playing; playhead minus wall clock
     scrub_lag_ms median=<x>              ruler drag: each move to the first frame drawn after it
 
@@ -186,6 +188,17 @@ def main() -> None:
             first, _full = time_input(win, frames, lambda key=key: QTest.keyClick(row.slider, key), full=False)
             times.append(first)
         print(f"muscle_slider_to_pixels_ms median={median(times)} n={len(times)}")
+        # Animate: the first preset's forces played from rest with the dynamic integrator.
+        from core.layers.muscles import preset_names
+
+        muscle.simulation.apply_preset(preset_names()[0])
+        pump(10, lambda: idle(win) and not muscle.simulation.settling)
+        n0, start = len(frames.times), time.perf_counter()
+        QTest.mouseClick(muscle.animate_button, Qt.MouseButton.LeftButton)
+        pump(30, lambda: not muscle.simulation.animating)
+        elapsed = time.perf_counter() - start
+        print(f"muscle_animate_fps={(len(frames.times) - n0) / elapsed:.1f} wall_s={elapsed:.2f} "
+              f"(animation {muscle.simulation.animation_s:.2f} s of simulated time)")
         win.rig.reset()
         win.fap_dock.raise_()
 
@@ -199,6 +212,23 @@ def main() -> None:
     print(f"preset_to_pixels_ms median={median(times)} n={len(times)}")
     win.rig.reset()
     pump(1.0, lambda: idle(win))
+
+    # Landmark picks: the Landmarks tab in front, a landmark selected, Pick on, clicks on the face.
+    win.landmark_dock.raise_()
+    editor = win.landmark_editor
+    pump(1.0, lambda: editor.active)
+    editor.select("9.3")
+    QTest.mouseClick(win.landmark_dock.pick_button, Qt.MouseButton.LeftButton)
+    w, h = win.plotter.width(), win.plotter.height()
+    times = []
+    for i in range(max(args.inputs // 2, 3)):
+        where = QPoint(w // 2 + (12 if i % 2 == 0 else -12), int(h * 0.55))
+        first, _full = time_input(win, frames, lambda where=where: QTest.mouseClick(
+            win.plotter, Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier, where), full=False)
+        times.append(first)
+    QTest.mouseClick(win.landmark_dock.pick_button, Qt.MouseButton.LeftButton)
+    win.fap_dock.raise_()
+    print(f"pick_to_pixels_ms median={median(times)} n={len(times)}")
 
     # Playback: keys on the jaw and the lip corners, played for 4 s.
     timeline = win.timeline
