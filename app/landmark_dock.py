@@ -311,6 +311,7 @@ class LandmarkDock(QDockWidget):
 
         self.visibilityChanged.connect(self._on_visibility)
         self.document.face_changed.connect(self._on_face)
+        self.document.rig_changed.connect(self._on_rig)
         window.landmarks_action.toggled.connect(lambda _on: self._hide_scene_landmarks())
         if self.document.face is not None:
             editor.show_face(window.face_actor)
@@ -342,11 +343,15 @@ class LandmarkDock(QDockWidget):
     def _on_face(self, face) -> None:
         self.editor.show_face(self.main_window.face_actor)
         self._hide_scene_landmarks()
-        if self.document.rig is None and face is not None:
+        if self.document.rig is None and face is not None and not self.document.rig_pending:
             self.raise_()  # nothing to animate: correcting landmarks is what this face needs
 
+    def _on_rig(self, rig) -> None:
+        if rig is None and self.document.face is not None:
+            self.raise_()  # the rig could not be built: the landmarks are what to fix
+
     def _initial_tab(self) -> None:
-        no_rig = self.document.face is not None and self.document.rig is None
+        no_rig = self.document.face is not None and self.document.rig is None and not self.document.rig_pending
         (self if no_rig else self.main_window.fap_dock).raise_()
         self._on_visibility(_dock_showing(self))
 

@@ -491,3 +491,41 @@ def test_detection_in_other_units_offers_to_scale_and_keeps_the_landmarks(qtbot,
     assert asked and "2.00 times smaller" in asked[0] and "Scale it by 2?" in asked[0]
     assert np.ptp(window.face.vertices[:, 0]) == pytest.approx(2 * width)
     assert window.face.landmarks["9.3"] == points["9.3"]
+
+
+def test_a_loaded_face_shows_before_its_rig_is_built(qtbot, window, tmp_path, monkeypatch):
+    """The face appears as soon as it is read; the rig follows from the background with progress,
+    and the docks say what is happening meanwhile (not "cannot be animated")."""
+    import threading
+
+    import app.face_files
+    from app.document import PREPARING_MESSAGE, build_rig
+
+    release = threading.Event()
+    built = []
+
+    def slow_build(face, cache=None, progress=None):
+        progress(0.5, "halfway")
+        release.wait(30)
+        built.append(face)
+        return build_rig(face, cache, progress)
+
+    monkeypatch.setattr(app.face_files, "build_rig", slow_build)
+    face = make_synthetic_face(n_u=16, n_v=16)
+    path = write_obj(face, tmp_path / "slow.obj")
+    window.fap_dock.raise_()
+    arrived = []
+    window.document.rig_changed.connect(arrived.append)
+    window.load_face_file(path)
+    qtbot.waitUntil(lambda: window.face is not None and window.face.n_vertices == face.n_vertices,
+                    timeout=LOAD_TIMEOUT_MS)
+    assert window.document.rig_pending and window.is_loading and not built
+    assert window.fap_dock.message_label.text() == PREPARING_MESSAGE
+    assert window.muscle_dock.message_label.text().startswith("Building"), "the muscles wait for the rig"
+    assert not window.landmark_editor.active, "a face whose rig is coming is not sent to the landmark tab"
+    with qtbot.waitSignal(window.load_finished, timeout=LOAD_TIMEOUT_MS):
+        release.set()
+    assert built and arrived and not window.document.rig_pending and not window.is_loading
+    # the synthetic face has too few feature points: now the docks say why, and its landmarks come first
+    assert "feature points" in window.fap_dock.message_label.text()
+    qtbot.waitUntil(lambda: window.landmark_editor.active, timeout=LOAD_TIMEOUT_MS)
