@@ -129,3 +129,29 @@ def test_software_opengl_gets_no_msaa(win):
     assert anti_aliasing_for("llvmpipe (LLVM 15.0.6, 256 bits)") is None
     assert anti_aliasing_for("NVIDIA GeForce RTX 3060/PCIe/SSE2") == "msaa"
     assert isinstance(win.renderer_name, str)
+
+
+def test_a_camera_drag_is_drawn_as_a_draft_then_in_full(qtbot, win):
+    from PySide6.QtCore import QEvent, QPointF, Qt
+    from PySide6.QtGui import QMouseEvent
+    from PySide6.QtWidgets import QApplication
+
+    actor, plotter = win.face_actor, win.plotter
+    qtbot.waitUntil(lambda: _settled(win) and not actor.showing_preview, timeout=TIMEOUT_MS)
+    centre = QPointF(plotter.width() / 2, plotter.height() / 2)
+
+    def send(kind, pos, button, buttons):
+        QApplication.sendEvent(plotter, QMouseEvent(kind, pos, QPointF(plotter.mapToGlobal(pos.toPoint())),
+                                                    button, buttons, Qt.KeyboardModifier.NoModifier))
+
+    position = plotter.camera.position
+    send(QEvent.Type.MouseButtonPress, centre, Qt.MouseButton.LeftButton, Qt.MouseButton.LeftButton)
+    during = []
+    for i in range(1, 6):
+        send(QEvent.Type.MouseMove, centre + QPointF(10 * i, 4 * i), Qt.MouseButton.NoButton, Qt.MouseButton.LeftButton)
+        qtbot.wait(10)
+        during.append(actor.showing_preview)
+    send(QEvent.Type.MouseButtonRelease, centre + QPointF(50, 20), Qt.MouseButton.LeftButton, Qt.MouseButton.NoButton)
+    assert all(during) and plotter.camera.position != position, "the view turned, drawn as a draft"
+    qtbot.waitUntil(lambda: not actor.showing_preview, timeout=TIMEOUT_MS)
+    assert win.viewport.last_full_ms is not None
