@@ -90,3 +90,16 @@ def test_a_moved_feature_point_is_a_new_cache_entry(small_face):
     moved.set_landmark("2.1", SurfacePoint(point.triangle, (0.2, 0.3, 0.5)))
     assert deformer_key(moved) != key
     assert deformer_key(small_face.with_vertices(small_face.vertices + 0.01)) != key
+
+
+def test_a_damaged_fap_table_is_rebuilt_with_a_note(small_face, tmp_path):
+    cache = DiskCache(tmp_path)
+    built = FapDeformer.for_face(small_face, cache)
+    entry = cache.path("fap", deformer_key(small_face))
+    entry.write_bytes(entry.read_bytes()[: entry.stat().st_size // 2])   # a file cut short (disk full, crash)
+    again = FapDeformer.for_face(small_face, cache)
+    assert len(cache.notes) == 1 and "rebuilt" in cache.notes[0]
+    values = np.zeros(68)
+    values[2] = 300.0
+    np.testing.assert_array_equal(again.deform(values), built.deform(values))
+    assert FapDeformer.for_face(small_face, DiskCache(tmp_path)) is not None and entry.stat().st_size > 0
