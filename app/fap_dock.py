@@ -51,7 +51,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 # ------------------------------------------------------------------ the dock
 class FapDock(QDockWidget):
-    """The FAP dock for one :class:`~core.rig.FaceRig` (``set_rig`` when the face changes).
+    """The FAP dock of the document's rig (an :class:`app.document.Document`, followed on its
+    ``face_changed`` and ``rig_changed``), or of the ``rig`` given to ``set_rig`` without one.
 
     Signals
     -------
@@ -64,7 +65,8 @@ class FapDock(QDockWidget):
     feature_points_toggled = Signal(bool)
     overlay_changed = Signal()
 
-    def __init__(self, rig: "FaceRig | None" = None, parent: QWidget | None = None, *, message: str = ""):
+    def __init__(self, document=None, parent: QWidget | None = None, *, rig: "FaceRig | None" = None,
+                 message: str = ""):
         super().__init__("FAPs", parent)
         self.setObjectName("fapDock")
         self.setAllowedAreas(Qt.DockWidgetArea.LeftDockWidgetArea | Qt.DockWidgetArea.RightDockWidgetArea)
@@ -113,6 +115,13 @@ class FapDock(QDockWidget):
 
         self.setWidget(root)
         self.set_rig(rig, message)
+        self.document = document
+        if document is not None:   # follow the document's face and its rig (also one built later)
+            document.face_changed.connect(lambda _face: self._follow_document())
+            document.rig_changed.connect(lambda _rig: self._follow_document())
+
+    def _follow_document(self) -> None:
+        self.set_rig(self.document.rig, self.document.rig_message)
 
     # ----------------------------------------------------------- building
     def _build_presets(self, parent: QWidget) -> QGroupBox:

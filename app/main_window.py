@@ -217,7 +217,7 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
     def _create_docks(self) -> None:
         from app.fap_dock import FapDock
 
-        self.fap_dock = FapDock(parent=self, message="No face loaded yet.")
+        self.fap_dock = FapDock(self.document, self, message="No face loaded yet.")
         self.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self.fap_dock)
         self.resizeDocks([self.fap_dock], [520], Qt.Orientation.Horizontal)
         self.fap_dock.feature_points_toggled.connect(self.set_landmarks_visible)
@@ -428,7 +428,6 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
             # The actor starts at the neutral face; show the rig's state if it is not neutral.
             if rig.values(nondefault=True):
                 self.viewport.request("mesh")
-        self.fap_dock.set_rig(rig, self.document.rig_message)
         if rig is None and message:
             self.statusBar().showMessage(message.splitlines()[0], 15000)
         elif rig is not None:
