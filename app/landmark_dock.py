@@ -51,8 +51,8 @@ from PySide6.QtWidgets import (
 
 from app import picking
 from app.landmark_editor import LandmarkEditor
-from app.landmark_table import COLUMNS, LandmarkTableModel
-from core.landmark_editing import LandmarkStatus
+from app.landmark_table import COLUMNS, LandmarkFilter, LandmarkTableModel
+from core.landmark_editing import LOW_CONFIDENCE, LandmarkStatus
 
 __all__ = ["LandmarkDock", "LandmarkEditor", "LandmarkTableModel", "registration_available"]
 
@@ -144,17 +144,27 @@ class LandmarkDock(QDockWidget):
         self.names_check.setObjectName("landmarkNames")
         self.names_check.setChecked(True)
         self.names_check.setToolTip("Show every landmark's name in the view (the selected one always is)")
+        self.low_only_check = QCheckBox("Low confidence only", root)
+        self.low_only_check.setObjectName("landmarkLowOnly")
+        self.low_only_check.setToolTip(
+            "List only the unchecked landmarks the detector was unsure of (confidence below "
+            f"{LOW_CONFIDENCE:g}, highlighted): the ones worth checking. Click a column header to sort.")
         toggles.addWidget(self.pick_button)
         toggles.addWidget(self.mirror_check)
         toggles.addWidget(self.names_check)
+        toggles.addWidget(self.low_only_check)
         toggles.addStretch(1)
         outer.addLayout(toggles)
 
         # The list
         self.table_model = LandmarkTableModel(self)
+        self.table_filter = LandmarkFilter(self.table_model, self)
+        self.low_only_check.toggled.connect(self.table_filter.set_low_only)
         self.table = QTableView(root)
         self.table.setObjectName("landmarkTable")
-        self.table.setModel(self.table_model)
+        self.table.setModel(self.table_filter)
+        self.table.setSortingEnabled(True)
+        self.table.sortByColumn(0, Qt.SortOrder.AscendingOrder)   # the template's order
         self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
         self.table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
         self.table.setEditTriggers(QAbstractItemView.EditTrigger.DoubleClicked
@@ -243,6 +253,19 @@ class LandmarkDock(QDockWidget):
         self._install(window)
 
     # ------------------------------------------------------------ state shown
+    def name_at(self, view_index) -> str | None:
+        """The landmark of a row of the list as shown (sorted, filtered)."""
+        if not view_index.isValid():
+            return None
+        return self.table_model.name_at(self.table_filter.mapToSource(view_index).row())
+
+    def view_index(self, name: str | None, column: int = 0):
+        """The list's index (as shown) of ``name``'s row; invalid when filtered out or unknown."""
+        row = self.table_model.row_of(name)
+        if row < 0:
+            return self.table_filter.index(-1, -1)
+        return self.table_filter.mapFromSource(self.table_model.index(row, column))
+
     def set_registration_available(self, available: bool) -> None:
         """Enable the matching buttons, or disable them with the reason as tooltip."""
         self._registration = bool(available)
@@ -264,8 +287,11 @@ class LandmarkDock(QDockWidget):
             return f"<span style='color: rgb({r},{g},{b});'>●</span> {n} {status}"
 
         if n_total:
+            model = self.table_model
+            low = sum(model.is_low(n) for n in (model.model.names if model.model is not None else ()))
+            worth = f" &nbsp; <span style='color: #a01e0a;'>{low} low confidence</span>" if low else ""
             self.summary_label.setText(f"{n_total} landmarks &nbsp; {chip('auto', auto)} &nbsp; "
-                                       f"{chip('edited', edited)} &nbsp; {chip('confirmed', confirmed)}")
+                                       f"{chip('edited', edited)} &nbsp; {chip('confirmed', confirmed)}{worth}")
         elif has_face:
             self.summary_label.setText("This face has no landmarks yet: detect them or load a file.")
         else:

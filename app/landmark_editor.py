@@ -170,7 +170,7 @@ class LandmarkEditor(QObject):
             self.model.select_next(step)
 
     def _row_changed(self, current: QModelIndex, _previous: QModelIndex) -> None:
-        name = self.dock.table_model.name_at(current.row()) if current.isValid() else None
+        name = self.dock.name_at(current)
         if name is not None:
             self.select(name)
 
@@ -178,12 +178,11 @@ class LandmarkEditor(QObject):
         if self.document.landmarks is not self.model:
             return  # the document's next face, not shown yet (show_face syncs everything)
         table = self.dock.table
-        row = self.dock.table_model.row_of(name)
+        index = self.dock.view_index(name)
         with QSignalBlocker(table.selectionModel()):
-            if row < 0:
+            if not index.isValid():   # none selected, or filtered out of the list
                 table.selectionModel().clearSelection()
             else:
-                index = self.dock.table_model.index(row, 0)
                 table.selectionModel().setCurrentIndex(
                     index, QItemSelectionModel.SelectionFlag.ClearAndSelect | QItemSelectionModel.SelectionFlag.Rows)
                 table.scrollTo(index, QAbstractItemView.ScrollHint.EnsureVisible)

@@ -1,16 +1,17 @@
 """The landmark list's model: one row per landmark with its status chip, confidence and position,
-short MPEG-4 descriptions as tooltips, sorting by any column."""
+short MPEG-4 descriptions as tooltips; sorting by any column (confidence: the doubtful first) and
+a "low confidence only" filter through :class:`LandmarkFilter`; low confidences highlighted."""
 
 from __future__ import annotations
 
 import re
 
 import numpy as np
-from PySide6.QtCore import QAbstractTableModel, QModelIndex, QObject, Qt, Signal
+from PySide6.QtCore import QAbstractTableModel, QModelIndex, QObject, QSortFilterProxyModel, Qt, Signal
 from PySide6.QtGui import QBrush, QColor, QIcon, QPainter, QPixmap
 
 from app import picking
-from core.landmark_editing import LandmarkEditModel, LandmarkStatus
+from core.landmark_editing import LOW_CONFIDENCE, LandmarkEditModel, LandmarkStatus
 from core.layers.fap import tables
 
 
@@ -22,6 +23,9 @@ STATUS_TIPS = {
 
 
 COLUMNS = ("Landmark", "Status", "Conf.", "x", "y", "z")
+SORT_ROLE = Qt.ItemDataRole.UserRole + 1   # what a column sorts by (numbers, template order)
+LOW_BACKGROUND = QColor(255, 214, 204)
+LOW_FOREGROUND = QColor(160, 30, 10)
 
 
 def _descriptions() -> dict[str, str]:
@@ -159,15 +163,36 @@ class LandmarkTableModel(QAbstractTableModel):
             tip = f"<b>{self.label(name)}</b><br>{STATUS_TIPS[status]}<br>x {x:.2f}, y {y:.2f}, z {z:.2f} mm"
             if state.confidence is not None:
                 tip += f"<br>detector confidence {state.confidence:.3f}"
+                if self.is_low(name):
+                    tip += " — <b>low: check where it is</b>"
             partner = self.model.mirror_partner(name)
             if partner:
                 tip += f"<br>mirror partner: {partner}"
             return tip
+        if role == SORT_ROLE:
+            if col == 0:
+                return index.row()   # the template's order
+            if col == 1:
+                return [s.value for s in LandmarkStatus].index(status)
+            if col == 2:   # the doubtful first; unknown last
+                return float("inf") if state.confidence is None else float(state.confidence)
+            return float(self._positions[index.row(), col - 3])
+        low = self.is_low(name)
         if role == Qt.ItemDataRole.TextAlignmentRole and col >= 2:
             return int(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
         if role == Qt.ItemDataRole.ForegroundRole and col == 1:
             return QBrush(QColor(*picking.STATUS_COLORS[status]).darker(135))
+        if role == Qt.ItemDataRole.ForegroundRole and col == 2 and low:
+            return QBrush(LOW_FOREGROUND)
+        if role == Qt.ItemDataRole.BackgroundRole and col == 2 and low:
+            return QBrush(LOW_BACKGROUND)
         return None
+
+    def is_low(self, name: str) -> bool:
+        """True for an unchecked landmark the detector was unsure of (confidence < LOW_CONFIDENCE)."""
+        state = self.model.state(name) if self.model is not None else None
+        return (state is not None and state.confidence is not None and state.confidence < LOW_CONFIDENCE
+                and state.status == LandmarkStatus.AUTO)
 
     def setData(self, index, value, role=Qt.ItemDataRole.EditRole) -> bool:  # noqa: N802 - Qt API
         if self.model is None or role != Qt.ItemDataRole.EditRole or index.column() < 3:
@@ -182,3 +207,30 @@ class LandmarkTableModel(QAbstractTableModel):
         xyz[index.column() - 3] = value
         self.edit_position.emit(self._names[index.row()], xyz)
         return True
+
+
+class LandmarkFilter(QSortFilterProxyModel):
+    """What the list shows of a :class:`LandmarkTableModel`: sorted by :data:`SORT_ROLE`, and only
+    the low-confidence landmarks while ``low_only``."""
+
+    def __init__(self, source: LandmarkTableModel, parent: QObject | None = None):
+        super().__init__(parent)
+        self.setSourceModel(source)
+        self.setSortRole(SORT_ROLE)
+        self.low_only = False
+
+    def set_low_only(self, on: bool) -> None:
+        if hasattr(self, "beginFilterChange"):   # Qt 6.10+ (invalidateFilter is deprecated there)
+            self.beginFilterChange()
+            self.low_only = bool(on)
+            self.endFilterChange(QSortFilterProxyModel.Direction.Rows)
+        else:
+            self.low_only = bool(on)
+            self.invalidateFilter()
+
+    def filterAcceptsRow(self, row: int, parent) -> bool:  # noqa: N802 - Qt API
+        if not self.low_only:
+            return True
+        source = self.sourceModel()
+        name = source.name_at(row)
+        return name is not None and source.is_low(name)

@@ -68,6 +68,7 @@ __all__ = [
 ]
 
 CSV_COLUMNS = ("name", "x", "y", "z", "status", "confidence")
+LOW_CONFIDENCE = 0.5   # detector scores below this are worth checking (lists, counts and reports)
 _FP_NAME = re.compile(r"^(\d+)\.(\d+)$")
 
 

@@ -26,6 +26,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from core.landmark_editing import LOW_CONFIDENCE
 from core.face import Face, SurfacePoint
 from core.registration.correspondence import CorrespondenceError, Registration, SurfaceRays, dense_correspondence, landmark_positions_on
 from core.registration.matching import MatchParams, ModelContext, match, model_context
@@ -64,7 +65,7 @@ class Detection:
     rays: SurfaceRays | None = field(default=None, repr=False)
     scale_hint: float | None = None
 
-    def low_confidence(self, threshold: float = 0.5) -> list[str]:
+    def low_confidence(self, threshold: float = LOW_CONFIDENCE) -> list[str]:
         return [n for n, c in self.confidence.items() if c < threshold]
 
     def face_with_landmarks(self, scan: Face) -> Face:

@@ -56,7 +56,8 @@ def input_features(scan: Face, to_model: np.ndarray, params: MatchParams) -> Inp
         try:
             seeds = {k: apply_transform(v[None], to_model)[0] for k, v in colombo_seeds(scan, hk).items()}
         except CurvatureError as exc:
-            report.append(f"Colombo seeds not found ({exc}); matching starts from the structure alone")
+            report.append(f"The eye corners and nose tip could not be found from the surface's curvature "
+                          f"({exc}); the landmarks were placed from the face's overall shape alone")
     pts = apply_transform(cand.points, to_model)
     hkc = sample_vertex_values(scan, hk.colours / 255.0, cand.triangle, cand.bary)
     colour = cand.colour if textured else np.full((len(pts), 3), 0.5)
@@ -104,5 +105,7 @@ def preset_points(ctx, feats: InputFeatures, fixed: dict[str, np.ndarray], to_mo
                 if d <= 0.12 * ctx.scale:
                     preset[i] = pos
                 else:
-                    report.append(f"Colombo seed {key} is {d:.0f} mm from where the aligned model puts {n}; ignored")
+                    # Plain words: the report reaches users ("Colombo seed" is the thesis's term).
+                    report.append(f"The surface's curvature suggested the {key.replace('_', ' ')} {d:.0f} mm "
+                                  f"from where the face's overall shape puts it; that hint was not used")
     return preset

@@ -131,7 +131,7 @@ def test_click_marker_selects_it_in_the_list(editor, window, qtbot):
     qtbot.mouseClick(window.plotter, Qt.MouseButton.LeftButton, pos=marker_pixel(editor, "9.3"))
     assert editor.model.selected == "9.3"
     table = window.landmark_dock.table
-    assert editor.dock.table_model.name_at(table.currentIndex().row()) == "9.3"
+    assert editor.dock.name_at(table.currentIndex()) == "9.3"
     assert editor.markers.selected_index == editor.model.index("9.3")
 
 
@@ -139,8 +139,7 @@ def test_click_row_selects_and_highlights_in_view(editor, window, qtbot):
     from app.picking import SELECTED_OFFSET_MM
 
     table = window.landmark_dock.table
-    row = editor.dock.table_model.row_of("8.3")
-    rect = table.visualRect(editor.dock.table_model.index(row, 0))
+    rect = table.visualRect(editor.dock.view_index("8.3"))
     qtbot.mouseClick(table.viewport(), Qt.MouseButton.LeftButton, pos=rect.center())
     assert editor.model.selected == "8.3"
     positions, normals = editor._landmark_geometry()
@@ -501,3 +500,37 @@ def test_set_value_command_merges_only_within_a_gesture():
     stack.undo()
     stack.undo()
     assert seen[-1] == 0.0
+
+
+def test_the_list_sorts_by_confidence_and_shows_the_doubtful_only(editor, window, qtbot):
+    from app.landmark_table import LOW_BACKGROUND
+    from core.landmark_editing import LOW_CONFIDENCE
+
+    dock = window.landmark_dock
+    names = list(editor.model.names)
+    scores = {name: (i % 5) / 5 for i, name in enumerate(names)}   # 0.0 .. 0.8
+    import dataclasses
+
+    for name, score in scores.items():
+        editor.model.set_state(name, dataclasses.replace(editor.model.state(name), confidence=score))
+    dock.table_model.refresh()
+    low = sorted(n for n, c in scores.items() if c < LOW_CONFIDENCE)
+    # a click on the Conf. header sorts the doubtful first
+    header = dock.table.horizontalHeader()
+    qtbot.mouseClick(header.viewport(), Qt.MouseButton.LeftButton,
+                     pos=QPoint(header.sectionViewportPosition(2) + 5, header.height() // 2))
+    shown = [dock.name_at(dock.table_filter.index(r, 0)) for r in range(dock.table_filter.rowCount())]
+    assert [scores[n] for n in shown] == sorted(scores.values())
+    assert dock.table_filter.index(0, 2).data(Qt.ItemDataRole.BackgroundRole).color() == LOW_BACKGROUND
+    qtbot.mouseClick(dock.low_only_check, Qt.MouseButton.LeftButton)
+    listed = sorted(dock.name_at(dock.table_filter.index(r, 0)) for r in range(dock.table_filter.rowCount()))
+    assert listed == low and 0 < len(low) < len(names)
+    editor._update_counts()
+    assert f"{len(low)} low confidence" in dock.summary_label.text()
+    # selecting through the filtered list still selects the landmark; confirming one removes it
+    qtbot.mouseClick(dock.table.viewport(), Qt.MouseButton.LeftButton,
+                     pos=dock.table.visualRect(dock.table_filter.index(0, 0)).center())
+    first = editor.model.selected
+    assert first in low
+    editor.model.confirm(first)
+    assert dock.table_filter.rowCount() == len(low) - 1
