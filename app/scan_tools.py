@@ -34,7 +34,7 @@ class ScanToolsMixin:
         def done(detection):
             if self.face is not face:
                 return  # the face changed meanwhile
-            if detection.scale_hint and self._accept_scale_hint(detection.scale_hint):
+            if detection.scale_hint:   # other units: scale, never stop to ask (Tools > Scale face undoes it)
                 self._rescale_with_detection(detection)
                 return
             self.document.apply_landmark_detection(detection.landmarks, detection.confidence)
@@ -43,40 +43,36 @@ class ScanToolsMixin:
         what = "Re-running matching with your edits fixed…" if fixed else "Detecting landmarks…"
         self.run_job(work, done, "Cannot detect landmarks", what)
 
-    def _accept_scale_hint(self, factor: float) -> bool:
-        """Ask whether to scale a face whose units are evidently not millimetres."""
-        width = float(np.ptp(self.face.vertices[:, 0]))
-        answer = QMessageBox.question(
-            self, "Scale the face?",
-            f"This face is {factor:.2f} times {'smaller' if factor > 1 else 'larger'} than a human face "
-            f"({width:.0f} mm wide as loaded): its file's units are probably not millimetres.\n\n"
-            f"Scale it by {factor:.3g}? Distances in mm and the muscle model need the real size; the "
-            "landmarks were found either way.",
-            QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, QMessageBox.StandardButton.Yes)
-        return answer == QMessageBox.StandardButton.Yes
-
     def _rescale_with_detection(self, detection) -> None:
         """Scale the face by the detection's factor, then put the detection (with its confidences) on
         the scaled face: surface points do not change with scale."""
         factor = detection.scale_hint
+        width = float(np.ptp(self.face.vertices[:, 0]))
+        note = (f"This face was {factor:.2f} times {'smaller' if factor > 1 else 'larger'} than a human face "
+                f"({width:.0f} wide as loaded, so its file is probably not in millimetres): Mimica scaled it by "
+                f"{factor:.3g}. Tools ▸ Scale face… changes that.")
 
         def reapply(ok: bool) -> None:
             self.load_finished.disconnect(reapply)
             if ok:
                 self.document.apply_landmark_detection(detection.landmarks, detection.confidence)
-                self._report_detection(detection)
+                self._report_detection(detection, first=note)
 
         self.load_finished.connect(reapply)
         self.scale_face(factor)
 
-    def _report_detection(self, detection) -> None:
+    def _report_detection(self, detection, first: str = "") -> None:
+        """Status bar summary; the detector's notes (and ``first``, e.g. the scaling done) in one box."""
         low = detection.low_confidence()
         note = f"; {len(low)} with low confidence are worth checking" if low else ""
         self.statusBar().showMessage(
             f"Detected {len(detection.landmarks)} landmarks in {detection.timings.get('total_s', 0):.1f} s{note}.",
             15000)
-        if detection.report:
-            self._show_notes(detection.report, "landmark detection")
+        # The detector's own units line repeats what ``first`` says about scaling.
+        lines = [first] if first else []
+        lines += [r for r in detection.report if not (first and "probably not millimetres" in r)]
+        if lines:
+            self._show_notes(lines, "landmark detection")
 
     def build_correspondence(self) -> None:
         """Register the current face to the MPEG-4 template and switch the view to the canonical face."""
@@ -131,11 +127,20 @@ class ScanToolsMixin:
 
         if self.face is None:
             return
+        from core.face import texture_runs_down
+
         try:
             face = self.face.with_texture(load_texture_image(path))
         except (MeshLoadError, ValueError) as exc:
             self.show_error("Cannot load the texture", str(exc))
             return
+        if texture_runs_down(face):   # decided from the face itself: never upside down, never asked
+            import dataclasses
+
+            face = face.with_flipped_texture()
+            note = (f"{Path(path).name} was turned upside down to match this face's texture coordinates "
+                    "(they count rows from the top). Tools ▸ Flip texture vertically undoes it.")
+            face.metadata = dataclasses.replace(face.metadata, notes=[*face.metadata.notes, note])
         self.replace_face(face, f"Applying the texture {Path(path).name}…")
 
     def flip_texture(self) -> None:

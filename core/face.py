@@ -489,6 +489,26 @@ class VertexNormals:
         return np.divide(out, length, out=np.zeros_like(out), where=length > 0)
 
 
+UV_AGAINST_HEIGHT = -0.3   # correlation of v with height below which a texture reads upside down
+
+
+def texture_runs_down(face: Face) -> bool:
+    """True when ``face``'s texture coordinates run against its height (v falls as y rises: their
+    correlation is below ``UV_AGAINST_HEIGHT``).
+
+    Face textures are drawn upright (forehead at the top of the image) and Mimica samples row
+    ``(1 - v) * H``; coordinates written for the other convention (v counted down from the top, as
+    glTF and many tools do) then show the image upside down: such a face wants
+    :meth:`Face.with_flipped_texture`. False without uv or when the evidence is weak.
+    """
+    if face.uv is None or face.n_vertices < 3:
+        return False
+    v, y = face.uv[:, 1], face.vertices[:, 1]
+    if np.ptp(v) == 0 or np.ptp(y) == 0:
+        return False
+    return float(np.corrcoef(v, y)[0, 1]) < UV_AGAINST_HEIGHT
+
+
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(n, 3) unit vertex normals: area-weighted sum of incident triangle normals."""
     return VertexNormals(triangles, len(vertices))(vertices)

@@ -453,6 +453,28 @@ def test_scale_face_and_load_texture_replace_the_face(qtbot, window, synthetic_f
     assert window.face.texture.shape == (8, 16, 3)   # nothing lost
 
 
+def test_a_texture_for_top_down_coordinates_is_turned_upright_with_a_note(qtbot, window, synthetic_face, tmp_path,
+                                                                         monkeypatch):
+    from PIL import Image
+
+    from core.face import Face
+
+    down = Face(synthetic_face.vertices, synthetic_face.triangles, uv=synthetic_face.uv * [1, -1] + [0, 1],
+                landmarks=synthetic_face.landmarks)
+    window.set_face(down, rig=None)
+    shown = []
+    monkeypatch.setattr(window, "_show_notes", lambda notes, name: shown.append(notes))
+    window.face_path = "head.glb"
+    image = np.zeros((8, 4, 3), np.uint8)
+    image[:4] = (255, 0, 0)   # red top half, as drawn
+    Image.fromarray(image).save(tmp_path / "tex.png")
+    with qtbot.waitSignal(window.load_finished, timeout=30000):
+        window.load_texture(tmp_path / "tex.png")
+    assert (window.face.texture[4:, :, 0] == 255).all() and (window.face.texture[:4, :, 0] == 0).all()
+    assert shown and "tex.png was turned upside down" in shown[-1][0]
+    assert not any("upside down" in n for n in down.metadata.notes), "the shown face's notes are not touched"
+
+
 def test_flip_texture_turns_the_image_upside_down(qtbot, window, synthetic_face, error_boxes, monkeypatch):
     shown = []
     monkeypatch.setattr(window, "_show_notes", lambda notes, name: shown.append(notes))
@@ -468,29 +490,37 @@ def test_flip_texture_turns_the_image_upside_down(qtbot, window, synthetic_face,
     assert shown == [["Scaled by 2 in Mimica."]]   # the load notes are not shown again for each edit
 
 
-def test_detection_in_other_units_offers_to_scale_and_keeps_the_landmarks(qtbot, window, synthetic_face,
-                                                                        monkeypatch):
-    """A detector that finds the face 2x too small: the window asks, scales, and the detected points
-    (with their confidences) land on the scaled face."""
+def test_detection_in_other_units_scales_without_asking_and_keeps_the_landmarks(qtbot, window, synthetic_face,
+                                                                              monkeypatch):
+    """A detector that finds the face 2x too small: the window scales it (no question in the middle
+    of detection), says so once in plain words, and the detected points (with their confidences)
+    land on the scaled face."""
     from PySide6.QtWidgets import QMessageBox
 
     import core.registration.pipeline as pipeline
     from core.face import SurfacePoint
 
     points = {"9.3": SurfacePoint(3, (0.2, 0.3, 0.5)), "2.1": SurfacePoint(5, (1.0, 0.0, 0.0))}
-    detection = pipeline.Detection(points, {"9.3": 0.9, "2.1": 0.2}, ["units look wrong"], {"total_s": 0.1},
-                                   "mpeg4_80", scale_hint=2.0)
+    detection = pipeline.Detection(points, {"9.3": 0.9, "2.1": 0.2},
+                                   ["the scan's face is 2.00 times smaller than a human face: its units are "
+                                    "probably not millimetres", "2 landmark(s) with low confidence"],
+                                   {"total_s": 0.1}, "mpeg4_80", scale_hint=2.0)
     monkeypatch.setattr(pipeline, "detect_landmarks", lambda face, fixed=None: detection)
     asked = []
-    monkeypatch.setattr(QMessageBox, "question", lambda *a, **k: asked.append(a[2]) or QMessageBox.StandardButton.Yes)
-    monkeypatch.setattr(window, "_show_notes", lambda lines, what: None)
+    monkeypatch.setattr(QMessageBox, "question", lambda *a, **k: asked.append(a[2]) or QMessageBox.StandardButton.No)
+    shown = []
+    monkeypatch.setattr(window, "_show_notes", lambda lines, what: shown.append(lines))
     width = np.ptp(synthetic_face.vertices[:, 0])
     with qtbot.waitSignal(window.load_finished, timeout=30000):
         window.detect_landmarks()
     qtbot.waitUntil(lambda: window.landmark_editor.model.confidence("2.1") == pytest.approx(0.2), timeout=10000)
-    assert asked and "2.00 times smaller" in asked[0] and "Scale it by 2?" in asked[0]
+    assert not asked, "detection never stops to ask"
     assert np.ptp(window.face.vertices[:, 0]) == pytest.approx(2 * width)
     assert window.face.landmarks["9.3"] == points["9.3"]
+    notes = shown[-1]
+    assert "scaled it by 2" in notes[0] and "Scale face" in notes[0]
+    assert not any("probably not millimetres" in n for n in notes[1:]), "said once"
+    assert any("low confidence" in n for n in notes)
 
 
 def test_a_loaded_face_shows_before_its_rig_is_built(qtbot, window, tmp_path, monkeypatch):

@@ -115,3 +115,15 @@ def test_with_flipped_texture_turns_the_image_upside_down(grid_face):
     assert flipped.landmarks == grid_face.landmarks and np.array_equal(flipped.uv, grid_face.uv)
     with pytest.raises(ValueError, match="no texture"):
         grid_face.without_texture().with_flipped_texture()
+
+
+def test_texture_runs_down_when_v_falls_as_the_face_rises(grid_face):
+    from core.face import Face, texture_runs_down
+
+    assert not texture_runs_down(grid_face), "the grid's v rises with y"
+    down = Face(grid_face.vertices, grid_face.triangles, uv=grid_face.uv * [1, -1] + [0, 1],
+                texture=grid_face.texture)
+    assert texture_runs_down(down)
+    assert not texture_runs_down(Face(grid_face.vertices, grid_face.triangles)), "no uv"
+    flat = Face(grid_face.vertices, grid_face.triangles, uv=np.full((grid_face.n_vertices, 2), 0.5))
+    assert not texture_runs_down(flat), "no evidence, no flip"
