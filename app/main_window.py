@@ -363,13 +363,13 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self.statusBar().showMessage(first if len(first) <= 140 else first[:139] + "…", 8000)
         QMessageBox.warning(self, title, message)
 
-    def _show_notes(self, notes: list[str], name: str) -> None:
-        """Non-modal list of what the loader did (repairs, unit conversion)."""
+    def _show_notes(self, notes: list[str], name: str, heading: str | None = None) -> None:
+        """Non-modal list of what the loader (or another tool, with its ``heading``) did."""
         if self._notes_box is not None:
             self._notes_box.close()
             self._notes_box.deleteLater()
-        box = QMessageBox(QMessageBox.Icon.Information, "Notes on loading",
-                          f"While loading {name}:", QMessageBox.StandardButton.Ok, self)
+        box = QMessageBox(QMessageBox.Icon.Information, "Notes on loading" if heading is None else "Notes",
+                          heading or f"While loading {name}:", QMessageBox.StandardButton.Ok, self)
         box.setInformativeText("\n".join(f"• {n}" for n in notes))
         box.setModal(False)
         box.setWindowModality(Qt.WindowModality.NonModal)

@@ -17,6 +17,22 @@ import numpy as np
 from PySide6.QtWidgets import QFileDialog, QMessageBox
 
 
+EYE_CORNERS_MM = (50.0, 130.0)   # outer eye corner to outer eye corner of a human face (adults ~90 mm)
+
+
+def _plausible_scale(face, detection) -> bool:
+    """True when the detected outer eye corners (3.7, 3.12), scaled by the detection's factor, are
+    a human distance apart: a face found at an absurd size is not scaled behind the user's back."""
+    points = detection.landmarks
+    if "3.7" not in points or "3.12" not in points:
+        return False
+    probe = face.with_vertices(face.vertices)
+    for name in ("3.7", "3.12"):
+        probe.set_landmark(name, points[name])
+    width = float(np.linalg.norm(probe.landmark_position("3.7") - probe.landmark_position("3.12")))
+    return EYE_CORNERS_MM[0] <= width * detection.scale_hint <= EYE_CORNERS_MM[1]
+
+
 class ScanToolsMixin:
     """Landmark detection, correspondence, scale and texture tools of the main window."""
 
@@ -34,7 +50,8 @@ class ScanToolsMixin:
         def done(detection):
             if self.face is not face:
                 return  # the face changed meanwhile
-            if detection.scale_hint:   # other units: scale, never stop to ask (Tools > Scale face undoes it)
+            if detection.scale_hint and _plausible_scale(face, detection):
+                # other units: scale, never stop to ask (Tools > Scale face changes it)
                 self._rescale_with_detection(detection)
                 return
             self.document.apply_landmark_detection(detection.landmarks, detection.confidence)
@@ -49,7 +66,7 @@ class ScanToolsMixin:
         factor = detection.scale_hint
         width = float(np.ptp(self.face.vertices[:, 0]))
         note = (f"This face was {factor:.2f} times {'smaller' if factor > 1 else 'larger'} than a human face "
-                f"({width:.0f} wide as loaded, so its file is probably not in millimetres): Mimica scaled it by "
+                f"({width:.0f} mm wide as loaded: its file is probably not in millimetres), so Mimica scaled it by "
                 f"{factor:.3g}. Tools ▸ Scale face… changes that.")
 
         def reapply(ok: bool) -> None:
@@ -72,7 +89,7 @@ class ScanToolsMixin:
         lines = [first] if first else []
         lines += [r for r in detection.report if not (first and "probably not millimetres" in r)]
         if lines:
-            self._show_notes(lines, "landmark detection")
+            self._show_notes(lines, "landmark detection", heading="Landmark detection:")
 
     def build_correspondence(self) -> None:
         """Register the current face to the MPEG-4 template and switch the view to the canonical face."""

@@ -500,8 +500,10 @@ def test_detection_in_other_units_scales_without_asking_and_keeps_the_landmarks(
     import core.registration.pipeline as pipeline
     from core.face import SurfacePoint
 
-    points = {"9.3": SurfacePoint(3, (0.2, 0.3, 0.5)), "2.1": SurfacePoint(5, (1.0, 0.0, 0.0))}
-    detection = pipeline.Detection(points, {"9.3": 0.9, "2.1": 0.2},
+    points = {"9.3": SurfacePoint(3, (0.2, 0.3, 0.5)), "2.1": SurfacePoint(5, (1.0, 0.0, 0.0)),
+              "3.7": synthetic_face.surface_point((25.0, 20.0, 60.0)),      # outer eye corners ~50 mm apart:
+              "3.12": synthetic_face.surface_point((-25.0, 20.0, 60.0))}    # 100 mm once scaled, human
+    detection = pipeline.Detection(points, {"9.3": 0.9, "2.1": 0.2, "3.7": 0.8, "3.12": 0.8},
                                    ["the scan's face is 2.00 times smaller than a human face: its units are "
                                     "probably not millimetres", "2 landmark(s) with low confidence"],
                                    {"total_s": 0.1}, "mpeg4_80", scale_hint=2.0)
@@ -509,7 +511,7 @@ def test_detection_in_other_units_scales_without_asking_and_keeps_the_landmarks(
     asked = []
     monkeypatch.setattr(QMessageBox, "question", lambda *a, **k: asked.append(a[2]) or QMessageBox.StandardButton.No)
     shown = []
-    monkeypatch.setattr(window, "_show_notes", lambda lines, what: shown.append(lines))
+    monkeypatch.setattr(window, "_show_notes", lambda lines, what, heading=None: shown.append(lines))
     width = np.ptp(synthetic_face.vertices[:, 0])
     with qtbot.waitSignal(window.load_finished, timeout=30000):
         window.detect_landmarks()
@@ -521,6 +523,13 @@ def test_detection_in_other_units_scales_without_asking_and_keeps_the_landmarks(
     assert "scaled it by 2" in notes[0] and "Scale face" in notes[0]
     assert not any("probably not millimetres" in n for n in notes[1:]), "said once"
     assert any("low confidence" in n for n in notes)
+
+    # a face found at an absurd size (eye corners 20x apart once scaled) is not scaled behind the user's back
+    detection.scale_hint = 20.0
+    window.statusBar().clearMessage()
+    window.detect_landmarks()
+    qtbot.waitUntil(lambda: window.statusBar().currentMessage().startswith("Detected"), timeout=30000)
+    assert np.ptp(window.face.vertices[:, 0]) == pytest.approx(2 * width), "not scaled again"
 
 
 def test_a_loaded_face_shows_before_its_rig_is_built(qtbot, window, tmp_path, monkeypatch):
