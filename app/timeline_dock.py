@@ -31,12 +31,13 @@ import traceback
 from PySide6.QtCore import QSignalBlocker, Qt
 from PySide6.QtGui import QAction, QFontMetrics, QKeySequence
 from PySide6.QtWidgets import (
-    QCheckBox, QComboBox, QDockWidget, QDoubleSpinBox, QFrame, QHBoxLayout, QLabel, QMenu, QScrollArea,
+    QCheckBox, QComboBox, QDockWidget, QDoubleSpinBox, QHBoxLayout, QLabel, QMenu,
     QScrollBar, QStyle, QToolButton, QVBoxLayout, QWidget)
 
 from core import timeline as tl
 
 from app.timeline_controller import SPEEDS, TimelineController
+from app.widgets import FlowLayout
 
 from app.timeline_rows import (  # noqa: F401 - re-exported
     group_of, Row, build_rows)
@@ -73,8 +74,10 @@ class TimelineDock(QDockWidget):
         outer = QVBoxLayout(body)
         outer.setContentsMargins(4, 2, 4, 4)
         outer.setSpacing(3)
-        bar = QHBoxLayout()
-        bar.setSpacing(4)
+        # Three groups (transport, keys, timeline settings) that wrap onto a second row when the
+        # dock is narrow, so every control stays in sight.
+        groups = [QHBoxLayout() for _ in range(3)]
+        bar = groups[0]
         style = self.style()
 
         def tool(name: str, icon, tip: str, checkable=False) -> QToolButton:
@@ -115,7 +118,7 @@ class TimelineDock(QDockWidget):
         self.fps_label.setToolTip("Frames actually shown per second during playback (late frames are dropped)")
         self.fps_label.setMinimumWidth(QFontMetrics(self.fps_label.font()).horizontalAdvance("shown 00.0 fps") + 6)
         bar.addWidget(self.fps_label)
-        bar.addStretch(1)
+        bar = groups[1]
         self.key_button = tool("timelineSetKey", "◆ Set key", "Key the selected tracks — or every animated or "
                                "non-neutral control — at the cursor (K)")
         self.key_button.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextOnly)
@@ -128,7 +131,7 @@ class TimelineDock(QDockWidget):
         self.show_all_check.setToolTip("List every parameter, not only the animated ones")
         bar.addWidget(self.show_all_check)
         self.lipsync_button = tool("timelineLipSync", "Lip-sync…", "Make viseme tracks from text (Tools ▸ Lip-sync)")
-        bar.addSpacing(8)
+        bar = groups[2]
         bar.addWidget(QLabel("fps", body))
         self.fps_combo = QComboBox(body)
         self.fps_combo.setObjectName("timelineFps")
@@ -145,19 +148,17 @@ class TimelineDock(QDockWidget):
         self.duration_spin.setKeyboardTracking(False)
         self.duration_spin.setToolTip("Length of the timeline in seconds")
         bar.addWidget(self.duration_spin)
-        # The transport bar scrolls sideways when the window is narrow, so the dock never forces a wide
-        # window (its buttons alone are ~1000 px).
+        flow = FlowLayout(spacing=14)
+        for group in groups:
+            group.setSpacing(4)
+            group.setContentsMargins(0, 0, 0, 0)
+            holder = QWidget(body)
+            holder.setLayout(group)
+            flow.addWidget(holder)
         strip = QWidget(body)
-        strip.setLayout(bar)
-        bar.setContentsMargins(0, 0, 0, 0)
-        scroller = QScrollArea(body)
-        scroller.setWidget(strip)
-        scroller.setWidgetResizable(True)
-        scroller.setFrameShape(QFrame.Shape.NoFrame)
-        scroller.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAsNeeded)
-        scroller.setVerticalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
-        scroller.setFixedHeight(strip.sizeHint().height() + scroller.horizontalScrollBar().sizeHint().height() + 2)
-        outer.addWidget(scroller)
+        strip.setObjectName("timelineBar")
+        strip.setLayout(flow)
+        outer.addWidget(strip)
 
         area = QHBoxLayout()
         area.setSpacing(0)

@@ -145,6 +145,24 @@ def test_dock_adds_itself_menus_and_the_fap_actions(win, c):
     assert c.dock.empty_label.isVisible() and not [r for r in c.dock.view.rows if not r.is_group]
 
 
+def test_every_timeline_control_stays_in_sight_in_a_narrow_dock(qtbot, win, c):
+    """The toolbar wraps onto a second row instead of scrolling fps and length out of sight."""
+    dock = c.dock
+    widths = []
+    for width in (1500, 900):
+        win.resize(width, 900)
+        qtbot.wait(50)
+        bar = dock.findChild(type(dock.widget()), "timelineBar")
+        for w in (dock.play_button, dock.key_button, dock.lipsync_button, dock.fps_combo, dock.duration_spin):
+            top_left = w.mapTo(dock, w.rect().topLeft())
+            assert w.isVisible() and dock.rect().contains(top_left) and \
+                dock.rect().contains(top_left + w.rect().bottomRight()), (width, w.objectName())
+        widths.append((dock.width(), bar.height()))
+    win.resize(1400, 900)   # the module's shared window, as it was
+    (wide, wide_h), (narrow, narrow_h) = widths
+    assert narrow < wide and narrow_h > wide_h, "the narrow dock's bar wraps onto a second row"
+
+
 # ------------------------------------------------------------------ keys, scrubbing
 def test_keys_set_in_the_ui_interpolate_when_scrubbing(qtbot, win, c, view, rig):
     jaw = win.fap_dock.row(3).slider
