@@ -47,14 +47,23 @@ class TimelineIO:
         except (ValueError, OSError) as exc:
             self.message.emit(str(exc))
             return None
+        except Exception as exc:  # noqa: BLE001 - a file must never reach the user as a traceback
+            self.message.emit(f"Could not import '{path.name}': it is damaged or not an animation file "
+                              f"({type(exc).__name__}).")
+            return None
         if not tracks:
             self.message.emit(f"'{path.name}' holds nothing Mimica can animate. " + " ".join(notes))
             return None
         tl_ = self.timeline
         end = max(float(tr.times[-1]) for tr in tracks.values())
+        if end > tl.MAX_DURATION_S:
+            self.message.emit(f"Could not import '{path.name}': from the cursor at {start:g} s it would end at "
+                              f"{end:g} s, past the timeline's limit of {tl.MAX_DURATION_S / 3600:g} h "
+                              f"({tl.MAX_DURATION_S:g} s). Move the cursor earlier or shorten the file.")
+            return None
         settings = None
         if end > tl_.duration + tl.TIME_TOLERANCE:
-            settings = ((tl_.duration, tl_.fps), (float(math.ceil(end + 0.5)), tl_.fps))
+            settings = ((tl_.duration, tl_.fps), (min(float(math.ceil(end + 0.5)), tl.MAX_DURATION_S), tl_.fps))
         edit = Edit(f"import {path.name}", {k: tl_.tracks.get(k) for k in tracks}, dict(tracks),
                     settings[0] if settings else None, settings[1] if settings else None)
         done = self.push(lambda: tl_.apply_edit(edit), f"import {path.name}")
@@ -115,7 +124,7 @@ class TimelineIO:
         settings_before = settings_after = None
         if hi > tl_.duration + tl.TIME_TOLERANCE:
             settings_before = (tl_.duration, tl_.fps)
-            settings_after = (float(math.ceil(hi + 0.5)), tl_.fps)
+            settings_after = (min(float(math.ceil(hi + 0.5)), tl.MAX_DURATION_S), tl_.fps)
         edit = Edit("lip-sync", before, after, settings_before, settings_after)
         clip = SpeechClip(text=text, lang=lang, start_s=float(result.start_s), rate_wpm=int(rate_wpm))
         speech_before = list(self.speech)

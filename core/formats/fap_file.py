@@ -55,6 +55,12 @@ EXPRESSION_FIELDS = (
     ("expression_intensity2", 0, 63), ("init_face", 0, 1), ("expression_def", 0, 1),
 )
 _HEADER = "'<version> <name> <fps> <num_frames>'"
+#: Frame rates a .fap header may give (frames per second).
+FPS_RANGE = (0.1, 1000.0)
+#: The longest animation a .fap file may hold (the timeline's limit, 24 h).
+MAX_DURATION_S = 24 * 3600.0
+#: Frame numbers beyond this (in magnitude) are refused.
+MAX_FRAME_NUMBER = 10**12
 
 
 class FapFileError(ValueError):
@@ -170,8 +176,13 @@ def parse_fap(text: str, *, source: str = "<text>") -> FapSequence:
     if first is None:
         raise FapFileError(f"{parser.prefix()}the file is empty; expected the header line {_HEADER}.")
     version, name, fps, declared = parser.header(*first)
+    max_frames = int(MAX_DURATION_S * fps) + 1
     masks, values, visemes, expressions, frame_numbers, number_lines = [], [], [], [], [], []
     for mask_line, mask_tokens in lines:
+        if len(masks) >= max_frames:
+            raise parser.error(mask_line, f"the file has more than {max_frames} frames, longer than "
+                                          f"{MAX_DURATION_S / 3600:g} h at {fps:g} fps (the longest animation "
+                                          "Mimica takes); split it into shorter files")
         mask, extra = parser.mask(mask_line, mask_tokens)
         value = next(lines, None)
         if value is None:
@@ -189,9 +200,10 @@ def parse_fap(text: str, *, source: str = "<text>") -> FapSequence:
         parser.note("count", f"The header says {declared} frames, file has {n}"
                     + ("; all of them were read." if n > declared else "."))
     parser.check_frame_numbers(np.array(frame_numbers, dtype=np.int64), number_lines)
+    low = np.array(values).reshape(n, N_FAPS)
     return FapSequence(
         fps=fps,
-        values=np.array(values).reshape(n, N_FAPS),
+        values=low,
         mask=np.array(masks).reshape(n, N_FAPS),
         viseme=np.array(visemes, dtype=np.int64).reshape(n, 4),
         expression=np.array(expressions, dtype=np.int64).reshape(n, 6),
@@ -217,6 +229,22 @@ def read_fap(path) -> FapSequence:
     seq = parse_fap(text, source=path.name)
     seq.notes[:0] = notes
     return seq
+
+
+def _guarded(parse):
+    """``parse`` with any exception a hostile text provokes turned into FapFileError."""
+    import functools
+
+    from core.formats.text_files import reading
+
+    @functools.wraps(parse)
+    def wrapper(text, *, source: str = "<text>"):
+        with reading(FapFileError, f"'{source}'" if source != "<text>" else "the .fap text", "FAP"):
+            return parse(text, source=source)
+    return wrapper
+
+
+parse_fap = _guarded(parse_fap)
 
 
 def _content_lines(text: str):
@@ -269,8 +297,9 @@ class _Parser:
             raise self.error(line, f"the version {version!r} in the header is not a number; expected e.g. 2.1")
         if fps is None:
             raise self.error(line, f"the frame rate {tokens[-2]!r} in the header is not a number")
-        if fps <= 0:
-            raise self.error(line, f"the frame rate in the header must be greater than 0, found {tokens[-2]}")
+        if not FPS_RANGE[0] <= fps <= FPS_RANGE[1]:
+            raise self.error(line, f"the frame rate in the header is {tokens[-2]}; it must be from {FPS_RANGE[0]:g} "
+                                   f"to {FPS_RANGE[1]:g} frames per second")
         if count is None or count < 0:
             raise self.error(line, f"the number of frames in the header must be a whole number >= 0, "
                                    f"found {tokens[-1]!r}")
@@ -327,6 +356,9 @@ class _Parser:
         frame_number = _integer(tokens[0])
         if frame_number is None:
             raise self.error(line, f"the frame number {tokens[0]!r} (first item) is not a whole number")
+        if abs(frame_number) > MAX_FRAME_NUMBER:
+            raise self.error(line, f"the frame number {tokens[0]} (first item) is out of range; frame numbers "
+                                   f"count frames from 0 (at most {MAX_FRAME_NUMBER:g})")
         position = 1
         viseme = np.full(4, -1, np.int64)
         expression = np.full(6, -1, np.int64)
