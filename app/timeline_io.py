@@ -165,7 +165,7 @@ class TimelineIO:
         ``core.animation.speech_wav``: written once per clip set)."""
         from core.animation import speech_wav
 
-        return speech_wav(self.speech) if self.speech else None
+        return speech_wav(self.speech, duration_s=self.timeline.duration) if self.speech else None
 
     # ------------------------------------------------------------ export
     def animation(self):
