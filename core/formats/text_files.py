@@ -20,14 +20,15 @@ from pathlib import Path
 _BINARY = re.compile(rb"[\x00-\x08\x0e-\x1f]")
 
 #: Size caps (bytes) of the files Mimica reads, by format; a larger file is refused with the cap
-#: in the message. Generous for real files: a 45,000-key project is ~3 MB, a 24 h .fap at 25 fps
-#: of every FAP ~40 MB... the caps bound memory and time (a few seconds at most per file).
+#: in the message. They bound the time and memory a file can cost (measured at the cap: a .fap
+#: ~7 s and ~450 MB, a DPC file ~3 s and ~400 MB) and stay far above real files (a 45,000-key
+#: project is ~3 MB, a landmark file ~20 KB, thesis B's DPC files a few KB).
 MAX_BYTES = {
     "project": 128 * 2**20,
     "landmark": 16 * 2**20,
     "force": 1 * 2**20,
     "FAP": 64 * 2**20,
-    "DPC": 32 * 2**20,
+    "DPC": 8 * 2**20,
     "mesh": 2 * 2**30,
     "image": 512 * 2**20,
     "material": 16 * 2**20,
