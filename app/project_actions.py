@@ -16,11 +16,13 @@ window title, autosave and crash recovery.
   face file shows ``core.formats.project``'s message in a warning and leaves the open project untouched.
 * Modified = the undo stack is not at its clean index, or something not on the stack changed (a
   different face, a recovered autosave). The title is ``<project>[*] — <face> — Mimica``.
-* Autosave every 3 minutes (when modified since the last one) through ``core.formats.project.write_autosave``:
-  beside a saved project, or ``<state dir>/untitled-<pid>-<n>.mimica.autosave`` for an untitled one.
+* Autosave every 3 minutes (when modified since the last one) through ``core.formats.project.write_autosave``,
+  captured on the GUI thread and serialised and written on a worker thread (no freeze): beside a saved project, or ``<state dir>/untitled-<pid>-<n>.mimica.autosave`` for an untitled one.
   Saving deletes the autosave. After opening a project whose autosave is newer, and at start-up for
   untitled autosaves left by a Mimica process that is no longer running, a question offers to
-  recover it (Yes = recover, Discard = delete it; anything else keeps it for later).
+  recover it (Yes = recover, Discard = delete it; anything else keeps it for later). A recovered
+  autosave is removed only once the recovered project is on screen and written again as this
+  session's autosave (a crash or a quit at any moment of a recovery loses nothing).
 * Choice: closing the window never blocks on a question. Unsaved work is written to the autosave
   on close and offered at the next start (``ask_on_close = True`` asks Save / Discard / Cancel
   instead). New and Open do ask before dropping unsaved changes.
@@ -88,6 +90,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         self._pending_values: dict[str, float] = {}  # opened values of layers not built yet
         self._closed = False
         self._had_face = document.face is not None
+        self._recovering: tuple | None = None  # (autosave path, project) while a recovery is applied
 
         self._create_actions()
         self.stack.cleanChanged.connect(self._on_stack_changed)
@@ -95,7 +98,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         document.face_changed.connect(self._on_face_changed)
         self.autosave_timer = QTimer(self)
         self.autosave_timer.setInterval(int(autosave_ms))
-        self.autosave_timer.timeout.connect(self.autosave_if_needed)
+        self.autosave_timer.timeout.connect(self.autosave_in_background)
         self.autosave_timer.start()
         window.installEventFilter(self)
         self.update_title()
@@ -353,7 +356,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
     def _apply_project(self, project: cp.Project, path: Path | None, *, offer_recovery: bool = False,
                        dirty: bool = False) -> bool:
         if self._same_face(project):
-            self._finish_open(project, path, [], dirty=dirty, offer_recovery=offer_recovery)
+            self._finish_open(project, path, list(project.notes), dirty=dirty, offer_recovery=offer_recovery)
             return True
         # Another face: load it and build its rig off the GUI thread (app.jobs: a ProjectError is a
         # message, a newer open wins), then finish on it.
@@ -408,6 +411,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
     def _on_face_failed(self, message: str) -> None:
         name = self._pending[1].name if self._pending is not None and self._pending[1] is not None else "the project"
         self._pending = None
+        self._recovery_abandoned()
         self._warn(f"Could not open {name}", message)
 
     def _finish_open(self, project: cp.Project, path: Path | None, notes: list[str], *, dirty: bool,
@@ -447,6 +451,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             w.statusBar().showMessage(f"Opened {shown}" + (" — " + " ".join(notes) if notes else ""), 10000)
         if notes:
             QMessageBox.information(w, "Notes on opening the project", "\n".join(f"• {n}" for n in notes))
+        self._recovery_applied(project)
         self.project_opened.emit(self.path)
         if offer_recovery and self.path is not None:
             self.offer_recovery(self.path)
@@ -474,6 +479,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
     def save_project(self, path) -> bool:
         """Write the project to ``path``; errors -> a warning. Returns success."""
         path = Path(path)
+        self.wait_for_autosave()  # it must not land after the save and its clean-up
         try:
             QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
             try:
@@ -523,6 +529,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
                 event.ignore()
                 return True
             self.autosave_timer.stop()
+            self.wait_for_autosave()
             self.c.pause()
             self._loads.cancel()   # a project's face still loading is not shown any more
             self._closed = True
