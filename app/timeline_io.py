@@ -75,7 +75,7 @@ class TimelineIO:
         """Write the timeline as an MPEG-4 .fap file at its frame rate (the rig's current pose as one
         frame when nothing is keyed). Errors go to ``message``; returns success."""
         from core.animation import sequence_from_rig
-        from core.formats.fap_file import FapFileError, write_fap
+        from core.formats.fap_file import FapFileError, check_fap_size, write_fap
 
         path = Path(path)
         if self._rig is None:
@@ -83,6 +83,7 @@ class TimelineIO:
             return False
         try:
             if self.timeline.tracks:
+                check_fap_size(self.timeline.n_frames)  # before minutes of evaluation, not after
                 sequence = self.animation().fap_sequence(self.timeline.fps, name=path.stem or "mimica")
             else:
                 sequence = sequence_from_rig(self._rig, fps=self.timeline.fps, name=path.stem or "mimica")

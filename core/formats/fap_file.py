@@ -41,7 +41,7 @@ from core.formats.text_files import read_text_file
 
 __all__ = [
     "N_FAPS", "VISEME_FIELDS", "EXPRESSION_FIELDS", "FapFileError", "FapSequence",
-    "parse_fap", "read_fap", "format_fap", "write_fap",
+    "parse_fap", "read_fap", "format_fap", "write_fap", "check_fap_size",
 ]
 
 N_FAPS = 68
@@ -424,6 +424,22 @@ class _Parser:
 
 
 # ------------------------------------------------------------------ writing
+def check_fap_size(n_frames: int, n_faps: int = 1) -> None:
+    """FapFileError unless a .fap of ``n_frames`` frames driving ``n_faps`` low-level FAPs stays within
+    the size Mimica reads back (``text_files.MAX_BYTES['FAP']``); call it before evaluating a long
+    animation, so a 24 h export is refused in a moment instead of after minutes."""
+    from core.formats.text_files import MAX_BYTES, size_text
+
+    cap = MAX_BYTES["FAP"]
+    estimate = int(n_frames) * (2 * N_FAPS + 8 + 7 * max(int(n_faps), 0))
+    if estimate > cap:
+        raise FapFileError(
+            f"A .fap of {n_frames:,} frames × {n_faps} FAPs would be about {size_text(estimate)}, more than the "
+            f"{size_text(cap)} a .fap file may have (Mimica would not read it back). Shorten the timeline or "
+            f"export at a lower frame rate (at most about {cap // (2 * N_FAPS + 8 + 7 * max(int(n_faps), 1)):,} "
+            "frames).")
+
+
 def format_fap(seq: FapSequence) -> str:
     """The standard .fap text of ``seq``: header '<version> <name> <fps> <n>' (spaces in the name
     become '_'), 68-entry masks, FAP 1 as 4 numbers, FAP 2 as 6, frames numbered from 0; values
@@ -453,6 +469,7 @@ def format_fap(seq: FapSequence) -> str:
                            f"{seq.values[k, column + 2]}.")
     _check_high_level(seq.viseme, mask[:, 0], VISEME_FIELDS, "Cannot write")
     _check_high_level(seq.expression, mask[:, 1], EXPRESSION_FIELDS, "Cannot write")
+    check_fap_size(seq.n_frames, int(low_mask.any(axis=0).sum()) + 10 * bool(mask[:, :2].any()))
 
     name = "_".join(str(seq.name).split()) or "mimica"
     fps_text = str(int(fps)) if fps.is_integer() else repr(fps)
