@@ -342,7 +342,12 @@ def write_reporting_errors(path: Path, write, error_type: type[Exception]) -> No
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``."""
+    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``.
+
+    Through a symbolic link the link's target is written (the link stays a link)."""
+    path = Path(path)
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
     mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
