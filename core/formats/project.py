@@ -576,26 +576,32 @@ def open_face(project: Project, notes: list[str] | None = None) -> Face:
         except MeshLoadError as exc:
             raise ProjectError(str(exc)) from None
     if project.landmarks is not None:
-        for name in list(face.landmark_names):
-            face.remove_landmark(name)
-        relocate = {}
-        for name, point in project.landmarks.items():
-            ok = 0 <= point.triangle < face.n_triangles
-            if (changed or not ok) and name in project.landmark_positions:
-                relocate[name] = project.landmark_positions[name]
-            elif ok:
-                face.set_landmark(name, point)
-            else:
-                notes.append(f"Landmark '{name}' was dropped: its triangle {point.triangle} does not exist on "
-                             "this face and the project holds no position for it.")
-        if relocate:
-            _, tris, barys = face.closest_surface_points(np.array(list(relocate.values()), float))
-            for name, tri, bary in zip(relocate, tris, barys):
-                face.set_landmark(name, SurfacePoint(int(tri), tuple(float(b) for b in bary)))
-            if not changed:
-                notes.append(f"{len(relocate)} landmark(s) referred to triangles this face does not have and were "
-                             "placed at the surface points closest to their saved positions.")
+        with reading(ProjectError, "the project's landmarks", "landmark"):
+            _place_landmarks(project, face, changed, notes)
     return face
+
+
+def _place_landmarks(project: Project, face: Face, changed: bool, notes: list[str]) -> None:
+    """Put the project's landmarks on ``face`` (relocated by their saved positions when needed)."""
+    for name in list(face.landmark_names):
+        face.remove_landmark(name)
+    relocate = {}
+    for name, point in project.landmarks.items():
+        ok = 0 <= point.triangle < face.n_triangles
+        if (changed or not ok) and name in project.landmark_positions:
+            relocate[name] = project.landmark_positions[name]
+        elif ok:
+            face.set_landmark(name, point)
+        else:
+            notes.append(f"Landmark '{name}' was dropped: its triangle {point.triangle} does not exist on "
+                         "this face and the project holds no position for it.")
+    if relocate:
+        _, tris, barys = face.closest_surface_points(np.array(list(relocate.values()), float))
+        for name, tri, bary in zip(relocate, tris, barys):
+            face.set_landmark(name, SurfacePoint(int(tri), tuple(float(b) for b in bary)))
+        if not changed:
+            notes.append(f"{len(relocate)} landmark(s) referred to triangles this face does not have and were "
+                         "placed at the surface points closest to their saved positions.")
 
 
 # ====================================================================== autosave
