@@ -22,7 +22,7 @@ from core.formats.mesh_io import MeshLoadError, load_face, load_texture_image, s
 from core.formats.project import ProjectError
 from core.landmark_editing import LandmarkEditModel
 from core.layers.muscles import ForceFileError, load_force_set
-from core.timeline import Edit, Timeline, TimelineError
+from core.timeline import MAX_DURATION_S as MAX_DURATION, Edit, Timeline, TimelineError
 
 from tests.core.conftest import make_grid_face
 
@@ -319,3 +319,30 @@ def test_unexpected_errors_say_what_to_do():
     text = unexpected_error_message(TypeError("unhashable type: 'list'"), "export")
     assert not text.startswith("TypeError") and "'export' failed" in text and "report" in text
     assert unexpected_error_message(ProjectError("'a.mimica': timeline.fps must be …"), "export").startswith("'a.mimica'")
+
+
+# ---------------------------------------------------------------- exports bounded by what reads back
+def test_fap_export_is_capped_at_what_mimica_reads_back(tmp_path, monkeypatch):
+    from core.formats.fap_file import FapSequence, check_fap_size, write_fap
+
+    values = np.full((100, 68), np.nan)
+    values[:, 2] = 100.0
+    write_fap(tmp_path / "ok.fap", FapSequence.from_values(values, 25))
+    monkeypatch.setitem(text_files.MAX_BYTES, "FAP", 4096)
+    with pytest.raises(FapFileError, match="100 frames × 1 FAPs would be about .* more than the 4 KB"):
+        write_fap(tmp_path / "big.fap", FapSequence.from_values(values, 25))
+    assert not (tmp_path / "big.fap").exists()
+    monkeypatch.setitem(text_files.MAX_BYTES, "FAP", 64 * 2**20)
+    with pytest.raises(FapFileError, match="lower frame rate"):
+        check_fap_size(Timeline(MAX_DURATION, 30).n_frames)  # a 24 h timeline: refused before evaluating it
+
+
+def test_saving_through_a_symlink_writes_its_target(tmp_path):
+    real = tmp_path / "store" / "take.mimica"
+    real.parent.mkdir()
+    P.save_project(real, P.Project())
+    link = tmp_path / "take.mimica"
+    link.symlink_to(real)
+    project = P.Project(timeline=Timeline(42.0, 25))
+    P.save_project(link, project)
+    assert link.is_symlink() and P.load_project(real).timeline.duration == 42.0
