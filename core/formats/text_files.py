@@ -112,8 +112,9 @@ def reading(error: type[Exception], source: str, kind: str):
         raise error(f"{source}: the {kind} data needs more memory than this computer has; it is probably "
                     "damaged.") from None
     except (OverflowError, TypeError, ValueError, UnicodeError, KeyError, IndexError, AttributeError) as exc:
-        raise error(f"{source}: the {kind} data is damaged or not a {kind} file ({type(exc).__name__}: "
-                    f"{str(exc)[:200]}).") from None
+        detail = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else "it cannot be read"
+        raise error(f"{source}: the {kind} data is damaged or not a {kind} file ({detail}). Save it again from "
+                    "the program that made it, or open a backup.") from None
 
 
 def _json_depth_ok(text: str, limit: int) -> bool:
