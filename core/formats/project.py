@@ -470,7 +470,8 @@ def _read_rig_v1(f: _Field) -> dict[str, float]:
     def put(field_: _Field, spelling, value) -> None:
         try:
             key = key_of(spelling)
-            values[key] = values.get(key, 0.0) + check_value(key, value)
+            # repeated entries add up; the total must be allowed too
+            values[key] = check_value(key, values.get(key, 0.0) + check_value(key, value))
         except ParameterError as exc:
             raise field_.fail(str(exc)) from None
 

@@ -346,3 +346,12 @@ def test_saving_through_a_symlink_writes_its_target(tmp_path):
     project = P.Project(timeline=Timeline(42.0, 25))
     P.save_project(link, project)
     assert link.is_symlink() and P.load_project(real).timeline.duration == 42.0
+
+
+def test_format_1_repeated_muscles_cannot_add_up_past_the_range(tmp_path):
+    """Found by the fuzz corpus (seed 11): format 1's repeated rig.muscles entries were summed unchecked."""
+    doc = _project_doc(version=1, rig={"muscles": [{"name": "risorius", "side": "left", "force": 50}] * 3})
+    with pytest.raises(ProjectError, match=r"rig.muscles\[1\] .*risorius.* outside its range 0 to 60"):
+        P.load_project(_write(tmp_path, "p.mimica", doc))
+    doc = _project_doc(version=1, rig={"muscles": [{"name": "risorius", "side": "left", "force": 20}] * 2})
+    assert P.load_project(_write(tmp_path, "p.mimica", doc)).rig.values == {"muscle:risorius:left": 40.0}
