@@ -48,6 +48,8 @@ if str(ROOT) not in sys.path:
 LANGUAGES = ("en", "en-us", "en-gb", "pt-br")
 #: A case slower than this (seconds) counts as a hang.
 CASE_SECONDS = 10.0
+#: A case that raises the process's peak memory by more than this (MB) counts as a blow-up.
+CASE_MEMORY_MB = 1024.0
 
 HOSTILE_NUMBERS = ["1e30", "-1e30", "1e300", "-1e300", "1e-7", "1e-300", "nan", "NaN", "inf", "-inf", "Infinity",
                    "0", "-0", "-5", "0.001", "1" + "0" * 400, "-" + "9" * 30, "99999999999999999999", "1e999",
@@ -75,6 +77,7 @@ class Outcome:
 @dataclass
 class Report:
     outcomes: list[Outcome] = field(default_factory=list)
+    memory: tuple = (0.0, "", "")  # (MB the peak grew by, case, how) of the hungriest case
 
     @property
     def failed(self) -> list[Outcome]:
@@ -95,6 +98,8 @@ class Report:
                 f"with a message, {c.get('failed', 0)} failed")
         if slowest is not None:
             text += f"; slowest {slowest.seconds:.2f} s ({slowest.case.name})"
+        if self.memory[1]:
+            text += f"; hungriest +{self.memory[0]:.0f} MB ({self.memory[1]}: {self.memory[2]})"
         for o in self.failed[:20]:
             text += f"\n  FAILED {o.case.name} [{o.case.how}]: {o.detail[:300]}"
         return text
@@ -231,7 +236,7 @@ def _mutate_lines(text: str, rng: random.Random) -> tuple[str, str]:
         del lines[i]
         return "\n".join(lines), f"line {i + 1} deleted"
     if choice == 1:
-        lines[i:i] = [lines[i]] * rng.randint(2, 2000)
+        lines[i:i] = [lines[i]] * rng.randint(2, max(2, min(2000, 4_000_000 // (len(lines[i]) + 1))))
         return "\n".join(lines), f"line {i + 1} repeated"
     if choice == 2:
         lines[i] = lines[i] + " " + " ".join(rng.choice(HOSTILE_NUMBERS) or "x" for _ in range(rng.randint(1, 80)))
@@ -283,7 +288,8 @@ def _mutate_json(text: str, rng: random.Random) -> tuple[str, str]:
     elif choice == 4:
         target = _get(doc, path)
         if isinstance(target, list) and target:
-            target.extend([target[0]] * rng.randint(1, 20000))
+            size = len(json.dumps(target[0])) + 2  # bloat to at most ~4 MB: the corpus stays light
+            target.extend([target[0]] * rng.randint(1, max(1, min(20000, 4_000_000 // size))))
             return json.dumps(doc), f"list at {_p(path)} bloated"
         new, how = rng.choice(HOSTILE_JSON), "value replaced"
     else:
@@ -673,13 +679,26 @@ def run_cli_cases(folder: Path) -> list[Outcome]:
     return outcomes
 
 
+def _peak_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def run(folder: str | os.PathLike, cases: int, seed: int = 0, *, cli: bool = True, progress=None) -> Report:
     folder = Path(folder)
     corpus = generate(folder / "corpus", cases, seed)
     readers = _readers()
     report = Report()
     for k, case in enumerate(corpus):
-        report.outcomes.append(run_case(case, readers))
+        before = _peak_mb()
+        outcome = run_case(case, readers)
+        grew = _peak_mb() - before
+        if grew > CASE_MEMORY_MB:  # the process's peak grew this much while reading one file
+            outcome = Outcome(case, "failed", f"memory blow-up: the peak grew by {grew:.0f} MB", outcome.seconds)
+        if grew > report.memory[0]:
+            report.memory = (grew, case.name, case.how)
+        report.outcomes.append(outcome)
         if progress is not None:
             progress(k + 1, len(corpus))
     if cli:
