@@ -134,3 +134,32 @@ def test_import_keeps_the_24_hour_limit(qtbot, settings, tmp_path):
     hostile = tmp_path / "hostile.fap"
     hostile.write_text(f"2.1 x 1e-7 1\n{mask}\n0 1\n")
     assert ctl.import_animation(hostile) is None and "hostile.fap" in messages[-1]
+
+
+def test_a_derived_face_is_autosaved_as_shown_not_as_its_raw_file(qtbot, settings, tmp_path, answers, error_boxes):
+    """A scan scaled (or retextured) in Mimica keeps its file's path; its autosave must hold the scaled
+    face, or recovering reopens the raw mesh with every landmark relocated into one clump."""
+    import numpy as np
+    from app_helpers import make_synthetic_face
+
+    from core.formats.mesh_io import load_face, save_face
+
+    w, ctl = _window(qtbot, settings, tmp_path)
+    scan = tmp_path / "scan.ply"
+    save_face(make_synthetic_face(20, 30, name="scan"), scan)
+    raw = load_face(scan)
+    w.set_face(raw, path=str(scan))
+    assert cp.load_project(ctl.project.autosave_now()).face.path == scan.resolve(), "as read: referenced"
+    scaled = raw.scaled(10.0)
+    w.set_face(scaled, path=str(scan))            # what Tools ▸ scale does: same path, new content
+    ctl.push(lambda: ctl.timeline.replace_tracks({"fap:3": Track("fap:3", [(0.0, 0.0), (1.0, 500.0)])}))
+    autosave = ctl.project.autosave_now()
+    project = cp.load_project(autosave)
+    assert project.face.path != scan.resolve()
+    face = cp.open_face(project)
+    assert np.allclose(face.vertices, scaled.vertices)
+    # the built-in face stays a name; the same built-in face reloaded too
+    from core.default_face import load_default_face
+
+    w.set_face(load_default_face())
+    assert cp.load_project(ctl.project.autosave_now()).face.builtin == "default_face"
