@@ -214,8 +214,13 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         retextured or flipped) is written beside the project, so reopening it (or recovering its
         autosave) restores exactly what was shown, not the raw file."""
         face = self.document.face
+        to_autosave = Path(target).name.endswith(cp.AUTOSAVE_SUFFIX)
         if self._face_ref is not None and self._face_ref[0] == id(face) and (
-                self._face_ref[1].builtin is not None or Path(self._face_ref[1].path).is_file()):
+                self._face_ref[1].builtin is not None or (
+                    Path(self._face_ref[1].path).is_file()
+                    # a face embedded for an autosave lives in the state folder: a saved project gets its own copy
+                    and (to_autosave or not Path(self._face_ref[1].path).name.endswith(
+                        cp.AUTOSAVE_SUFFIX + ".face.ply")))):
             return self._face_ref[1]
         source = self.document.face_path
         as_read = self._source_face is not None and self._source_face == (source, _fingerprint(face))

@@ -158,7 +158,12 @@ def test_a_derived_face_is_autosaved_as_shown_not_as_its_raw_file(qtbot, setting
     assert project.face.path != scan.resolve()
     face = cp.open_face(project)
     assert np.allclose(face.vertices, scaled.vertices)
-    # the built-in face stays a name; the same built-in face reloaded too
+    # saving the project writes its own copy of the face beside it, not a reference into the state folder
+    assert ctl.project.save_project(tmp_path / "take.mimica")
+    saved = cp.load_project(tmp_path / "take.mimica")
+    assert saved.face.path == (tmp_path / "take.face.ply").resolve() and not saved.notes
+    assert np.allclose(cp.open_face(saved).vertices, scaled.vertices)
+    # the built-in face stays a name
     from core.default_face import load_default_face
 
     w.set_face(load_default_face())
