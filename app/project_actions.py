@@ -240,8 +240,11 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             raise cp.ProjectError("there is no face to save yet; wait until it is loaded")
         target = Path(target) if target is not None else (self.path or cp.autosave_path(
             None, untitled_id=self.untitled_id, state_dir=self.state_dir))
+        model = doc.landmarks
+        status = ({n: (model.status(n).value, model.confidence(n)) for n in model.names}
+                  if model is not None and model.face is doc.face else None)
         project = cp.Project.from_state(doc.face, self._face_ref_for(target), doc.rig, self.c.timeline,
-                                        speech=self.c.speech, view=self.view_state())
+                                        speech=self.c.speech, view=self.view_state(), landmark_status=status)
         if self._pending_values and doc.rig is not None:   # opened, but their layer is still being built
             project.rig.values.update(self._pending_values)
         return project
@@ -426,6 +429,18 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             self._face_ref = (id(face), project.face)
         self._finish_open(project, path, notes, dirty=dirty, offer_recovery=offer)
 
+    def _apply_landmark_status(self, project: cp.Project) -> None:
+        """Give the landmark editor the statuses (auto / edited / confirmed) and confidences saved."""
+        model = self.document.landmarks
+        if model is None or not project.landmark_status:
+            return
+        from core.landmark_editing import LandmarkState, LandmarkStatus
+
+        states = {n: LandmarkState(model.point(n), LandmarkStatus(s), c)
+                  for n, (s, c) in project.landmark_status.items() if n in model}
+        if states:
+            model.update_states(states)
+
     def _apply_pending_values(self, _change=None) -> None:
         """A layer joined the rig (the muscles, built in the background): give it the opened values."""
         rig = self.document.rig
@@ -471,6 +486,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             if self._pending_values:
                 rig.changed.connect(self._apply_pending_values)
         self.apply_view(project.view)
+        self._apply_landmark_status(project)
         if isinstance(tview, dict) and bool(tview.get("auto_key", False)) != c.auto_key:
             c.set_auto_key(bool(tview.get("auto_key", False)))
         self.path = Path(path) if path is not None else None

@@ -133,6 +133,9 @@ class Project:
     face: FaceRef = field(default_factory=FaceRef.default_face)
     landmarks: dict[str, SurfacePoint] | None = None
     landmark_positions: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    #: name -> (status "auto" | "edited" | "confirmed", confidence or None): the landmark editor's
+    #: state, so a scan session's checked landmarks come back as checked.
+    landmark_status: dict[str, tuple[str, float | None]] = field(default_factory=dict)
     rig: RigSettings = field(default_factory=RigSettings)
     timeline: Timeline = field(default_factory=Timeline)
     speech: list[SpeechClip] = field(default_factory=list)
@@ -143,14 +146,18 @@ class Project:
 
     @classmethod
     def from_state(cls, face: Face, face_ref: FaceRef, rig=None, timeline: Timeline | None = None, *,
-                   speech: list[SpeechClip] | None = None, view: dict | None = None) -> "Project":
-        """A project from the app's live objects (the face's landmarks and their positions included)."""
+                   speech: list[SpeechClip] | None = None, view: dict | None = None,
+                   landmark_status: dict | None = None) -> "Project":
+        """A project from the app's live objects (the face's landmarks and their positions included;
+        ``landmark_status``: name -> (status, confidence) from the landmark editor)."""
         names = face.landmark_names
         positions = face.landmark_positions(names) if names else np.zeros((0, 3))
         return cls(
             face=face_ref,
             landmarks=dict(face.landmarks),
             landmark_positions={n: tuple(float(c) for c in p) for n, p in zip(names, positions)},
+            landmark_status={n: (str(s), None if c is None else float(c))
+                             for n, (s, c) in (landmark_status or {}).items() if n in face.landmarks},
             rig=RigSettings.from_rig(rig) if rig is not None else RigSettings(),
             timeline=timeline if timeline is not None else Timeline(),
             speech=list(speech or []),
@@ -198,7 +205,9 @@ def to_document(project: Project, base_dir: str | os.PathLike | None = None) -> 
         doc["landmarks"] = [
             {"name": name, "triangle": int(p.triangle), "barycentric": [float(b) for b in p.barycentric],
              **({"xyz": [float(c) for c in project.landmark_positions[name]]}
-                if name in project.landmark_positions else {})}
+                if name in project.landmark_positions else {}),
+             **({"status": project.landmark_status[name][0], "confidence": project.landmark_status[name][1]}
+                if name in project.landmark_status else {})}
             for name, p in project.landmarks.items()
         ]
     doc["rig"] = {"values": {k: float(v) for k, v in sorted(project.rig.values.items(), key=lambda e: sort_key(e[0]))}}
@@ -367,7 +376,7 @@ def load_project(path: str | os.PathLike) -> Project:
         base = path.resolve().parent
         notes: list[str] = []
         face = _read_face(doc["face"], base, notes)
-        landmarks, positions = _read_landmarks(doc.get("landmarks"))
+        landmarks, positions, status = _read_landmarks(doc.get("landmarks"))
         rig = _read_rig(doc["rig"], doc["version"].int())
         timeline = _read_timeline(doc["timeline"])
         clips = doc.get("speech", [])
@@ -375,8 +384,8 @@ def load_project(path: str | os.PathLike) -> Project:
             raise clips.fail(f"holds {len(clips.value)} clips; a project holds at most {MAX_SPEECH_CLIPS}")
         speech = [_read_clip(c, timeline.duration) for c in clips.elements()]
         view = doc.get("view", {}).dict()
-        return Project(face=face, landmarks=landmarks, landmark_positions=positions, rig=rig, timeline=timeline,
-                       speech=speech, view=view, notes=notes)
+        return Project(face=face, landmarks=landmarks, landmark_positions=positions, landmark_status=status, rig=rig,
+                       timeline=timeline, speech=speech, view=view, notes=notes)
 
 
 def _inside(path: Path, folder: Path) -> bool:
@@ -414,10 +423,13 @@ def _read_face(f: _Field, base: Path, notes: list[str] | None = None) -> FaceRef
     return FaceRef(path=resolved, sha256=sha)
 
 
+LANDMARK_STATUSES = ("auto", "edited", "confirmed")
+
+
 def _read_landmarks(f: _Field):
     if f.value is None:
-        return None, {}
-    landmarks, positions = {}, {}
+        return None, {}, {}
+    landmarks, positions, status = {}, {}, {}
     if len(f.list()) > MAX_LANDMARKS:
         raise f.fail(f"holds {len(f.value)} landmarks; a project holds at most {MAX_LANDMARKS}")
     for e in f.elements():
@@ -438,7 +450,13 @@ def _read_landmarks(f: _Field):
             if len(xyz) != 3:
                 raise e["xyz"].fail(f"must hold 3 numbers, got {len(xyz)}")
             positions[name] = tuple(xyz)
-    return landmarks, positions
+        if "status" in e.value:
+            state = e["status"].str()
+            if state not in LANDMARK_STATUSES:
+                raise e["status"].fail(f"must be one of {', '.join(LANDMARK_STATUSES)}, got {state!r}")
+            confidence = e.get("confidence")
+            status[name] = (state, None if confidence.value is None else confidence.number())
+    return landmarks, positions, status
 
 
 _RIG_FIELDS = {1: ("faps", "expressions", "visemes", "muscles", "jaw"), 2: ("values",)}

@@ -168,3 +168,26 @@ def test_a_derived_face_is_autosaved_as_shown_not_as_its_raw_file(qtbot, setting
 
     w.set_face(load_default_face())
     assert cp.load_project(ctl.project.autosave_now()).face.builtin == "default_face"
+
+
+def test_landmark_statuses_come_back_with_the_project(qtbot, settings, tmp_path, answers, error_boxes):
+    """A scan session's checked landmarks: confirmed / edited statuses and confidences are saved in the
+    project (and its autosave) and restored on opening."""
+    from core.landmark_editing import LandmarkStatus
+
+    w, ctl = _window(qtbot, settings, tmp_path)
+    model = w.document.landmarks
+    names = model.names[:3]
+    assert len(names) == 3
+    model.confirm(names[0])
+    model.move(names[1], model.point(names[2]))
+    path = tmp_path / "scan.mimica"
+    assert ctl.project.save_project(path)
+    saved = cp.load_project(path)
+    assert saved.landmark_status[names[0]][0] == "confirmed" and saved.landmark_status[names[1]][0] == "edited"
+    model.update_states({n: type(model.state(n))(model.point(n), LandmarkStatus.AUTO, None) for n in names})
+    with qtbot.waitSignal(ctl.project.project_opened, timeout=20000):
+        ctl.project.open_project(path, ask=False)
+    model = w.document.landmarks
+    assert model.status(names[0]) is LandmarkStatus.CONFIRMED and model.status(names[1]) is LandmarkStatus.EDITED
+    assert model.status(names[2]) is LandmarkStatus.AUTO
