@@ -23,10 +23,21 @@ class TimelineIO:
     """What goes in and out of the timeline: .fap and DPC animations imported as tracks, .fap export,"""
 
     # ------------------------------------------------------------ lip-sync
-    def import_animation(self, path) -> Edit | None:
+    def import_animation(self, path, *, warn=None) -> Edit | None:
         """Add a .fap or thesis B DPC file's animation as FAP (and preset) tracks from the cursor, one
         undoable edit (``core.formats.animation_import``; a DPC file plays at the timeline's fps). Errors and
-        notes go to ``message``."""
+        notes go to ``message``; with ``warn(title, text)`` (a window's message box) a refusal goes there too."""
+        said: list[str] = []
+        self.message.connect(said.append)
+        try:
+            done = self._import_animation(path)
+        finally:
+            self.message.disconnect(said.append)
+        if done is None and said and warn is not None:
+            warn(f"Could not import {Path(path).name}", said[-1])
+        return done
+
+    def _import_animation(self, path) -> Edit | None:
         from pathlib import Path
 
         from core.formats.animation_import import tracks_from_dpc, tracks_from_fap

@@ -191,3 +191,11 @@ def test_landmark_statuses_come_back_with_the_project(qtbot, settings, tmp_path,
     model = w.document.landmarks
     assert model.status(names[0]) is LandmarkStatus.CONFIRMED and model.status(names[1]) is LandmarkStatus.EDITED
     assert model.status(names[2]) is LandmarkStatus.AUTO
+
+
+def test_a_refused_import_is_shown_in_a_message_box(qtbot, settings, tmp_path, error_boxes):
+    w, ctl = _window(qtbot, settings, tmp_path)
+    bad = tmp_path / "deep.fap"
+    bad.write_text("2.1 x 1e300 1\n")
+    assert ctl.dock.import_file(bad) is None
+    assert error_boxes and "deep.fap" in error_boxes[-1][0] and "frame rate" in error_boxes[-1][1]
