@@ -267,6 +267,7 @@ class _Parser:
         self.source = source
         self.notes: list[str] = []
         self._noted: set[str] = set()
+        self._masks: dict[tuple, tuple[np.ndarray, int]] = {}
 
     def prefix(self, line: int | None = None) -> str:
         where = "" if self.source == "<text>" else f"'{self.source}'"
@@ -310,7 +311,19 @@ class _Parser:
         return version, name, fps, count
 
     def mask(self, line: int, tokens: list[str]) -> tuple[np.ndarray, int]:
-        """((68,) bool, number of 1s after the 68th entry) from a mask line."""
+        """((68,) bool, number of 1s after the 68th entry) from a mask line (read-only: a mask met
+        again is not parsed again — files repeat a few masks over thousands of frames)."""
+        key = tuple(tokens)
+        cached = self._masks.get(key)
+        if cached is not None:
+            return cached
+        cached = self._parse_mask(line, tokens)
+        cached[0].setflags(write=False)
+        if len(self._masks) < 4096:
+            self._masks[key] = cached
+        return cached
+
+    def _parse_mask(self, line: int, tokens: list[str]) -> tuple[np.ndarray, int]:
         if len(tokens) < N_FAPS:
             raise self.error(line, f"expected {N_FAPS} mask values (0 or 1), found {len(tokens)}")
         if len(tokens) > N_FAPS:
