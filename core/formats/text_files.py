@@ -21,7 +21,7 @@ _BINARY = re.compile(rb"[\x00-\x08\x0e-\x1f]")
 
 #: Size caps (bytes) of the files Mimica reads, by format; a larger file is refused with the cap
 #: in the message. They bound the time and memory a file can cost (measured at the cap: a .fap
-#: ~7 s and ~450 MB, a DPC file ~3 s and ~400 MB) and stay far above real files (a 45,000-key
+#: ~5 s and ~400 MB, a DPC file ~3 s and ~400 MB) and stay far above real files (a 45,000-key
 #: project is ~3 MB, a landmark file ~20 KB, thesis B's DPC files a few KB).
 MAX_BYTES = {
     "project": 128 * 2**20,
