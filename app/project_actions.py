@@ -16,11 +16,13 @@ window title, autosave and crash recovery.
   face file shows ``core.formats.project``'s message in a warning and leaves the open project untouched.
 * Modified = the undo stack is not at its clean index, or something not on the stack changed (a
   different face, a recovered autosave). The title is ``<project>[*] — <face> — Mimica``.
-* Autosave every 3 minutes (when modified since the last one) through ``core.formats.project.write_autosave``:
-  beside a saved project, or ``<state dir>/untitled-<pid>-<n>.mimica.autosave`` for an untitled one.
+* Autosave every 3 minutes (when modified since the last one) through ``core.formats.project.write_autosave``,
+  captured on the GUI thread and serialised and written on a worker thread (no freeze): beside a saved project, or ``<state dir>/untitled-<pid>-<n>.mimica.autosave`` for an untitled one.
   Saving deletes the autosave. After opening a project whose autosave is newer, and at start-up for
   untitled autosaves left by a Mimica process that is no longer running, a question offers to
-  recover it (Yes = recover, Discard = delete it; anything else keeps it for later).
+  recover it (Yes = recover, Discard = delete it; anything else keeps it for later). A recovered
+  autosave is removed only once the recovered project is on screen and written again as this
+  session's autosave (a crash or a quit at any moment of a recovery loses nothing).
 * Choice: closing the window never blocks on a question. Unsaved work is written to the autosave
   on close and offered at the next start (``ask_on_close = True`` asks Save / Discard / Cancel
   instead). New and Open do ask before dropping unsaved changes.
@@ -49,6 +51,24 @@ from app.project_recovery import ProjectRecoveryMixin
 AUTOSAVE_MS = 3 * 60 * 1000
 PROJECT_FILTER = "Mimica project (*.mimica);;All files (*)"
 _UNTITLED = itertools.count(1)
+
+
+def _fingerprint(face) -> str:
+    """What a face shows (geometry, uv, texture, colours), hashed: tells a face read from a file from
+    one derived from it in memory (~3 ms for the default face)."""
+    import hashlib
+
+    import numpy as np
+
+    h = hashlib.blake2b(digest_size=16)
+    for array in (face.vertices, face.triangles, face.uv, face.texture, getattr(face, "vertex_colors", None)):
+        if array is not None:
+            array = np.ascontiguousarray(array)
+            h.update(str(array.shape).encode() + array.dtype.str.encode())
+            h.update(memoryview(array).cast("B"))
+        else:
+            h.update(b"-")
+    return h.hexdigest()
 
 
 def default_state_dir(window) -> Path:
@@ -88,6 +108,10 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         self._pending_values: dict[str, float] = {}  # opened values of layers not built yet
         self._closed = False
         self._had_face = document.face is not None
+        self._recovering: tuple | None = None  # (autosave path, project) while a recovery is applied
+        self._source_face: tuple | None = None  # (face path, fingerprint) of the face as read from its file
+        if document.face is not None and document.face_path:
+            self._source_face = (document.face_path, _fingerprint(document.face))
 
         self._create_actions()
         self.stack.cleanChanged.connect(self._on_stack_changed)
@@ -95,7 +119,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         document.face_changed.connect(self._on_face_changed)
         self.autosave_timer = QTimer(self)
         self.autosave_timer.setInterval(int(autosave_ms))
-        self.autosave_timer.timeout.connect(self.autosave_if_needed)
+        self.autosave_timer.timeout.connect(self.autosave_in_background)
         self.autosave_timer.start()
         window.installEventFilter(self)
         self.update_title()
@@ -171,6 +195,11 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         if not self._applying_face and self._had_face:
             self._dirty = True
         self._had_face = self.document.face is not None
+        face, path = self.document.face, self.document.face_path
+        if face is not None and path and (self._source_face is None or self._source_face[0] != path):
+            # The first face shown for a path is that file's (or the built-in face) as read; a face
+            # derived from it later (scaled, retextured, flipped) keeps the path but not the content.
+            self._source_face = (path, _fingerprint(face))
         self.update_title()
 
     def _mark_clean(self) -> None:
@@ -180,14 +209,24 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
 
     # ------------------------------------------------------------ project <-> window
     def _face_ref_for(self, target: Path):
-        """How to reference the shown face from a project written at ``target``."""
+        """How to reference the shown face from a project written at ``target``: by name (the built-in
+        face) or by its file when it is that file's content; a face derived in memory (a scan scaled,
+        retextured or flipped) is written beside the project, so reopening it (or recovering its
+        autosave) restores exactly what was shown, not the raw file."""
         face = self.document.face
-        if getattr(face.metadata, "source", None) == "built-in":
-            return cp.FaceRef.default_face()
-        if self._face_ref is not None and self._face_ref[0] == id(face) and Path(self._face_ref[1].path).is_file():
+        to_autosave = Path(target).name.endswith(cp.AUTOSAVE_SUFFIX)
+        if self._face_ref is not None and self._face_ref[0] == id(face) and (
+                self._face_ref[1].builtin is not None or (
+                    Path(self._face_ref[1].path).is_file()
+                    # a face embedded for an autosave lives in the state folder: a saved project gets its own copy
+                    and (to_autosave or not Path(self._face_ref[1].path).name.endswith(
+                        cp.AUTOSAVE_SUFFIX + ".face.ply")))):
             return self._face_ref[1]
         source = self.document.face_path
-        if source and Path(source).is_file():
+        as_read = self._source_face is not None and self._source_face == (source, _fingerprint(face))
+        if as_read and getattr(face.metadata, "source", None) == "built-in":
+            ref = cp.FaceRef.default_face()
+        elif as_read and source and Path(source).is_file():
             ref = cp.FaceRef.for_file(source)
         else:
             ref = cp.embed_face(face, target)
@@ -201,8 +240,11 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             raise cp.ProjectError("there is no face to save yet; wait until it is loaded")
         target = Path(target) if target is not None else (self.path or cp.autosave_path(
             None, untitled_id=self.untitled_id, state_dir=self.state_dir))
+        model = doc.landmarks
+        status = ({n: (model.status(n).value, model.confidence(n)) for n in model.names}
+                  if model is not None and model.face is doc.face else None)
         project = cp.Project.from_state(doc.face, self._face_ref_for(target), doc.rig, self.c.timeline,
-                                        speech=self.c.speech, view=self.view_state())
+                                        speech=self.c.speech, view=self.view_state(), landmark_status=status)
         if self._pending_values and doc.rig is not None:   # opened, but their layer is still being built
             project.rig.values.update(self._pending_values)
         return project
@@ -353,7 +395,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
     def _apply_project(self, project: cp.Project, path: Path | None, *, offer_recovery: bool = False,
                        dirty: bool = False) -> bool:
         if self._same_face(project):
-            self._finish_open(project, path, [], dirty=dirty, offer_recovery=offer_recovery)
+            self._finish_open(project, path, list(project.notes), dirty=dirty, offer_recovery=offer_recovery)
             return True
         # Another face: load it and build its rig off the GUI thread (app.jobs: a ProjectError is a
         # message, a newer open wins), then finish on it.
@@ -387,6 +429,18 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             self._face_ref = (id(face), project.face)
         self._finish_open(project, path, notes, dirty=dirty, offer_recovery=offer)
 
+    def _apply_landmark_status(self, project: cp.Project) -> None:
+        """Give the landmark editor the statuses (auto / edited / confirmed) and confidences saved."""
+        model = self.document.landmarks
+        if model is None or not project.landmark_status:
+            return
+        from core.landmark_editing import LandmarkState, LandmarkStatus
+
+        states = {n: LandmarkState(model.point(n), LandmarkStatus(s), c)
+                  for n, (s, c) in project.landmark_status.items() if n in model}
+        if states:
+            model.update_states(states)
+
     def _apply_pending_values(self, _change=None) -> None:
         """A layer joined the rig (the muscles, built in the background): give it the opened values."""
         rig = self.document.rig
@@ -408,6 +462,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
     def _on_face_failed(self, message: str) -> None:
         name = self._pending[1].name if self._pending is not None and self._pending[1] is not None else "the project"
         self._pending = None
+        self._recovery_abandoned()
         self._warn(f"Could not open {name}", message)
 
     def _finish_open(self, project: cp.Project, path: Path | None, notes: list[str], *, dirty: bool,
@@ -431,6 +486,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             if self._pending_values:
                 rig.changed.connect(self._apply_pending_values)
         self.apply_view(project.view)
+        self._apply_landmark_status(project)
         if isinstance(tview, dict) and bool(tview.get("auto_key", False)) != c.auto_key:
             c.set_auto_key(bool(tview.get("auto_key", False)))
         self.path = Path(path) if path is not None else None
@@ -447,6 +503,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
             w.statusBar().showMessage(f"Opened {shown}" + (" — " + " ".join(notes) if notes else ""), 10000)
         if notes:
             QMessageBox.information(w, "Notes on opening the project", "\n".join(f"• {n}" for n in notes))
+        self._recovery_applied(project)
         self.project_opened.emit(self.path)
         if offer_recovery and self.path is not None:
             self.offer_recovery(self.path)
@@ -474,6 +531,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
     def save_project(self, path) -> bool:
         """Write the project to ``path``; errors -> a warning. Returns success."""
         path = Path(path)
+        self.wait_for_autosave()  # it must not land after the save and its clean-up
         try:
             QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
             try:
@@ -523,6 +581,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
                 event.ignore()
                 return True
             self.autosave_timer.stop()
+            self.wait_for_autosave()
             self.c.pause()
             self._loads.cancel()   # a project's face still loading is not shown any more
             self._closed = True

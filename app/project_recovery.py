@@ -44,21 +44,38 @@ class ProjectRecoveryMixin:
     def autosave_path(self) -> Path:
         return cp.autosave_path(self.path, untitled_id=self.untitled_id, state_dir=self.state_dir)
 
-    def autosave_now(self) -> Path | None:
-        """Write the autosave now (whatever the modified state); None if there is nothing to save."""
+    def _autosave_project(self) -> tuple[cp.Project, Path] | None:
+        """What the autosave holds, captured on the GUI thread (the timeline as an immutable copy, so
+        the worker never sees an edit half done); None without a face."""
         if self.document.face is None:
             return None
+        target = self.autosave_path()
+        target.parent.mkdir(parents=True, exist_ok=True)
+        project = self.current_project(target)
+        project.timeline = project.timeline.copy()
+        return project, target
+
+    def _write_autosave(self, project: cp.Project) -> Path:
+        return cp.write_autosave(project, self.path, untitled_id=self.untitled_id, state_dir=self.state_dir)
+
+    def _autosave_failed(self, exc: BaseException) -> None:
+        if not isinstance(exc, (cp.ProjectError, OSError)):
+            traceback.print_exception(exc)
+        status = getattr(self.window, "statusBar", None)
+        if status is not None:
+            self.window.statusBar().showMessage(f"Autosave failed: {exc}", 10000)
+
+    def autosave_now(self) -> Path | None:
+        """Write the autosave now, on this thread (whatever the modified state; after any autosave still
+        being written in the background); None if there is nothing to save or it failed."""
+        self.wait_for_autosave()
         try:
-            target = self.autosave_path()
-            target.parent.mkdir(parents=True, exist_ok=True)
-            written = cp.write_autosave(self.current_project(target), self.path, untitled_id=self.untitled_id,
-                                        state_dir=self.state_dir)
+            captured = self._autosave_project()
+            if captured is None:
+                return None
+            written = self._write_autosave(captured[0])
         except Exception as exc:  # noqa: BLE001 - an autosave must never take the session down
-            if not isinstance(exc, (cp.ProjectError, OSError)):
-                traceback.print_exc()
-            status = self.window.statusBar
-            if status is not None:
-                self.window.statusBar().showMessage(f"Autosave failed: {exc}", 10000)
+            self._autosave_failed(exc)
             return None
         self._autosaved = (self.stack.index(), self._dirty)
         return written
@@ -68,7 +85,65 @@ class ProjectRecoveryMixin:
             return None
         return self.autosave_now()
 
+    def autosave_in_background(self) -> bool:
+        """The autosave timer's slot: capture the project here, serialise and write it on a worker
+        thread (a 45,000-key project is ~0.5 s of JSON), so the window never freezes. True when a write
+        was started (not when nothing changed or one is still running)."""
+        if not self.is_modified or self._autosaved == (self.stack.index(), self._dirty):
+            return False
+        worker = getattr(self, "_autosave_thread", None)
+        if worker is not None and worker.is_alive():
+            return False
+        try:
+            captured = self._autosave_project()
+        except Exception as exc:  # noqa: BLE001
+            self._autosave_failed(exc)
+            return False
+        if captured is None:
+            return False
+        marker = (self.stack.index(), self._dirty)
+        self._autosaved = marker
+        project = captured[0]
+
+        def run():
+            try:
+                self._write_autosave(project)
+            except Exception as exc:  # noqa: BLE001 - reported on the GUI thread
+                self._autosave_error = exc
+
+        import threading
+
+        self._autosave_error = None
+        self._autosave_thread = threading.Thread(target=run, name="mimica-autosave", daemon=False)
+        self._autosave_thread.start()
+        QTimer.singleShot(0, self, self._poll_autosave)
+        return True
+
+    def _poll_autosave(self) -> None:
+        worker = getattr(self, "_autosave_thread", None)
+        if worker is None:
+            return
+        if worker.is_alive():
+            QTimer.singleShot(50, self, self._poll_autosave)
+            return
+        self._after_background_autosave()
+
+    def _after_background_autosave(self) -> None:
+        error, self._autosave_error = getattr(self, "_autosave_error", None), None
+        self._autosave_thread = None
+        if error is not None:
+            self._autosaved = None
+            self._autosave_failed(error)
+
+    def wait_for_autosave(self) -> None:
+        """Let an autosave being written in the background finish (before another write, or quitting)."""
+        worker = getattr(self, "_autosave_thread", None)
+        if worker is not None:
+            worker.join()
+            self._after_background_autosave()
+
     def _discard_own_autosave(self, *, untitled_only: bool = False) -> None:
+        self.wait_for_autosave()  # a write still running would bring it back
         cp.discard_autosave(None, untitled_id=self.untitled_id, state_dir=self.state_dir)
         if not untitled_only and self.path is not None:
             cp.discard_autosave(self.path)
@@ -101,11 +176,34 @@ class ProjectRecoveryMixin:
         except cp.ProjectError as exc:
             self._warn("Could not recover the autosave", str(exc))
             return False
-        if original is None:
-            with contextlib.suppress(OSError):
-                autosave.unlink()  # its content lives on in this session's autosave
+        # Nothing is deleted yet: the autosave stays until the recovered project is applied (its face may
+        # load in the background for seconds) and written again as this session's autosave.
+        self._recovering = (autosave, project)
         self._apply_project(project, original, dirty=True)
         return True
+
+    def _recovery_applied(self, project: cp.Project) -> None:
+        """``project`` is on screen: if it is a recovery, write it as this session's autosave, and only
+        then remove the autosave it came from (when that is another file)."""
+        recovering, self._recovering = getattr(self, "_recovering", None), None
+        if recovering is None or recovering[1] is not project:
+            self._recovering = recovering
+            return
+        source = recovering[0]
+        written = self.autosave_now()
+        if written is None:
+            status = getattr(self.window, "statusBar", None)
+            if status is not None:
+                self.window.statusBar().showMessage(
+                    f"The recovered work could not be autosaved again; '{source}' is kept.", 15000)
+            return
+        with contextlib.suppress(OSError):
+            if Path(written).resolve() != Path(source).resolve():
+                Path(source).unlink()  # its content lives on in this session's autosave
+
+    def _recovery_abandoned(self) -> None:
+        """The recovered project could not be applied (its face failed to load): keep its autosave."""
+        self._recovering = None
 
     def startup_candidates(self) -> list[Path]:
         """Untitled autosaves left by Mimica processes that are not running any more (newest first)."""

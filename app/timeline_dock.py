@@ -342,7 +342,14 @@ class TimelineDock(QDockWidget):
         path, _ = QFileDialog.getOpenFileName(self.main_window, "Import animation", "",
                                               "Animations (*.fap *.dpc *.txt);;All files (*)")
         if path:
-            self.controller.import_animation(path)
+            self.import_file(path)
+
+    def import_file(self, path):
+        """Import an animation file onto the timeline; a refusal is shown in a message box."""
+        from PySide6.QtWidgets import QMessageBox
+
+        return self.controller.import_animation(
+            path, warn=lambda title, text: QMessageBox.warning(self.main_window, title, text))
 
     def export_video(self, *, still: bool = False):
         """File ▸ Export video… / still: the export dialog for the timeline, rendered from a copy of the

@@ -23,10 +23,21 @@ class TimelineIO:
     """What goes in and out of the timeline: .fap and DPC animations imported as tracks, .fap export,"""
 
     # ------------------------------------------------------------ lip-sync
-    def import_animation(self, path) -> Edit | None:
+    def import_animation(self, path, *, warn=None) -> Edit | None:
         """Add a .fap or thesis B DPC file's animation as FAP (and preset) tracks from the cursor, one
         undoable edit (``core.formats.animation_import``; a DPC file plays at the timeline's fps). Errors and
-        notes go to ``message``."""
+        notes go to ``message``; with ``warn(title, text)`` (a window's message box) a refusal goes there too."""
+        said: list[str] = []
+        self.message.connect(said.append)
+        try:
+            done = self._import_animation(path)
+        finally:
+            self.message.disconnect(said.append)
+        if done is None and said and warn is not None:
+            warn(f"Could not import {Path(path).name}", said[-1])
+        return done
+
+    def _import_animation(self, path) -> Edit | None:
         from pathlib import Path
 
         from core.formats.animation_import import tracks_from_dpc, tracks_from_fap
@@ -47,14 +58,23 @@ class TimelineIO:
         except (ValueError, OSError) as exc:
             self.message.emit(str(exc))
             return None
+        except Exception as exc:  # noqa: BLE001 - a file must never reach the user as a traceback
+            self.message.emit(f"Could not import '{path.name}': it is damaged or not an animation file "
+                              f"({type(exc).__name__}).")
+            return None
         if not tracks:
             self.message.emit(f"'{path.name}' holds nothing Mimica can animate. " + " ".join(notes))
             return None
         tl_ = self.timeline
         end = max(float(tr.times[-1]) for tr in tracks.values())
+        if end > tl.MAX_DURATION_S:
+            self.message.emit(f"Could not import '{path.name}': from the cursor at {start:g} s it would end at "
+                              f"{end:g} s, past the timeline's limit of {tl.MAX_DURATION_S / 3600:g} h "
+                              f"({tl.MAX_DURATION_S:g} s). Move the cursor earlier or shorten the file.")
+            return None
         settings = None
         if end > tl_.duration + tl.TIME_TOLERANCE:
-            settings = ((tl_.duration, tl_.fps), (float(math.ceil(end + 0.5)), tl_.fps))
+            settings = ((tl_.duration, tl_.fps), (min(float(math.ceil(end + 0.5)), tl.MAX_DURATION_S), tl_.fps))
         edit = Edit(f"import {path.name}", {k: tl_.tracks.get(k) for k in tracks}, dict(tracks),
                     settings[0] if settings else None, settings[1] if settings else None)
         done = self.push(lambda: tl_.apply_edit(edit), f"import {path.name}")
@@ -66,7 +86,7 @@ class TimelineIO:
         """Write the timeline as an MPEG-4 .fap file at its frame rate (the rig's current pose as one
         frame when nothing is keyed). Errors go to ``message``; returns success."""
         from core.animation import sequence_from_rig
-        from core.formats.fap_file import FapFileError, write_fap
+        from core.formats.fap_file import FapFileError, check_fap_size, write_fap
 
         path = Path(path)
         if self._rig is None:
@@ -74,6 +94,7 @@ class TimelineIO:
             return False
         try:
             if self.timeline.tracks:
+                check_fap_size(self.timeline.n_frames)  # before minutes of evaluation, not after
                 sequence = self.animation().fap_sequence(self.timeline.fps, name=path.stem or "mimica")
             else:
                 sequence = sequence_from_rig(self._rig, fps=self.timeline.fps, name=path.stem or "mimica")
@@ -115,7 +136,7 @@ class TimelineIO:
         settings_before = settings_after = None
         if hi > tl_.duration + tl.TIME_TOLERANCE:
             settings_before = (tl_.duration, tl_.fps)
-            settings_after = (float(math.ceil(hi + 0.5)), tl_.fps)
+            settings_after = (min(float(math.ceil(hi + 0.5)), tl.MAX_DURATION_S), tl_.fps)
         edit = Edit("lip-sync", before, after, settings_before, settings_after)
         clip = SpeechClip(text=text, lang=lang, start_s=float(result.start_s), rate_wpm=int(rate_wpm))
         speech_before = list(self.speech)
@@ -156,7 +177,7 @@ class TimelineIO:
         ``core.animation.speech_wav``: written once per clip set)."""
         from core.animation import speech_wav
 
-        return speech_wav(self.speech) if self.speech else None
+        return speech_wav(self.speech, duration_s=self.timeline.duration) if self.speech else None
 
     # ------------------------------------------------------------ export
     def animation(self):

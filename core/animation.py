@@ -8,6 +8,7 @@ and an export never moves the face on screen.
 from __future__ import annotations
 
 import hashlib
+import os
 import wave
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -112,17 +113,23 @@ def _intensity63(weight: float) -> int:
 
 
 # ---------------------------------------------------------------- speech
-def mix_speech(clips: Sequence) -> tuple[np.ndarray, int] | None:
-    """((n,) int16 samples, rate Hz) of every speech clip (``core.formats.project.SpeechClip``) at its start
-    time, time 0 = timeline 0; None without clips.
+#: Speech audio is mixed and written in blocks of this many samples (memory stays bounded however
+#: late a clip starts; a clip's own audio is bounded by ``core.lipsync``'s text limit).
+SPEECH_BLOCK = 1 << 20
 
-    One policy for clips synthesised at different rates: each is resampled (linear interpolation)
-    to the first clip's rate, so nothing is dropped and nothing fails.
-    """
+
+def _speech_pieces(clips: Sequence, duration_s: float | None):
+    """([(start sample, float samples)], rate, total samples) of the clips; audio after ``duration_s``
+    (the timeline's end, when given) is cut, clips starting after it are left out."""
     from core import lipsync
 
     pieces, rate = [], None
     for clip in clips:
+        start_s = float(clip.start_s)
+        if not (start_s >= 0 and np.isfinite(start_s)):
+            raise ValueError(f"a speech clip starts at {clip.start_s!r} s; clips start at a time >= 0")
+        if duration_s is not None and start_s > duration_s:
+            continue
         path, sample_rate = lipsync.speech_audio(clip.text, clip.lang, rate_wpm=clip.rate_wpm)
         with wave.open(str(path), "rb") as w:
             samples = np.frombuffer(w.readframes(w.getnframes()), "<i2").astype(np.float64)
@@ -130,27 +137,62 @@ def mix_speech(clips: Sequence) -> tuple[np.ndarray, int] | None:
         if sample_rate != rate and len(samples):
             n = int(round(len(samples) * rate / sample_rate))
             samples = np.interp(np.arange(n) * (sample_rate / rate), np.arange(len(samples)), samples)
-        pieces.append((int(round(clip.start_s * rate)), samples))
+        pieces.append((int(round(start_s * rate)), samples))
+    if not pieces:
+        return [], rate, 0
+    total = max(start + len(s) for start, s in pieces)
+    if duration_s is not None:
+        total = min(total, int(np.ceil(duration_s * rate)))
+    return pieces, rate, total
+
+
+def _speech_block(pieces, lo: int, hi: int) -> np.ndarray:
+    block = np.zeros(hi - lo)
+    for start, samples in pieces:
+        a, b = max(start, lo), min(start + len(samples), hi)
+        if a < b:
+            block[a - lo:b - lo] += samples[a - start:b - start]
+    return np.clip(np.round(block), -32768, 32767).astype(np.int16)
+
+
+def mix_speech(clips: Sequence, duration_s: float | None = None) -> tuple[np.ndarray, int] | None:
+    """((n,) int16 samples, rate Hz) of every speech clip (``core.formats.project.SpeechClip``) at its start
+    time, time 0 = timeline 0; None without clips. ``duration_s``: the timeline's length; nothing
+    after it is mixed (the buffer is sized by the project, not by a clip's start).
+
+    One policy for clips synthesised at different rates: each is resampled (linear interpolation)
+    to the first clip's rate, so nothing is dropped and nothing fails.
+    """
+    pieces, rate, total = _speech_pieces(clips, duration_s)
     if not pieces:
         return None
-    mix = np.zeros(max(start + len(s) for start, s in pieces))
-    for start, samples in pieces:
-        mix[start:start + len(samples)] += samples
-    return np.clip(np.round(mix), -32768, 32767).astype(np.int16), rate
+    return _speech_block(pieces, 0, total), rate
 
 
-def speech_wav(clips: Sequence, folder: str | Path | None = None) -> Path | None:
+def speech_wav(clips: Sequence, folder: str | Path | None = None, *, duration_s: float | None = None) -> Path | None:
     """A WAV of :func:`mix_speech` (named by the clips, so it is written once per clip set); None
-    without clips. ``folder``: the lip-sync cache by default."""
+    without clips. ``folder``: the lip-sync cache by default. Written block by block, so memory
+    stays bounded (a clip late in a long project writes silence, it does not allocate it)."""
     from core import lipsync
 
-    mixed = mix_speech(clips)
-    if mixed is None:
+    pieces, rate, total = _speech_pieces(clips, duration_s)
+    if not pieces:
         return None
-    signature = repr(tuple((c.text, c.lang, float(c.start_s), int(c.rate_wpm)) for c in clips))
+    signature = repr(tuple((c.text, c.lang, float(c.start_s), int(c.rate_wpm)) for c in clips)) + repr(duration_s)
     digest = hashlib.sha256(signature.encode()).hexdigest()[:16]
     target = Path(folder) if folder is not None else lipsync.speech_cache_dir()
     path = target / f"speech-{digest}.wav"
     if not path.is_file():
-        lipsync.write_wav(path, *mixed)
+        target.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(path.name + f".{os.getpid()}.part")
+        try:
+            with wave.open(str(partial), "wb") as w:
+                w.setnchannels(1)
+                w.setsampwidth(2)
+                w.setframerate(int(rate))
+                for lo in range(0, total, SPEECH_BLOCK):
+                    w.writeframes(_speech_block(pieces, lo, min(lo + SPEECH_BLOCK, total)).astype("<i2").tobytes())
+            os.replace(partial, path)
+        finally:
+            partial.unlink(missing_ok=True)
     return path

@@ -59,7 +59,9 @@ import numpy as np
 from psygnal import Signal
 
 from core.face import Face, SurfacePoint
-from core.formats.landmarks_io import FORMAT_NAME, FORMAT_VERSION, POSITION_MISMATCH_MM, LandmarkFileError, load_landmarks
+from core.formats.landmarks_io import (FORMAT_NAME, FORMAT_VERSION, MAX_LANDMARKS, MAX_NAME_CHARS, POSITION_MISMATCH_MM,
+                                      LandmarkFileError, load_landmarks, read_landmark_text)
+from core.formats.text_files import parse_json, reading
 from core.formats.mesh_io import write_atomic, write_reporting_errors
 
 __all__ = [
@@ -418,8 +420,10 @@ class LandmarkEditModel:
         points = load_landmarks(path, self._face, notes=notes)
         # load_landmarks validated the file; read the editing keys it does not know.
         extra = {}
-        for entry in json.loads(path.read_text(encoding="utf-8"))["landmarks"]:
-            extra[entry["name"]] = entry
+        with reading(LandmarkFileError, f"'{path.name}'", "landmark"):
+            document = parse_json(read_landmark_text(path), f"'{path.name}'", LandmarkFileError, "landmark")
+            for entry in document["landmarks"]:
+                extra[entry["name"]] = entry
         out = {}
         for name, point in points.items():
             entry = extra.get(name, {})
@@ -457,6 +461,10 @@ class LandmarkEditModel:
         Raises :class:`LandmarkFileError`; problems in a row name its line number.
         """
         path = Path(path)
+        with reading(LandmarkFileError, f"'{path.name}'", "landmark CSV"):
+            return self._read_csv(path, notes)
+
+    def _read_csv(self, path: Path, notes: list[str] | None) -> dict[str, LandmarkState]:
         text = _read_text(path)
         rows: list[tuple[int, list[str]]] = []
         header_line = None
@@ -476,6 +484,9 @@ class LandmarkEditModel:
                 header_line = lineno
                 continue
             rows.append((lineno, fields))
+            if len(rows) > MAX_LANDMARKS:
+                raise LandmarkFileError(f"'{path.name}' line {lineno}: more than {MAX_LANDMARKS} landmarks; a "
+                                        f"landmark file holds at most {MAX_LANDMARKS} (the densest template has 80).")
         if header_line is None:
             raise LandmarkFileError(f"'{path.name}' is empty: expected the header '{','.join(CSV_COLUMNS)}'.")
         if not rows:
@@ -489,6 +500,9 @@ class LandmarkEditModel:
             name = fields[0].strip()
             if not name:
                 raise LandmarkFileError(f"{where}: the landmark has no name.")
+            if len(name) > MAX_NAME_CHARS:
+                raise LandmarkFileError(f"{where}: the name has {len(name)} characters; names have at most "
+                                        f"{MAX_NAME_CHARS}.")
             if name in first_line:
                 raise LandmarkFileError(
                     f"{where}: landmark '{name}' appears twice (first on line {first_line[name]}).")
@@ -560,15 +574,4 @@ class LandmarkEditModel:
 
 
 def _read_text(path: Path) -> str:
-    if not path.exists():
-        raise LandmarkFileError(f"The landmark file '{path}' does not exist. Check the name and folder.")
-    if path.is_dir():
-        raise LandmarkFileError(f"'{path}' is a folder, not a landmark file.")
-    try:
-        return path.read_text(encoding="utf-8-sig")
-    except PermissionError:
-        raise LandmarkFileError(f"Mimica is not allowed to read '{path}'. Check the file's permissions.") from None
-    except UnicodeDecodeError:
-        raise LandmarkFileError(f"'{path.name}' is not a text (UTF-8) file.") from None
-    except OSError as exc:
-        raise LandmarkFileError(f"'{path.name}' could not be read: {exc.strerror or exc}.") from None
+    return read_landmark_text(path)

@@ -449,8 +449,22 @@ class Timeline:
                                     "undo the later edits first")
         if edit.settings_before is not None and edit.settings_before != (self._duration, self._fps):
             raise TimelineError(f"cannot apply '{edit.label}': the timeline settings changed since")
+        duration, fps = self._duration, self._fps
+        if edit.settings_after is not None:  # the limits hold for every edit, not only set_settings
+            duration, fps = _check_duration(edit.settings_after[0]), _check_fps(edit.settings_after[1])
+        for key, track in edit.after.items():
+            if track is not None and len(track) and (track.times[0] < -TIME_TOLERANCE
+                                                     or track.times[-1] > duration + TIME_TOLERANCE):
+                raise TimelineError(f"cannot apply '{edit.label}': {key}'s keys from {track.times[0]:g} to "
+                                    f"{track.times[-1]:g} s do not fit the timeline 0 to {duration:g} s "
+                                    f"(at most {MAX_DURATION_S:g} s)")
+        if duration < self._duration:
+            for key, track in self._tracks.items():
+                if key not in edit.after and len(track) and track.times[-1] > duration + TIME_TOLERANCE:
+                    raise TimelineError(f"cannot apply '{edit.label}': {key} has keys up to {track.times[-1]:g} s, "
+                                        f"after the new end {duration:g} s")
         if edit.settings_after is not None:
-            self._duration, self._fps = edit.settings_after
+            self._duration, self._fps = duration, fps
         for key, track in edit.after.items():
             if track is None:
                 self._tracks.pop(key, None)

@@ -20,7 +20,8 @@ import sys
 from typing import Sequence
 
 from app.cli import demo, evaluate, export, gui, landmarks, lipsync, prepare, register, render
-from app.cli.common import PROG, CliError, load_face_or_default, parse_muscle_forces, parse_size
+from app.cli.common import (PROG, CliError, load_face_or_default, parse_muscle_forces, parse_size,
+                            unexpected_error_message)
 
 _parse_size = parse_size  # the name tests and scripts used
 
@@ -64,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - last resort: one line, no traceback
-        print(f"{PROG}: error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        print(f"{PROG}: error: {unexpected_error_message(exc, getattr(args, 'command', None))}", file=sys.stderr)
         return 1
 
 

@@ -24,6 +24,37 @@ class CliError(Exception):
         self.status = status
 
 
+def format_errors() -> tuple[type[Exception], ...]:
+    """The error classes of Mimica's file formats: their messages are written for the user."""
+    from core.formats.dpc_file import DpcFileError
+    from core.formats.fap_file import FapFileError
+    from core.formats.landmarks_io import LandmarkFileError
+    from core.formats.mesh_io import MeshLoadError, MeshSaveError
+    from core.formats.project import ProjectError
+    from core.layers.muscles.force_file import ForceFileError
+
+    return (ProjectError, FapFileError, DpcFileError, LandmarkFileError, ForceFileError, MeshLoadError, MeshSaveError)
+
+
+def unexpected_error_message(exc: BaseException, command: str | None = None) -> str:
+    """One line for an exception no subcommand turned into a CliError: a format error's own message
+    (it names the file and the field), else what failed and what to do — never just a type name."""
+    try:
+        known = isinstance(exc, format_errors())
+    except Exception:  # noqa: BLE001 - the message must not fail
+        known = False
+    if known:
+        return str(exc)
+    if isinstance(exc, MemoryError):
+        return (f"'{command or PROG}' ran out of memory; try a smaller file, size or duration")
+    if isinstance(exc, OSError):
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        return f"a file could not be read or written{where}: {exc.strerror or exc}"
+    detail = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+    return (f"'{command or PROG}' failed unexpectedly ({detail}). This is a bug in Mimica: please report it "
+            "with the command you ran.")
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """``"1200x900"`` -> (1200, 900)."""
     parts = text.lower().replace("×", "x").split("x")

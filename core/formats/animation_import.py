@@ -21,6 +21,7 @@ import numpy as np
 from core.formats.dpc_file import DpcSequence
 from core.layers.fap import tables
 from core.formats.fap_file import FapSequence
+from core import parameters as P
 from core.timeline import LINEAR, Track, check_value
 
 __all__ = ["tracks_from_fap", "tracks_from_dpc"]
@@ -44,11 +45,16 @@ def tracks_from_fap(seq: FapSequence, *, start_s: float = 0.0) -> tuple[dict[str
         if not on.any():
             continue
         spec = specs[column]
+        try:  # the ranges are the parameter registry's, as for every other way values reach the rig
+            param = P.describe(f"fap:{spec.number}")
+        except P.ParameterError as exc:
+            notes.append(f"{exc}; its {int(on.sum())} value(s) were left out")
+            continue
         values = seq.values[on, column]
-        ok = (values >= spec.minimum) & (values <= spec.maximum)
+        ok = (values >= param.minimum) & (values <= param.maximum)
         if not ok.all():
             notes.append(f"FAP {spec.number} {spec.name}: {int((~ok).sum())} value(s) outside "
-                         f"{spec.minimum:g}..{spec.maximum:g} {spec.unit} were left out")
+                         f"{param.minimum:g}..{param.maximum:g} {param.unit} were left out")
         if ok.any():
             tracks[f"fap:{spec.number}"] = _track(f"fap:{spec.number}", times[on][ok], values[ok])
     tracks.update(_preset_tracks(seq, times))

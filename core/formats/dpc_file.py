@@ -269,6 +269,22 @@ def read_dpc(path, *, names=None, n_points: int | None = None, fps: float | None
     return seq
 
 
+def _guarded(parse):
+    """``parse`` with any exception a hostile text provokes turned into DpcFileError."""
+    import functools
+
+    from core.formats.text_files import reading
+
+    @functools.wraps(parse)
+    def wrapper(text, *, source: str = "<text>", **kwargs):
+        with reading(DpcFileError, f"'{source}'" if source != "<text>" else "the DPC text", "DPC"):
+            return parse(text, source=source, **kwargs)
+    return wrapper
+
+
+parse_dpc = _guarded(parse_dpc)
+
+
 class _Parser:
     """Line-level work of :func:`parse_dpc`, with the source name and the notes collected so far."""
 
@@ -328,8 +344,8 @@ class _Parser:
         key, values = words[0].lower(), words[1:]
         if key == "fps" and len(values) == 1:
             rate = _number(values[0])
-            if rate is None or rate <= 0:
-                raise self.error(line, f"the frame rate in '# fps {values[0]}' must be a number > 0")
+            if rate is None or not 0.1 <= rate <= 1000:
+                raise self.error(line, f"the frame rate in '# fps {values[0]}' must be a number from 0.1 to 1000")
             meta["fps"] = rate
         elif key == "points" and values:
             meta["points"] = values

@@ -41,7 +41,7 @@ from core.formats.text_files import read_text_file
 
 __all__ = [
     "N_FAPS", "VISEME_FIELDS", "EXPRESSION_FIELDS", "FapFileError", "FapSequence",
-    "parse_fap", "read_fap", "format_fap", "write_fap",
+    "parse_fap", "read_fap", "format_fap", "write_fap", "check_fap_size",
 ]
 
 N_FAPS = 68
@@ -55,6 +55,12 @@ EXPRESSION_FIELDS = (
     ("expression_intensity2", 0, 63), ("init_face", 0, 1), ("expression_def", 0, 1),
 )
 _HEADER = "'<version> <name> <fps> <num_frames>'"
+#: Frame rates a .fap header may give (frames per second).
+FPS_RANGE = (0.1, 1000.0)
+#: The longest animation a .fap file may hold (the timeline's limit, 24 h).
+MAX_DURATION_S = 24 * 3600.0
+#: Frame numbers beyond this (in magnitude) are refused.
+MAX_FRAME_NUMBER = 10**12
 
 
 class FapFileError(ValueError):
@@ -170,8 +176,13 @@ def parse_fap(text: str, *, source: str = "<text>") -> FapSequence:
     if first is None:
         raise FapFileError(f"{parser.prefix()}the file is empty; expected the header line {_HEADER}.")
     version, name, fps, declared = parser.header(*first)
+    max_frames = int(MAX_DURATION_S * fps) + 1
     masks, values, visemes, expressions, frame_numbers, number_lines = [], [], [], [], [], []
     for mask_line, mask_tokens in lines:
+        if len(masks) >= max_frames:
+            raise parser.error(mask_line, f"the file has more than {max_frames} frames, longer than "
+                                          f"{MAX_DURATION_S / 3600:g} h at {fps:g} fps (the longest animation "
+                                          "Mimica takes); split it into shorter files")
         mask, extra = parser.mask(mask_line, mask_tokens)
         value = next(lines, None)
         if value is None:
@@ -189,9 +200,10 @@ def parse_fap(text: str, *, source: str = "<text>") -> FapSequence:
         parser.note("count", f"The header says {declared} frames, file has {n}"
                     + ("; all of them were read." if n > declared else "."))
     parser.check_frame_numbers(np.array(frame_numbers, dtype=np.int64), number_lines)
+    low = np.array(values).reshape(n, N_FAPS)
     return FapSequence(
         fps=fps,
-        values=np.array(values).reshape(n, N_FAPS),
+        values=low,
         mask=np.array(masks).reshape(n, N_FAPS),
         viseme=np.array(visemes, dtype=np.int64).reshape(n, 4),
         expression=np.array(expressions, dtype=np.int64).reshape(n, 6),
@@ -219,6 +231,22 @@ def read_fap(path) -> FapSequence:
     return seq
 
 
+def _guarded(parse):
+    """``parse`` with any exception a hostile text provokes turned into FapFileError."""
+    import functools
+
+    from core.formats.text_files import reading
+
+    @functools.wraps(parse)
+    def wrapper(text, *, source: str = "<text>"):
+        with reading(FapFileError, f"'{source}'" if source != "<text>" else "the .fap text", "FAP"):
+            return parse(text, source=source)
+    return wrapper
+
+
+parse_fap = _guarded(parse_fap)
+
+
 def _content_lines(text: str):
     """Yield (1-based line number, tokens) of each line that is neither blank nor a '#' comment."""
     text = text.removeprefix("\ufeff").replace("\r\n", "\n").replace("\r", "\n")
@@ -239,6 +267,7 @@ class _Parser:
         self.source = source
         self.notes: list[str] = []
         self._noted: set[str] = set()
+        self._masks: dict[tuple, tuple[np.ndarray, int]] = {}
 
     def prefix(self, line: int | None = None) -> str:
         where = "" if self.source == "<text>" else f"'{self.source}'"
@@ -269,8 +298,9 @@ class _Parser:
             raise self.error(line, f"the version {version!r} in the header is not a number; expected e.g. 2.1")
         if fps is None:
             raise self.error(line, f"the frame rate {tokens[-2]!r} in the header is not a number")
-        if fps <= 0:
-            raise self.error(line, f"the frame rate in the header must be greater than 0, found {tokens[-2]}")
+        if not FPS_RANGE[0] <= fps <= FPS_RANGE[1]:
+            raise self.error(line, f"the frame rate in the header is {tokens[-2]}; it must be from {FPS_RANGE[0]:g} "
+                                   f"to {FPS_RANGE[1]:g} frames per second")
         if count is None or count < 0:
             raise self.error(line, f"the number of frames in the header must be a whole number >= 0, "
                                    f"found {tokens[-1]!r}")
@@ -281,7 +311,19 @@ class _Parser:
         return version, name, fps, count
 
     def mask(self, line: int, tokens: list[str]) -> tuple[np.ndarray, int]:
-        """((68,) bool, number of 1s after the 68th entry) from a mask line."""
+        """((68,) bool, number of 1s after the 68th entry) from a mask line (read-only: a mask met
+        again is not parsed again — files repeat a few masks over thousands of frames)."""
+        key = tuple(tokens)
+        cached = self._masks.get(key)
+        if cached is not None:
+            return cached
+        cached = self._parse_mask(line, tokens)
+        cached[0].setflags(write=False)
+        if len(self._masks) < 4096:
+            self._masks[key] = cached
+        return cached
+
+    def _parse_mask(self, line: int, tokens: list[str]) -> tuple[np.ndarray, int]:
         if len(tokens) < N_FAPS:
             raise self.error(line, f"expected {N_FAPS} mask values (0 or 1), found {len(tokens)}")
         if len(tokens) > N_FAPS:
@@ -327,6 +369,9 @@ class _Parser:
         frame_number = _integer(tokens[0])
         if frame_number is None:
             raise self.error(line, f"the frame number {tokens[0]!r} (first item) is not a whole number")
+        if abs(frame_number) > MAX_FRAME_NUMBER:
+            raise self.error(line, f"the frame number {tokens[0]} (first item) is out of range; frame numbers "
+                                   f"count frames from 0 (at most {MAX_FRAME_NUMBER:g})")
         position = 1
         viseme = np.full(4, -1, np.int64)
         expression = np.full(6, -1, np.int64)
@@ -392,6 +437,22 @@ class _Parser:
 
 
 # ------------------------------------------------------------------ writing
+def check_fap_size(n_frames: int, n_faps: int = 1) -> None:
+    """FapFileError unless a .fap of ``n_frames`` frames driving ``n_faps`` low-level FAPs stays within
+    the size Mimica reads back (``text_files.MAX_BYTES['FAP']``); call it before evaluating a long
+    animation, so a 24 h export is refused in a moment instead of after minutes."""
+    from core.formats.text_files import MAX_BYTES, size_text
+
+    cap = MAX_BYTES["FAP"]
+    estimate = int(n_frames) * (2 * N_FAPS + 8 + 7 * max(int(n_faps), 0))
+    if estimate > cap:
+        raise FapFileError(
+            f"A .fap of {n_frames:,} frames × {n_faps} FAPs would be about {size_text(estimate)}, more than the "
+            f"{size_text(cap)} a .fap file may have (Mimica would not read it back). Shorten the timeline or "
+            f"export at a lower frame rate (at most about {cap // (2 * N_FAPS + 8 + 7 * max(int(n_faps), 1)):,} "
+            "frames).")
+
+
 def format_fap(seq: FapSequence) -> str:
     """The standard .fap text of ``seq``: header '<version> <name> <fps> <n>' (spaces in the name
     become '_'), 68-entry masks, FAP 1 as 4 numbers, FAP 2 as 6, frames numbered from 0; values
@@ -421,6 +482,7 @@ def format_fap(seq: FapSequence) -> str:
                            f"{seq.values[k, column + 2]}.")
     _check_high_level(seq.viseme, mask[:, 0], VISEME_FIELDS, "Cannot write")
     _check_high_level(seq.expression, mask[:, 1], EXPRESSION_FIELDS, "Cannot write")
+    check_fap_size(seq.n_frames, int(low_mask.any(axis=0).sum()) + 10 * bool(mask[:, :2].any()))
 
     name = "_".join(str(seq.name).split()) or "mimica"
     fps_text = str(int(fps)) if fps.is_integer() else repr(fps)

@@ -23,8 +23,10 @@ import numpy as np
 
 from core.face import Face, SurfacePoint
 from core.formats.mesh_io import write_atomic, write_reporting_errors
+from core.formats.text_files import read_file_bytes, read_json_file, reading
 
-__all__ = ["LandmarkFileError", "save_landmarks", "load_landmarks", "FORMAT_NAME", "FORMAT_VERSION"]
+__all__ = ["LandmarkFileError", "save_landmarks", "load_landmarks", "read_landmark_text", "FORMAT_NAME",
+           "FORMAT_VERSION"]
 
 FORMAT_NAME = "mimica-landmarks"
 FORMAT_VERSION = 1
@@ -32,6 +34,10 @@ FORMAT_VERSION = 1
 UNIT_SCALE = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 #: Tolerance on the sum of barycentric weights (the same as SurfacePoint's).
 BARYCENTRIC_SUM_TOLERANCE = 1e-4
+#: More landmarks than this in one file are refused.
+MAX_LANDMARKS = 10_000
+#: Landmark names longer than this are refused.
+MAX_NAME_CHARS = 200
 #: A stored xyz this far (mm) from where its triangle puts it earns a note.
 POSITION_MISMATCH_MM = 1.0
 
@@ -96,6 +102,11 @@ def load_landmarks(path, face: Face, *, notes: list[str] | None = None) -> dict[
         with bad data (named in the message).
     """
     path = Path(path)
+    with reading(LandmarkFileError, f"'{path.name}'", "landmark"):
+        return _load_landmarks(path, face, notes)
+
+
+def _load_landmarks(path: Path, face: Face, notes: list[str] | None) -> dict[str, SurfacePoint]:
     document = _read_json(path)
     entries = _check_header(document, path.name)
     scale = UNIT_SCALE[document.get("units", "mm")]
@@ -152,23 +163,21 @@ def load_landmarks(path, face: Face, *, notes: list[str] | None = None) -> dict[
 
 
 def _read_json(path: Path):
-    if not path.exists():
-        raise LandmarkFileError(f"The landmark file '{path}' does not exist. Check the name and folder.")
-    if path.is_dir():
-        raise LandmarkFileError(f"'{path}' is a folder, not a landmark file.")
+    """The JSON document of a landmark file (regular file, at most ``MAX_BYTES['landmark']``,
+    no NaN, nesting or numbers a float cannot hold); LandmarkFileError otherwise."""
+    return read_json_file(path, "landmark", LandmarkFileError, what="a landmark file",
+                          hint="Fix that line in a text editor or save the landmarks again.")
+
+
+def read_landmark_text(path) -> str:
+    """The text of a landmark file (CSV or JSON): a regular UTF-8 file of at most
+    ``MAX_BYTES['landmark']``; LandmarkFileError otherwise."""
+    path = Path(path)
+    data = read_file_bytes(path, "landmark", LandmarkFileError, what="a landmark file")
     try:
-        text = path.read_text(encoding="utf-8")
-    except PermissionError:
-        raise LandmarkFileError(f"Mimica is not allowed to read '{path}'. Check the file's permissions.") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise LandmarkFileError(f"'{path.name}' could not be read: {getattr(exc, 'strerror', None) or exc}.") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise LandmarkFileError(
-            f"'{path.name}' is not valid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}. "
-            "Fix that line in a text editor or save the landmarks again."
-        ) from None
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise LandmarkFileError(f"'{path.name}' is not a text (UTF-8) file.") from None
 
 
 def _check_header(document, name: str) -> list:
@@ -185,11 +194,14 @@ def _check_header(document, name: str) -> list:
             f"{FORMAT_VERSION} only. It may come from a newer Mimica: update Mimica to read it."
         )
     units = document.get("units", "mm")
-    if units not in UNIT_SCALE:
+    if not isinstance(units, str) or units not in UNIT_SCALE:
         raise LandmarkFileError(f"'{name}' has units {units!r}; expected one of {', '.join(UNIT_SCALE)}.")
     entries = document.get("landmarks")
     if not isinstance(entries, list):
         raise LandmarkFileError(f"'{name}' has no \"landmarks\" list.")
+    if len(entries) > MAX_LANDMARKS:
+        raise LandmarkFileError(f"'{name}' holds {len(entries)} landmarks; a landmark file holds at most "
+                                f"{MAX_LANDMARKS} (the densest template has 80).")
     return entries
 
 
@@ -198,6 +210,9 @@ def _parse_entry(entry, index: int, file_name: str):
     if not isinstance(entry, dict) or not isinstance(entry.get("name"), str) or not entry["name"]:
         raise LandmarkFileError(f"'{file_name}': landmark number {index + 1} has no name.")
     name = entry["name"]
+    if len(name) > MAX_NAME_CHARS:
+        raise LandmarkFileError(f"'{file_name}': landmark number {index + 1} has a name of {len(name)} "
+                                f"characters; names have at most {MAX_NAME_CHARS}.")
 
     def bad(what: str) -> LandmarkFileError:
         return LandmarkFileError(f"'{file_name}': landmark '{name}' {what}.")

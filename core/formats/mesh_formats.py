@@ -252,11 +252,21 @@ def _split_seams(n_vertices: int, triangles: np.ndarray, tri_vt: np.ndarray):
 def _obj_texture(text: str, obj_path: Path, notes: list[str]) -> np.ndarray | None:
     """Texture of the first used material with a ``map_Kd`` (relative to its MTL file)."""
     maps: dict[str, tuple[Path, Path]] = {}  # material name -> (texture path, folder of its MTL)
-    for lib in _OBJ_PATTERNS["mtllib"].findall(text):
+    folder = obj_path.parent
+    for lib in _OBJ_PATTERNS["mtllib"].findall(text)[:16]:
         lib = lib.strip().replace("\\", "/")
-        mtl_path = obj_path.parent / lib
+        mtl_path = folder / lib
+        if not inside_folder(mtl_path, folder):
+            notes.append(f"The OBJ names the material file '{lib}', which is outside the mesh's folder; Mimica "
+                         "does not follow it (copy the material file next to the OBJ to use it).")
+            continue
         if not mtl_path.is_file():
             notes.append(f"The material file '{lib}' was not found next to the OBJ, so the face is shown without texture.")
+            continue
+        from core.formats.text_files import MAX_BYTES
+
+        if mtl_path.stat().st_size > MAX_BYTES["material"]:
+            notes.append(f"The material file '{lib}' is larger than a material file can be; it was ignored.")
             continue
         material = None
         for line in mtl_path.read_text(encoding="utf-8", errors="replace").splitlines():
@@ -277,7 +287,25 @@ def _obj_texture(text: str, obj_path: Path, notes: list[str]) -> np.ndarray | No
             f"The mesh uses {len(set(textured))} texture images; Mimica shows one per face, so only "
             f"'{textured[0][0].name}' is used and other parts may look wrongly coloured."
         )
-    return _read_texture(textured[0][0], notes, folder=textured[0][1])
+    texture_path, mtl_folder = textured[0]
+    if not inside_folder(texture_path, folder):
+        if (mtl_folder / texture_path.name).is_file() and inside_folder(mtl_folder / texture_path.name, folder):
+            texture_path = mtl_folder / texture_path.name  # e.g. an absolute path from another computer
+        else:
+            notes.append(f"The material names the texture '{texture_path}', which is outside the mesh's folder; "
+                         "Mimica does not follow it, so the face is shown without texture (copy the image next "
+                         "to the OBJ, or use Tools ▸ Load texture image…).")
+            return None
+    return _read_texture(texture_path, notes, folder=mtl_folder)
+
+
+def inside_folder(path: Path, folder: Path) -> bool:
+    """True when ``path`` (symbolic links and '..' resolved) lies in ``folder`` or below it."""
+    try:
+        Path(path).resolve().relative_to(Path(folder).resolve())
+    except (ValueError, OSError, RuntimeError):
+        return False
+    return True
 
 
 def _read_texture(path: Path, notes: list[str], folder: Path | None = None) -> np.ndarray | None:
@@ -296,7 +324,10 @@ def _read_texture(path: Path, notes: list[str], folder: Path | None = None) -> n
             "the face is shown with plain shading, without texture."
         )
         return None
+    from core.formats.text_files import check_file
+
     try:
+        check_file(path, "image", ValueError, what="a texture image")
         with PIL.Image.open(path) as image:
             return _image_to_rgb(image)
     except Exception as exc:
@@ -356,7 +387,14 @@ def read_ply(path: Path) -> RawMesh:
     texture = None
     texture_name = _ply_texture_name(path)
     if texture_name:
-        texture = _read_texture(path.parent / texture_name.replace("\\", "/"), notes, folder=path.parent)
+        texture_path = path.parent / texture_name.replace("\\", "/")
+        if inside_folder(texture_path, path.parent) or (path.parent / texture_path.name).is_file():
+            texture = _read_texture(texture_path if inside_folder(texture_path, path.parent)
+                                    else path.parent / texture_path.name, notes, folder=path.parent)
+        else:
+            notes.append(f"The PLY names the texture '{texture_name}', which is outside the mesh's folder; Mimica "
+                         "does not follow it, so the face is shown without texture (copy the image next to the "
+                         "PLY, or use Tools ▸ Load texture image…).")
     n_short = 0 if counts is None else int((counts < 3).sum())
     return RawMesh(vertices, triangles, uv, texture, colors, notes, n_short=n_short)
 

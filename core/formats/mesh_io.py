@@ -39,6 +39,7 @@ import scipy.sparse.csgraph
 
 from core.face import Face, FaceMetadata
 from core.formats.mesh_formats import READERS, RawMesh, _image_to_rgb, plural, reason, weld
+from core.formats.text_files import check_file
 
 __all__ = ["MeshLoadError", "MeshSaveError", "load_face", "load_texture_image", "save_face", "LOAD_FORMATS",
            "SAVE_FORMATS"]
@@ -86,6 +87,7 @@ def load_texture_image(path) -> np.ndarray:
     import PIL.Image
 
     path = Path(path)
+    check_file(path, "image", MeshLoadError, what="an image")  # never open a pipe or a device: it would block
     try:
         with PIL.Image.open(path) as image:
             return _image_to_rgb(image)
@@ -163,6 +165,7 @@ def _check_readable(path: Path) -> str:
         )
     if path.is_dir():
         raise MeshLoadError(f"'{path}' is a folder, not a mesh file. Choose a mesh file inside it.")
+    check_file(path, "mesh", MeshLoadError, what="a mesh file")  # regular file, size cap: before open()
     fmt = LOAD_FORMATS.get(path.suffix.lower())
     if fmt is None:
         supported = ", ".join(LOAD_FORMATS)
@@ -339,7 +342,12 @@ def write_reporting_errors(path: Path, write, error_type: type[Exception]) -> No
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``."""
+    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``.
+
+    Through a symbolic link the link's target is written (the link stays a link)."""
+    path = Path(path)
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
     mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:

@@ -48,6 +48,7 @@ import numpy as np
 
 from core.face import Face, SurfacePoint
 from core.formats.mesh_io import save_face, write_atomic, write_reporting_errors
+from core.formats.text_files import MAX_BYTES, parse_json, read_file_bytes, reading
 from core.parameters import ParameterError, check_value, key_of, sort_key
 from core.timeline import Key, Timeline, TimelineError, Track, canonical_key
 
@@ -56,7 +57,7 @@ FORMAT_VERSION = 2  # 2: the rig's values by parameter key; 1 (still read): FAPs
 SUFFIX = ".mimica"
 AUTOSAVE_SUFFIX = ".autosave"
 BUILTIN_FACES = ("default_face",)
-MAX_FILE_BYTES = 512 * 1024 * 1024
+MAX_FILE_BYTES = MAX_BYTES["project"]
 GENERATOR = "Mimica 0.1.0"
 
 
@@ -132,21 +133,31 @@ class Project:
     face: FaceRef = field(default_factory=FaceRef.default_face)
     landmarks: dict[str, SurfacePoint] | None = None
     landmark_positions: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    #: name -> (status "auto" | "edited" | "confirmed", confidence or None): the landmark editor's
+    #: state, so a scan session's checked landmarks come back as checked.
+    landmark_status: dict[str, tuple[str, float | None]] = field(default_factory=dict)
     rig: RigSettings = field(default_factory=RigSettings)
     timeline: Timeline = field(default_factory=Timeline)
     speech: list[SpeechClip] = field(default_factory=list)
     view: dict = field(default_factory=dict)
+    #: What reading the file found worth telling the user (e.g. a face outside the project's folder);
+    #: :func:`open_face` passes them on with its own.
+    notes: list[str] = field(default_factory=list, compare=False)
 
     @classmethod
     def from_state(cls, face: Face, face_ref: FaceRef, rig=None, timeline: Timeline | None = None, *,
-                   speech: list[SpeechClip] | None = None, view: dict | None = None) -> "Project":
-        """A project from the app's live objects (the face's landmarks and their positions included)."""
+                   speech: list[SpeechClip] | None = None, view: dict | None = None,
+                   landmark_status: dict | None = None) -> "Project":
+        """A project from the app's live objects (the face's landmarks and their positions included;
+        ``landmark_status``: name -> (status, confidence) from the landmark editor)."""
         names = face.landmark_names
         positions = face.landmark_positions(names) if names else np.zeros((0, 3))
         return cls(
             face=face_ref,
             landmarks=dict(face.landmarks),
             landmark_positions={n: tuple(float(c) for c in p) for n, p in zip(names, positions)},
+            landmark_status={n: (str(s), None if c is None else float(c))
+                             for n, (s, c) in (landmark_status or {}).items() if n in face.landmarks},
             rig=RigSettings.from_rig(rig) if rig is not None else RigSettings(),
             timeline=timeline if timeline is not None else Timeline(),
             speech=list(speech or []),
@@ -194,7 +205,9 @@ def to_document(project: Project, base_dir: str | os.PathLike | None = None) -> 
         doc["landmarks"] = [
             {"name": name, "triangle": int(p.triangle), "barycentric": [float(b) for b in p.barycentric],
              **({"xyz": [float(c) for c in project.landmark_positions[name]]}
-                if name in project.landmark_positions else {})}
+                if name in project.landmark_positions else {}),
+             **({"status": project.landmark_status[name][0], "confidence": project.landmark_status[name][1]}
+                if name in project.landmark_status else {})}
             for name, p in project.landmarks.items()
         ]
     doc["rig"] = {"values": {k: float(v) for k, v in sorted(project.rig.values.items(), key=lambda e: sort_key(e[0]))}}
@@ -263,13 +276,16 @@ class _Field:
 
     def __getitem__(self, key) -> "_Field":
         if isinstance(key, int):
-            return _Field(self.value[key], f"{self.path}[{key}]", self.file)
-        if key not in self.value:
+            items = self.list()
+            if not -len(items) <= key < len(items):
+                raise self.fail(f"has {len(items)} items, item {key} is missing")
+            return _Field(items[key], f"{self.path}[{key}]", self.file)
+        if key not in self.dict():
             raise ProjectError(f"'{self.file}': field {self.path + '.' if self.path else ''}{key} is missing")
         return _Field(self.value[key], f"{self.path}.{key}" if self.path else key, self.file)
 
     def get(self, key, default=None) -> "_Field":
-        if key not in self.value:
+        if key not in self.dict():
             return _Field(default, f"{self.path}.{key}" if self.path else key, self.file)
         return self[key]
 
@@ -315,31 +331,20 @@ def _describe(value) -> str:
     return "a list" if isinstance(value, list) else "an object"
 
 
-def _reject_constant(name: str):
-    raise ValueError(f"{name} is not a valid number in a project file")
-
-
 def read_document(path: str | os.PathLike) -> dict:
-    """The parsed JSON of a project file, with the header checked (format and version)."""
+    """The parsed JSON of a project file, with the header checked (format and version).
+
+    The file must be a regular file (never a pipe or device) of at most ``MAX_FILE_BYTES``; JSON
+    nested deeper than ``text_files.MAX_JSON_DEPTH``, NaN/Infinity and numbers too large for a float
+    are refused (ProjectError naming the file)."""
     path = Path(path)
-    if not path.is_file():
-        raise ProjectError(f"the project '{path}' does not exist" if not path.exists()
-                           else f"'{path}' is not a file")
-    if path.stat().st_size > MAX_FILE_BYTES:
-        raise ProjectError(f"'{path.name}' is {path.stat().st_size / 2**20:.0f} MB, too large for a Mimica project")
+    data = read_file_bytes(path, "project", ProjectError, max_bytes=MAX_FILE_BYTES, what="a Mimica project")
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError:
         raise ProjectError(f"'{path.name}' is not a Mimica project (it is not UTF-8 text)") from None
-    except OSError as exc:
-        raise ProjectError(f"cannot read '{path}': {exc.strerror or exc}") from None
-    try:
-        document = json.loads(text, parse_constant=_reject_constant)
-    except json.JSONDecodeError as exc:
-        raise ProjectError(f"'{path.name}' is damaged: invalid JSON at line {exc.lineno}, column {exc.colno} "
-                           f"({exc.msg}); open its autosave or a backup") from None
-    except ValueError as exc:
-        raise ProjectError(f"'{path.name}' is damaged: {exc}") from None
+    document = parse_json(text, f"'{path.name}'", ProjectError, "project",
+                          hint="The file is damaged; open its autosave or a backup.")
     if not isinstance(document, dict) or document.get("format") != FORMAT_NAME:
         raise ProjectError(f"'{path.name}' is not a Mimica project (no \"format\": \"{FORMAT_NAME}\")")
     version = document.get("version")
@@ -353,22 +358,47 @@ def read_document(path: str | os.PathLike) -> dict:
     return document
 
 
+#: More landmarks than this in a project are refused (the densest template has 80).
+MAX_LANDMARKS = 10_000
+#: More speech clips than this are refused.
+MAX_SPEECH_CLIPS = 1_000
+
+
 def load_project(path: str | os.PathLike) -> Project:
-    """Read a .mimica file (relative face paths resolve against its folder). Raises ProjectError."""
+    """Read a .mimica file (relative face paths resolve against its folder). Raises ProjectError.
+
+    Every field is type- and range-checked here (parameters through ``core.parameters``, the
+    timeline through ``core.timeline``, speech clips through ``core.lipsync.check_clip_field``);
+    any other failure of a damaged file is a ProjectError too, never another exception."""
     path = Path(path)
-    doc = _Field(read_document(path), "", path.name)
-    base = path.resolve().parent
-    face = _read_face(doc["face"], base)
-    landmarks, positions = _read_landmarks(doc.get("landmarks"))
-    rig = _read_rig(doc["rig"], doc["version"].int())
-    timeline = _read_timeline(doc["timeline"])
-    speech = [_read_clip(c) for c in doc.get("speech", []).elements()]
-    view = doc.get("view", {}).dict()
-    return Project(face=face, landmarks=landmarks, landmark_positions=positions, rig=rig, timeline=timeline,
-                   speech=speech, view=view)
+    with reading(ProjectError, f"'{path.name}'", "project"):
+        doc = _Field(read_document(path), "", path.name)
+        base = path.resolve().parent
+        notes: list[str] = []
+        face = _read_face(doc["face"], base, notes)
+        landmarks, positions, status = _read_landmarks(doc.get("landmarks"))
+        rig = _read_rig(doc["rig"], doc["version"].int())
+        timeline = _read_timeline(doc["timeline"])
+        clips = doc.get("speech", [])
+        if len(clips.list()) > MAX_SPEECH_CLIPS:
+            raise clips.fail(f"holds {len(clips.value)} clips; a project holds at most {MAX_SPEECH_CLIPS}")
+        speech = [_read_clip(c, timeline.duration) for c in clips.elements()]
+        view = doc.get("view", {}).dict()
+        return Project(face=face, landmarks=landmarks, landmark_positions=positions, landmark_status=status, rig=rig,
+                       timeline=timeline, speech=speech, view=view, notes=notes)
 
 
-def _read_face(f: _Field, base: Path) -> FaceRef:
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        path.resolve().relative_to(folder.resolve())
+    except (ValueError, OSError, RuntimeError):
+        return False
+    return True
+
+
+def _read_face(f: _Field, base: Path, notes: list[str] | None = None) -> FaceRef:
+    """The face reference; a face file outside the project's folder is used as written, with a note
+    naming where it is (the project file, not the user, chose that place)."""
     entry = f.dict()
     if "builtin" in entry:
         name = f["builtin"].str()
@@ -376,18 +406,32 @@ def _read_face(f: _Field, base: Path) -> FaceRef:
             raise f["builtin"].fail(f"names an unknown built-in face {name!r} (known: {', '.join(BUILTIN_FACES)})")
         return FaceRef(builtin=name)
     rel = f["path"].str()
+    if not rel.strip() or "\0" in rel:
+        raise f["path"].fail("must name the face file (a path relative to the project)")
     candidates = [base / rel]
     if "absolute" in entry:
-        candidates.append(Path(f["absolute"].str()))
+        absolute = f["absolute"].str()
+        if "\0" in absolute:
+            raise f["absolute"].fail("is not a valid path")
+        candidates.append(Path(absolute))
     sha = f["sha256"].str() if "sha256" in entry else None
     chosen = next((c for c in candidates if c.is_file()), candidates[0])
-    return FaceRef(path=chosen.resolve() if chosen.exists() else chosen, sha256=sha)
+    resolved = chosen.resolve() if chosen.exists() else chosen
+    if notes is not None and not _inside(resolved, base):
+        notes.append(f"The project's face file is outside the project's folder: '{resolved}'. Check that it is "
+                     "the face you expect; save the project next to its face to keep them together.")
+    return FaceRef(path=resolved, sha256=sha)
+
+
+LANDMARK_STATUSES = ("auto", "edited", "confirmed")
 
 
 def _read_landmarks(f: _Field):
     if f.value is None:
-        return None, {}
-    landmarks, positions = {}, {}
+        return None, {}, {}
+    landmarks, positions, status = {}, {}, {}
+    if len(f.list()) > MAX_LANDMARKS:
+        raise f.fail(f"holds {len(f.value)} landmarks; a project holds at most {MAX_LANDMARKS}")
     for e in f.elements():
         name = e["name"].str()
         if name in landmarks:
@@ -406,10 +450,25 @@ def _read_landmarks(f: _Field):
             if len(xyz) != 3:
                 raise e["xyz"].fail(f"must hold 3 numbers, got {len(xyz)}")
             positions[name] = tuple(xyz)
-    return landmarks, positions
+        if "status" in e.value:
+            state = e["status"].str()
+            if state not in LANDMARK_STATUSES:
+                raise e["status"].fail(f"must be one of {', '.join(LANDMARK_STATUSES)}, got {state!r}")
+            confidence = e.get("confidence")
+            status[name] = (state, None if confidence.value is None else confidence.number())
+    return landmarks, positions, status
+
+
+_RIG_FIELDS = {1: ("faps", "expressions", "visemes", "muscles", "jaw"), 2: ("values",)}
 
 
 def _read_rig(f: _Field, version: int) -> RigSettings:
+    allowed = _RIG_FIELDS[min(version, 2)]
+    for name in f.dict():
+        if name not in allowed:
+            raise f.fail(f"has a field {name!r} that format {version} does not have (allowed: "
+                         f"{', '.join(allowed)}; format 2 keeps every parameter in rig.values, e.g. "
+                         "\"muscle:risorius:left\": 4.0)")
     if version == 1:
         return RigSettings(_read_rig_v1(f))
     values = {}
@@ -429,7 +488,8 @@ def _read_rig_v1(f: _Field) -> dict[str, float]:
     def put(field_: _Field, spelling, value) -> None:
         try:
             key = key_of(spelling)
-            values[key] = values.get(key, 0.0) + check_value(key, value)
+            # repeated entries add up; the total must be allowed too
+            values[key] = check_value(key, values.get(key, 0.0) + check_value(key, value))
         except ParameterError as exc:
             raise field_.fail(str(exc)) from None
 
@@ -491,11 +551,17 @@ def _read_timeline(f: _Field) -> Timeline:
         raise f["tracks"].fail(f"do not fit the timeline: {exc}") from None
 
 
-def _read_clip(f: _Field) -> SpeechClip:
-    start = f["start_s"].number()
-    if start < 0:
-        raise f["start_s"].fail(f"must be >= 0, got {start:g}")
-    return SpeechClip(f["text"].str(), f["lang"].str(), start, f.get("rate_wpm", 175).int())
+def _read_clip(f: _Field, duration_s: float) -> SpeechClip:
+    from core.lipsync import check_clip_field
+
+    values = {}
+    for name, default in (("text", None), ("lang", None), ("start_s", None), ("rate_wpm", 175)):
+        field_ = f[name] if default is None else f.get(name, default)
+        try:
+            values[name] = check_clip_field(name, field_.value, duration_s=duration_s)
+        except ValueError as exc:
+            raise field_.fail(str(exc)) from None
+    return SpeechClip(values["text"], values["lang"], float(values["start_s"]), int(values["rate_wpm"]))
 
 
 # ====================================================================== the face
@@ -508,6 +574,7 @@ def open_face(project: Project, notes: list[str] | None = None) -> Face:
     from core.formats.mesh_io import MeshLoadError, load_face
 
     notes = notes if notes is not None else []
+    notes.extend(n for n in project.notes if n not in notes)
     ref = project.face
     changed = False
     if ref.builtin is not None:
@@ -528,26 +595,32 @@ def open_face(project: Project, notes: list[str] | None = None) -> Face:
         except MeshLoadError as exc:
             raise ProjectError(str(exc)) from None
     if project.landmarks is not None:
-        for name in list(face.landmark_names):
-            face.remove_landmark(name)
-        relocate = {}
-        for name, point in project.landmarks.items():
-            ok = 0 <= point.triangle < face.n_triangles
-            if (changed or not ok) and name in project.landmark_positions:
-                relocate[name] = project.landmark_positions[name]
-            elif ok:
-                face.set_landmark(name, point)
-            else:
-                notes.append(f"Landmark '{name}' was dropped: its triangle {point.triangle} does not exist on "
-                             "this face and the project holds no position for it.")
-        if relocate:
-            _, tris, barys = face.closest_surface_points(np.array(list(relocate.values()), float))
-            for name, tri, bary in zip(relocate, tris, barys):
-                face.set_landmark(name, SurfacePoint(int(tri), tuple(float(b) for b in bary)))
-            if not changed:
-                notes.append(f"{len(relocate)} landmark(s) referred to triangles this face does not have and were "
-                             "placed at the surface points closest to their saved positions.")
+        with reading(ProjectError, "the project's landmarks", "landmark"):
+            _place_landmarks(project, face, changed, notes)
     return face
+
+
+def _place_landmarks(project: Project, face: Face, changed: bool, notes: list[str]) -> None:
+    """Put the project's landmarks on ``face`` (relocated by their saved positions when needed)."""
+    for name in list(face.landmark_names):
+        face.remove_landmark(name)
+    relocate = {}
+    for name, point in project.landmarks.items():
+        ok = 0 <= point.triangle < face.n_triangles
+        if (changed or not ok) and name in project.landmark_positions:
+            relocate[name] = project.landmark_positions[name]
+        elif ok:
+            face.set_landmark(name, point)
+        else:
+            notes.append(f"Landmark '{name}' was dropped: its triangle {point.triangle} does not exist on "
+                         "this face and the project holds no position for it.")
+    if relocate:
+        _, tris, barys = face.closest_surface_points(np.array(list(relocate.values()), float))
+        for name, tri, bary in zip(relocate, tris, barys):
+            face.set_landmark(name, SurfacePoint(int(tri), tuple(float(b) for b in bary)))
+        if not changed:
+            notes.append(f"{len(relocate)} landmark(s) referred to triangles this face does not have and were "
+                         "placed at the surface points closest to their saved positions.")
 
 
 # ====================================================================== autosave

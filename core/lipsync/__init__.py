@@ -30,11 +30,44 @@ import numpy as np
 from core.formats.mesh_io import write_atomic
 from core.timeline import Track
 from core.lipsync.coarticulation import blink_tracks, viseme_curves, viseme_tracks
-from core.lipsync.espeak import (LanguageError, Phoneme, SpeechError, Synthesis, VOICES, espeak_version, synthesize,
-                     voice_for)
+from core.lipsync.espeak import (MAX_TEXT_CHARS, LanguageError, Phoneme, SpeechError, Synthesis, VOICES,
+                                 espeak_version, synthesize, voice_for)
 from core.lipsync.visemes import VisemeSegment, lookup, map_phonemes, phoneme_table
 
 LANGUAGES = tuple(VOICES)
+#: Speaking rates eSpeak NG is asked for (words per minute).
+RATE_RANGE_WPM = (80, 450)
+
+
+def check_clip_field(name: str, value, *, duration_s: float | None = None):
+    """``value`` if it is allowed for a speech clip's field ``name`` (text, lang, start_s, rate_wpm);
+    ValueError saying what is allowed otherwise. ``duration_s``: the timeline's length, which a
+    clip's start may not pass (so its audio buffer stays within the project)."""
+    import math
+
+    if name == "text":
+        if not isinstance(value, str) or not value.strip():
+            raise ValueError("must be the text to speak (not empty)")
+        if len(value) > MAX_TEXT_CHARS:
+            raise ValueError(f"has {len(value)} characters; a clip holds at most {MAX_TEXT_CHARS}")
+        return value
+    if name == "lang":
+        if not isinstance(value, str) or value.strip().lower() not in VOICES:
+            raise ValueError(f"must be one of {', '.join(LANGUAGES)}, got {value!r}")
+        return value
+    if name == "rate_wpm":
+        lo, hi = RATE_RANGE_WPM
+        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+            raise ValueError(f"must be a whole number of words per minute from {lo} to {hi}, got {value!r}")
+        return value
+    if name == "start_s":
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+            raise ValueError(f"must be a number of seconds >= 0, got {value!r}")
+        if duration_s is not None and value > duration_s:
+            raise ValueError(f"is {value:g} s, after the end of the timeline ({duration_s:g} s); "
+                             "a clip must start within the timeline")
+        return float(value)
+    raise ValueError(f"unknown speech clip field {name!r}")
 
 
 @dataclass(frozen=True)

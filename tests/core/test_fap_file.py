@@ -191,8 +191,8 @@ def test_header_only_file_has_no_frames():
         (8, "2.5 80 -8727 150 150", "line 8: the frame number '2.5' (first item) is not a whole number"),
         (2, "2.1 demo_example 25", "line 2: expected the header line '<version> <name> <fps> <num_frames>' "
                                    "(4 items), found 3"),
-        (2, "2.1 demo_example 0 3", "line 2: the frame rate in the header must be greater than 0, found 0"),
-        (2, "2.1 demo_example -25 3", "line 2: the frame rate in the header must be greater than 0, found -25"),
+        (2, "2.1 demo_example 0 3", "line 2: the frame rate in the header is 0; it must be from 0.1 to 1000 frames per second"),
+        (2, "2.1 demo_example -25 3", "line 2: the frame rate in the header is -25; it must be from 0.1 to 1000 frames per second"),
         (2, "2.1 demo_example fast 3", "line 2: the frame rate 'fast' in the header is not a number"),
         (2, "v2 demo_example 25 3", "line 2: the version 'v2' in the header is not a number"),
         (2, "2.1 demo_example 25 -3", "line 2: the number of frames in the header must be a whole number >= 0"),

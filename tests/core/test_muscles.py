@@ -84,7 +84,7 @@ def test_force_file_round_trip(tmp_path):
 
 
 @pytest.mark.parametrize("content, expected", [
-    ("{not json", "not valid JSON (line 1"),
+    ("{not json", "is not valid JSON: Expecting property name enclosed in double quotes at line 1"),
     ({"format": "mimica-muscle-forces", "version": 1, "forces": {"buccinator": 3}}, "unknown muscle 'buccinator'"),
     ({"format": "mimica-muscle-forces", "version": 1, "forces": {"risorius": {"middle": 3}}}, "bad side 'middle'"),
     ({"format": "mimica-muscle-forces", "version": 1, "forces": {"risorius": {"left": "strong"}}}, "must be a number"),

@@ -155,21 +155,14 @@ def save_force_set(path, force_set: ForceSet) -> None:
 def load_force_set(path) -> ForceSet:
     """Read a force file (ForceFileError naming what is wrong: bad JSON, unknown muscle, bad side,
     non-number, out of range, newer version, unreadable file)."""
+    from core.formats.text_files import read_json_file, reading
+
     path = Path(path)
     where = f"'{path.name}'"
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ForceFileError(f"force file '{path}' does not exist") from None
-    except UnicodeDecodeError:
-        raise ForceFileError(f"{where} is not a text (JSON) file") from None
-    except OSError as exc:
-        raise ForceFileError(f"cannot read '{path}': {exc.strerror or exc}") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ForceFileError(f"{where} is not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None
-    return force_set_from_json(data, where)
+    with reading(ForceFileError, where, "muscle force"):
+        data = read_json_file(path, "force", ForceFileError, what="a muscle force file")
+        return force_set_from_json(data, where)
+
 
 
 # ------------------------------------------------------------------ presets (thesis C §5.1)
