@@ -119,7 +119,7 @@ class FaceFilesMixin:
         elif suffix == PROJECT_SUFFIX and project is not None:
             project.open_project(path)
         elif suffix in ANIMATION_SUFFIXES and timeline is not None:
-            timeline.import_animation(path)
+            timeline.import_animation(path, warn=self.show_error)   # a refused file says why in a box
         elif suffix in IMAGE_SUFFIXES:
             if self.face is None:
                 self.show_error("No face for this image", f"{Path(path).name} is an image: open a face first, then "

@@ -148,6 +148,49 @@ class FaceViewMixin:
         self._scene.set_camera_view(self.plotter, view, self.face_actor.mesh.points)
         self._render()
 
+    # ------------------------------------------------------------ view state (saved in projects)
+    def view_state(self) -> dict:
+        """Camera, display mode, landmarks, overlays and link left/right, as plain JSON types."""
+        view: dict = {}
+        pos, focal, up = self.plotter.camera_position
+        view["camera"] = {"position": [float(v) for v in pos], "focal_point": [float(v) for v in focal],
+                          "up": [float(v) for v in up], "view_angle": float(self.plotter.camera.view_angle)}
+        view["display_mode"] = self.view_mode
+        view["landmarks_visible"] = bool(self.landmarks_action.isChecked())
+        dock = self.fap_dock
+        view["overlays"] = {"heat_map": bool(dock.heat_check.isChecked()),
+                            "influence": bool(dock.influence_check.isChecked())}
+        view["link_left_right"] = {"faps": bool(dock.link_check.isChecked())}
+        if self.muscle_dock is not None:
+            view["link_left_right"]["muscles"] = bool(self.muscle_dock.link_check.isChecked())
+        return view
+
+    def apply_view(self, view: dict) -> None:
+        """Restore :meth:`view_state` output; missing or odd entries are skipped."""
+        mode = view.get("display_mode")
+        if isinstance(mode, str) and mode in MODE_LABELS:
+            self.set_view_mode(mode)
+        if "landmarks_visible" in view:
+            self.set_landmarks_visible(bool(view["landmarks_visible"]))
+        overlays = view.get("overlays")
+        if isinstance(overlays, dict):
+            self.fap_dock.heat_check.setChecked(bool(overlays.get("heat_map", False)))
+            self.fap_dock.influence_check.setChecked(bool(overlays.get("influence", False)))
+        links = view.get("link_left_right")
+        if isinstance(links, dict):
+            for name, target in (("faps", self.fap_dock), ("muscles", self.muscle_dock)):
+                if target is not None and isinstance(links.get(name), bool):
+                    target.link_check.setChecked(links[name])
+        camera = view.get("camera")
+        if isinstance(camera, dict):
+            pos, focal, up = camera.get("position"), camera.get("focal_point"), camera.get("up")
+            if all(isinstance(v, list) and len(v) == 3 for v in (pos, focal, up)):
+                self.plotter.camera_position = [tuple(map(float, pos)), tuple(map(float, focal)),
+                                                tuple(map(float, up))]
+                if isinstance(camera.get("view_angle"), (int, float)):
+                    self.plotter.camera.view_angle = float(camera["view_angle"])
+                self.viewport.request("render")
+
     def reset_camera(self) -> None:
         """Frame the whole face, keeping the viewing direction."""
         if self.face_actor is None:

@@ -102,6 +102,8 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self.loads = JobRunner(self, supersede=True, user_errors=(MeshLoadError,))
         self.jobs = JobRunner(self)
         self.previews = JobRunner(self, supersede=True)   # the face's draft copy (app.preview)
+        # The tool docks (a window built with tools=False, as some tests do, has none).
+        self.landmark_dock = self.landmark_editor = self.muscle_dock = self.timeline_dock = None
         self._notes_box: QMessageBox | None = None
         self._notes_seen: list[str] | None = None  # notes of the face an edited copy replaces
         self._framed_when_shown = False

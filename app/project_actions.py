@@ -250,79 +250,32 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         return project
 
     def view_state(self) -> dict:
-        """Camera, display mode, overlays and timeline UI state (plain JSON types)."""
-        w, c = self.window, self.c
-        view: dict = {}
-        plotter = getattr(w, "plotter", None)
-        if plotter is not None:
-            with contextlib.suppress(Exception):
-                pos, focal, up = plotter.camera_position
-                view["camera"] = {"position": [float(v) for v in pos], "focal_point": [float(v) for v in focal],
-                                  "up": [float(v) for v in up], "view_angle": float(plotter.camera.view_angle)}
-        mode = getattr(w, "view_mode", None)
-        if isinstance(mode, str):
-            view["display_mode"] = mode
-        act = getattr(w, "landmarks_action", None)
-        if act is not None:
-            view["landmarks_visible"] = bool(act.isChecked())
-        dock = getattr(w, "fap_dock", None)
-        if dock is not None:
-            view["overlays"] = {"heat_map": bool(dock.heat_check.isChecked()),
-                                "influence": bool(dock.influence_check.isChecked())}
-            view["link_left_right"] = {"faps": bool(dock.link_check.isChecked())}
-        muscles = getattr(w, "muscle_dock", None)
-        if muscles is not None:
-            view.setdefault("link_left_right", {})["muscles"] = bool(muscles.link_check.isChecked())
-        tdock = getattr(c, "dock", None)
+        """The window's view (camera, display mode, overlays: ``MainWindow.view_state``) and the
+        timeline's UI state, as plain JSON types."""
+        c = self.c
+        view = self.window.view_state()
         view["timeline"] = {"time": float(c.current_time), "loop": bool(c.loop), "speed": float(c.speed),
                             "auto_key": bool(c.auto_key)}
-        if tdock is not None:
-            view["timeline"]["show_all"] = bool(tdock.view.show_all)
-            view["timeline"]["collapsed"] = sorted(tdock.view.collapsed)
+        if c.dock is not None:
+            view["timeline"]["show_all"] = bool(c.dock.view.show_all)
+            view["timeline"]["collapsed"] = sorted(c.dock.view.collapsed)
         return view
 
     def apply_view(self, view: dict) -> None:
         """Restore :meth:`view_state` output; missing or odd entries are skipped (the view is decoration)."""
-        w, c = self.window, self.c
+        c = self.c
         try:
-            mode = view.get("display_mode")
-            if isinstance(mode, str) and hasattr(w, "set_view_mode"):
-                with contextlib.suppress(ValueError):
-                    w.set_view_mode(mode)
-            if "landmarks_visible" in view and hasattr(w, "set_landmarks_visible"):
-                w.set_landmarks_visible(bool(view["landmarks_visible"]))
-            overlays = view.get("overlays")
-            dock = getattr(w, "fap_dock", None)
-            if isinstance(overlays, dict) and dock is not None:
-                dock.heat_check.setChecked(bool(overlays.get("heat_map", False)))
-                dock.influence_check.setChecked(bool(overlays.get("influence", False)))
-            links = view.get("link_left_right")
-            if isinstance(links, dict):
-                for name, target in (("faps", dock), ("muscles", getattr(w, "muscle_dock", None))):
-                    if target is not None and isinstance(links.get(name), bool):
-                        target.link_check.setChecked(links[name])
+            self.window.apply_view(view)
             tview = view.get("timeline")
             if isinstance(tview, dict):
                 c.loop = bool(tview.get("loop", False))
-                speed = tview.get("speed", 1.0)
                 with contextlib.suppress(ValueError, TypeError):
-                    c.set_speed(float(speed))
-                tdock = getattr(c, "dock", None)
-                if tdock is not None:
-                    tdock.view.collapsed = {str(g) for g in tview.get("collapsed", []) if isinstance(g, str)}
-                    tdock.show_all_check.setChecked(bool(tview.get("show_all", False)))
-                    tdock.view.rebuild_rows()
-                    tdock.sync()
-            camera = view.get("camera")
-            plotter = getattr(w, "plotter", None)
-            if isinstance(camera, dict) and plotter is not None:
-                pos, focal, up = camera["position"], camera["focal_point"], camera["up"]
-                if all(isinstance(v, list) and len(v) == 3 for v in (pos, focal, up)):
-                    plotter.camera_position = [tuple(map(float, pos)), tuple(map(float, focal)),
-                                               tuple(map(float, up))]
-                    if isinstance(camera.get("view_angle"), (int, float)):
-                        plotter.camera.view_angle = float(camera["view_angle"])
-                    w.viewport.request("render")
+                    c.set_speed(float(tview.get("speed", 1.0)))
+                if c.dock is not None:
+                    c.dock.view.collapsed = {str(g) for g in tview.get("collapsed", []) if isinstance(g, str)}
+                    c.dock.show_all_check.setChecked(bool(tview.get("show_all", False)))
+                    c.dock.view.rebuild_rows()
+                    c.dock.sync()
         except Exception:  # noqa: BLE001 - a bad view entry must not stop the project from opening
             traceback.print_exc()
 
@@ -349,8 +302,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         return True
 
     def open_dialog(self) -> bool:
-        start = str(self.window.settings.value("projectDirectory", str(Path.home()))) \
-            if hasattr(self.window, "settings") else str(Path.home())
+        start = str(self.window.settings.value("projectDirectory", str(Path.home())))
         path, _ = QFileDialog.getOpenFileName(self.window, "Open project", start, PROJECT_FILTER)
         if not path:
             return False
@@ -370,8 +322,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         except cp.ProjectError as exc:
             self._warn(f"Could not open {path.name}", str(exc))
             return False
-        if hasattr(self.window, "settings"):
-            self.window.settings.setValue("projectDirectory", str(path.resolve().parent))
+        self.window.settings.setValue("projectDirectory", str(path.resolve().parent))
         return self._apply_project(project, path, offer_recovery=True)
 
     def _same_face(self, project: cp.Project) -> bool:
@@ -497,10 +448,8 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         self._dirty = dirty
         self._autosaved = None
         self.update_title()
-        status = getattr(w, "statusBar", None)
-        if status is not None:
-            shown = self.path.name if self.path is not None else "the recovered project"
-            w.statusBar().showMessage(f"Opened {shown}" + (" — " + " ".join(notes) if notes else ""), 10000)
+        shown = self.path.name if self.path is not None else "the recovered project"
+        w.statusBar().showMessage(f"Opened {shown}" + (" — " + " ".join(notes) if notes else ""), 10000)
         if notes:
             QMessageBox.information(w, "Notes on opening the project", "\n".join(f"• {n}" for n in notes))
         self._recovery_applied(project)
@@ -516,8 +465,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
 
     def save_as_dialog(self) -> bool:
         w = self.window
-        folder = str(w.settings.value("projectDirectory", str(Path.home()))) if hasattr(w, "settings") \
-            else str(Path.home())
+        folder = str(w.settings.value("projectDirectory", str(Path.home())))
         face = self.document.face
         name = self.path.name if self.path is not None else (
             f"{face.metadata.name}{cp.SUFFIX}" if face is not None else f"untitled{cp.SUFFIX}")
@@ -549,8 +497,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         cp.discard_autosave(path)
         if old_untitled:
             self._discard_own_autosave(untitled_only=True)
-        if hasattr(self.window, "settings"):
-            self.window.settings.setValue("projectDirectory", str(path.resolve().parent))
+        self.window.settings.setValue("projectDirectory", str(path.resolve().parent))
         self._mark_clean()
         self._autosaved = None
         status = self.window.statusBar

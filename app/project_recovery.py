@@ -61,9 +61,7 @@ class ProjectRecoveryMixin:
     def _autosave_failed(self, exc: BaseException) -> None:
         if not isinstance(exc, (cp.ProjectError, OSError)):
             traceback.print_exception(exc)
-        status = getattr(self.window, "statusBar", None)
-        if status is not None:
-            self.window.statusBar().showMessage(f"Autosave failed: {exc}", 10000)
+        self.window.statusBar().showMessage(f"Autosave failed: {exc}", 10000)
 
     def autosave_now(self) -> Path | None:
         """Write the autosave now, on this thread (whatever the modified state; after any autosave still
@@ -192,10 +190,8 @@ class ProjectRecoveryMixin:
         source = recovering[0]
         written = self.autosave_now()
         if written is None:
-            status = getattr(self.window, "statusBar", None)
-            if status is not None:
-                self.window.statusBar().showMessage(
-                    f"The recovered work could not be autosaved again; '{source}' is kept.", 15000)
+            self.window.statusBar().showMessage(
+                f"The recovered work could not be autosaved again; '{source}' is kept.", 15000)
             return
         with contextlib.suppress(OSError):
             if Path(written).resolve() != Path(source).resolve():
@@ -229,7 +225,7 @@ class ProjectRecoveryMixin:
         w = self.window
         if self._closed:
             return
-        if getattr(w, "is_loading", False):
+        if w.is_loading:
             def once(_ok):
                 with contextlib.suppress(RuntimeError, TypeError):
                     w.load_finished.disconnect(once)

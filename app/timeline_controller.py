@@ -126,6 +126,7 @@ class TimelineController(TimelineIO, QObject):
         self._frame_stamps: collections.deque = collections.deque()
         self.achieved_fps = 0.0
         self.frames_shown = 0
+        self.dock = None   # the TimelineDock showing this controller (it sets itself)
         document.face_changed.connect(self._on_face_changed)
         document.rig_changed.connect(self._on_face_changed)
         self.set_rig(document.rig)
