@@ -258,12 +258,19 @@ def run_batch(files: list[Path], work, what: str) -> int:
 
 
 def with_texture(scan, args: argparse.Namespace):
-    """``scan`` with the image of ``--texture`` (flipped with ``--flip-texture``), if given."""
+    """``scan`` with the image of ``--texture``, if given: turned upright when the scan's texture
+    coordinates count rows from the top (``core.face.texture_runs_down``, as the window does, with a
+    note on stderr); ``--flip-texture`` turns the result over once more."""
+    from core.face import texture_runs_down
     from core.formats.mesh_io import MeshLoadError, load_texture_image
 
     try:
         if args.texture:
             scan = scan.with_texture(load_texture_image(args.texture))
+            if texture_runs_down(scan):
+                scan = scan.with_flipped_texture()
+                print(f"note: {Path(args.texture).name} was turned upside down to match the scan's texture "
+                      "coordinates (they count rows from the top); --flip-texture turns it back", file=sys.stderr)
         return scan.with_flipped_texture() if args.flip_texture and scan.texture is not None else scan
     except (MeshLoadError, ValueError) as exc:
         raise CliError(f"--texture {args.texture}: {exc}") from None
@@ -274,7 +281,7 @@ def add_texture_options(p) -> None:
                    help="map IMAGE onto the scan through its texture coordinates (a scan whose texture is a "
                         "separate file)")
     p.add_argument("--flip-texture", action="store_true",
-                   help="turn the texture upside down (texture coordinates that count rows from the other end)")
+                   help="turn the texture upside down (after Mimica's own choice from the texture coordinates)")
 
 
 def positive_factor(text: str) -> float:

@@ -176,3 +176,23 @@ def test_prepare_fills_the_cache_the_window_reads(tmp_path, monkeypatch):
     assert rig is not None and message == "" and reader.notes == []
     missing = run_mimica("prepare", str(tmp_path / "nope.obj"), headless=True)
     _assert_clean_error(missing, "no such file")
+
+
+def test_a_texture_image_is_turned_upright_from_the_scan_itself(tmp_path, capsys):
+    import argparse
+
+    from app.cli.common import with_texture
+    from app_helpers import make_synthetic_face
+    from core.face import Face
+
+    face = make_synthetic_face()
+    down = Face(face.vertices, face.triangles, uv=face.uv * [1, -1] + [0, 1])
+    image = np.zeros((8, 4, 3), np.uint8)
+    image[:4] = (255, 0, 0)   # red top half, as drawn
+    Image.fromarray(image).save(tmp_path / "tex.png")
+    args = argparse.Namespace(texture=str(tmp_path / "tex.png"), flip_texture=False)
+    upright = with_texture(down, args)
+    assert (upright.texture[4:, :, 0] == 255).all() and "turned upside down" in capsys.readouterr().err
+    assert (with_texture(face, args).texture[:4, :, 0] == 255).all(), "uv counted from the bottom: as drawn"
+    args.flip_texture = True
+    assert (with_texture(down, args).texture[:4, :, 0] == 255).all(), "--flip-texture overrides"
