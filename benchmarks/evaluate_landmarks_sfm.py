@@ -251,6 +251,7 @@ class Scan:
     head_pose_deg: float
     face: object                  # the scan Face (textured), ground truth as its landmarks
     visible: frozenset
+    transform: np.ndarray         # (4, 4) head pose: SFM face frame -> scan
 
 
 def make_scans(model: SfmModel, surface: Surface, person: int, seed: int, head_poses, poses, textured: bool):
@@ -272,7 +273,7 @@ def make_scans(model: SfmModel, surface: Surface, person: int, seed: int, head_p
             res = scan_face(source, rng=rng, pose_jitter_deg=float(deg), pose_jitter_mm=POSE_MM if deg else 0.0,
                             **settings)
             visible = frozenset(n for n, e in res.landmark_error_mm.items() if e <= VISIBLE_MM)
-            yield Scan(person, pose, float(deg), res.face, visible)
+            yield Scan(person, pose, float(deg), res.face, visible, res.transform)
 
 
 # ---------------------------------------------------------------------------------------- detection
@@ -285,6 +286,8 @@ class Result:
     head_pose_deg: float
     names: tuple
     errors: np.ndarray            # (P,) mm, NaN where not scored
+    offsets: np.ndarray           # (P, 3) mm, detected - truth in the face's frame (x left, y up, z out)
+    confidence: np.ndarray        # (P,) the detector's confidence of each scored point
     tolerance_mm: float
     wall_s: float
     cpu_s: float
@@ -313,11 +316,13 @@ def detect(scan: Scan, template: str, textured: bool) -> Result:
     w0, c0 = time.perf_counter(), time.process_time()
     det = detect_landmarks(face, template=template)
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
-    errors = np.full(len(names), np.nan)
+    offsets = np.full((len(names), 3), np.nan)
     for i, n in enumerate(names):
         if n in scan.visible:
-            errors[i] = float(np.linalg.norm(det.positions[n] - scan.face.landmark_position(n)))
-    return Result(template, scan.person, scan.pose, textured, scan.head_pose_deg, names, errors,
+            offsets[i] = scan.transform[:3, :3].T @ (det.positions[n] - scan.face.landmark_position(n))
+    errors = np.linalg.norm(offsets, axis=1)
+    confidence = np.array([det.confidence.get(n, np.nan) for n in names])
+    return Result(template, scan.person, scan.pose, textured, scan.head_pose_deg, names, errors, offsets, confidence,
                   tolerance_for(scan.face), wall, cpu, scan.face.n_vertices, det.low_confidence(), det.scale_hint,
                   list(det.report))
 
@@ -375,7 +380,8 @@ def report(results, template: str, worst: int = 8) -> list[str]:
                      f"median {np.median([r.wall_s for r in sel]):.2f} s wall, {np.median([r.cpu_s for r in sel]):.2f} s CPU "
                      f"(max {max(r.wall_s for r in sel):.2f} s)")
     lines.append("")
-    lines.append(f"worst points ({template}, all scans): accuracy, median / mean / p90 mm, n")
+    lines.append(f"worst points ({template}, all scans): accuracy, median / mean / p90 mm, n, "
+                 "mean offset detected - truth (x face-left, y up, z out) mm")
     rows = []
     for i, n in enumerate(rs[0].names):
         e = np.array([r.errors[i] for r in rs])
@@ -383,11 +389,23 @@ def report(results, template: str, worst: int = 8) -> list[str]:
         have = np.isfinite(e)
         if have.any():
             ibug = [k for k, fp in IBUG_TO_FP.items() if fp == n][0]
+            off = np.array([r.offsets[i] for r in rs])[have].mean(axis=0)
             rows.append((float((e[have] <= t[have]).mean()), n, ibug, np.median(e[have]), e[have].mean(),
-                         np.percentile(e[have], 90), int(have.sum())))
+                         np.percentile(e[have], 90), int(have.sum()), off))
     rows.sort(key=lambda x: (x[0], -x[3]))
-    for acc, n, ibug, med, mean, p90, cnt in rows[:worst]:
-        lines.append(f"  {n:>5} (ibug {ibug:2d})  {acc:6.3f}  {med:6.2f} / {mean:6.2f} / {p90:6.2f} mm  n={cnt}")
+    for acc, n, ibug, med, mean, p90, cnt, off in rows[:worst]:
+        lines.append(f"  {n:>5} (ibug {ibug:2d})  {acc:6.3f}  {med:6.2f} / {mean:6.2f} / {p90:6.2f} mm  n={cnt:<4d} "
+                     f"offset ({off[0]:+5.1f}, {off[1]:+5.1f}, {off[2]:+5.1f})")
+    e = np.concatenate([r.errors for r in rs])
+    c = np.concatenate([r.confidence for r in rs])
+    wrong = np.concatenate([r.errors > r.tolerance_mm for r in rs])
+    have = np.isfinite(e) & np.isfinite(c)
+    low = have & (c < 0.5)
+    lines.append("")
+    lines.append(f"confidence (< 0.5 = low, as the detector reports it) on the scored points: "
+                 f"{low.sum()} of {have.sum()} low; {int((wrong & low).sum())} of {int((wrong & have).sum())} "
+                 f"wrong points flagged; {(wrong & low).sum() / max(low.sum(), 1):.2f} of the flagged ones wrong, "
+                 f"{(wrong & have & ~low).sum() / max((have & ~low).sum(), 1):.2f} of the unflagged ones wrong")
     fails = [r for r in rs if r.accuracy < FAIL_ACCURACY]
     lines.append("")
     lines.append(f"failures (accuracy < {FAIL_ACCURACY}): {len(fails)} of {len(rs)} scans")
