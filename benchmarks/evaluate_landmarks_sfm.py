@@ -24,7 +24,8 @@ A second protocol next to ``evaluate_landmarks.py`` (issue 14, item 2). The data
   once with a small random head pose (``--head-pose-deg``, rotation ~ N(0, deg) per axis, translation
   ~ N(0, 3 mm)); random stream ``default_rng([seed, person, pose index, head-pose index])``.
 - **Texture.** "textured": a synthetic 1024x1024 texture painted in the model's uv from its own ibug
-  landmarks (skin of a random tone with smooth blotches, brown brows along ibug 18-27, eye openings
+  landmarks (skin of a random tone between a dark and a light
+  one, with smooth blotches, dark brown brows along ibug 18-27, eye openings
   37-42 white with a dark iris and a lash line, red lips between the outer 49-60 and inner 61-68
   contours, dark nostrils near 32-36), seen by the scanner's colour image. "untextured": the same scan
   without its texture (the detector's geometry path). Both variants use the same scan.
@@ -212,14 +213,15 @@ def paint_texture(model: SfmModel, person: int, seed: int, size: int = TEXTURE_P
     # mm -> texels from the outer eye corners (uv of the mean face)
     mm = size * float(np.linalg.norm(model.uv[ib[46]] - model.uv[ib[37]])) / float(
         np.linalg.norm(model.mean[ib[46]] - model.mean[ib[37]]))
-    skin = np.array([rng.uniform(150, 225), rng.uniform(105, 165), rng.uniform(80, 135)])
+    # a skin tone between a dark and a light anchor (R > G > B throughout), brows dark brown to black
+    skin = np.array([95.0, 60.0, 45.0]) + rng.uniform(0.0, 1.0) * np.array([140.0, 135.0, 125.0])
     blotch = cv2.GaussianBlur(rng.normal(0, 1, (size, size)).astype(np.float32), (0, 0), 12 * mm)
     blotch /= max(float(np.abs(blotch).max()), 1e-6)
     img = skin[None, None, :] * (1.0 + 0.08 * blotch[..., None])
     img = np.clip(img, 0, 255).astype(np.uint8)
     I = lambda a: np.rint(a).astype(np.int32)  # noqa: E731
-    brow = tuple(int(c) for c in rng.uniform([35, 25, 15], [90, 65, 45]))
-    iris_colour = tuple(int(c) for c in rng.uniform([40, 30, 20], [110, 90, 70]))
+    brow = tuple(int(c) for c in rng.uniform(30, 90) * np.array([1.0, 0.75, 0.55]))
+    iris_colour = tuple(int(c) for c in rng.uniform(40, 110) * np.array([1.0, 0.8, 0.6]))
     for side in ((18, 19, 20, 21, 22), (23, 24, 25, 26, 27)):
         cv2.polylines(img, [I(px(*side))], False, brow, thickness=max(1, int(round(5 * mm))), lineType=cv2.LINE_AA)
     for eye in ((37, 38, 39, 40, 41, 42), (43, 44, 45, 46, 47, 48)):
