@@ -35,9 +35,12 @@ Formats (from the path's suffix, or :attr:`ExportSettings.format`)
 
 Files
     Everything is written under a temporary name in the target folder
-    (``.name.XXXX.part.mp4``; a hidden folder for sequences) and renamed into
-    place only after the encoder succeeded: a cancelled or failed export never
-    leaves a broken file under the final name, and the partial file is removed.
+    (``.name.mimica-<pid>-XXXX.part.mp4``; a hidden folder for sequences) and
+    renamed into place only after the encoder succeeded: a cancelled or failed
+    export never leaves a broken file under the final name, and the partial
+    file is removed. Temporary names carry the owning process's id, and every
+    export first removes those of processes that no longer run (an export
+    killed with SIGKILL cannot clean up; :func:`app.export_sinks.sweep_stale`).
 
 Never blocking the window: rendering runs in a child process
     Measured here (Xvfb, Mesa llvmpipe, 2 cores): a ``pv.Plotter(off_screen=True)``
@@ -93,12 +96,12 @@ from app.export_plan import (  # noqa: F401 - re-exported
     FORMATS, AUDIO_FORMATS, STILL_FORMATS, ExportError, ExportCancelled, ExportSettings, ExportResult,
     frame_times, export_frame_times, resolve_format, _Plan, _plan)
 from app.export_sinks import (  # noqa: F401 - re-exported
-    ffmpeg_exe, _tail, _make_sink, _make_staging, _discard, _commit)
+    ffmpeg_exe, sweep_stale, _tail, _make_sink, _make_staging, _discard, _commit, sweep_for, temp_dir)
 
 __all__ = [
     "FORMATS", "AUDIO_FORMATS", "ExportError", "ExportCancelled", "ExportSettings", "ExportResult",
     "frame_times", "export_frame_times", "resolve_format", "export", "export_in_subprocess", "camera_state", "apply_camera",
-    "ffmpeg_exe",
+    "ffmpeg_exe", "sweep_stale",
 ]
 
 _TERMINATE_GRACE_S = 5.0
@@ -218,6 +221,7 @@ def export(face: Face, frame_vertices: Callable[[float], np.ndarray], settings: 
         ``cancelled()`` returned True; the partial output was removed.
     """
     plan = _plan(settings)
+    sweep_for(plan)
     staging = _make_staging(plan)
     try:
         stats = _render_to_staging(face, lambda k, t: frame_vertices(float(t)), settings, plan, staging,
@@ -243,7 +247,7 @@ def _render_to_staging(face: Face, next_vertices: Callable[[int, float], np.ndar
     start = time.perf_counter()
     render_s = encode_s = 0.0
     n_vertices = face.n_vertices
-    with tempfile.TemporaryDirectory(prefix="mimica-export-work-") as work:
+    with temp_dir() as work:
         sink = _make_sink(plan, settings, staging, Path(work))
         renderer = None
         try:
@@ -316,10 +320,11 @@ def export_in_subprocess(face: Face, frame_vertices: Callable[[float], np.ndarra
     plan = _plan(settings)
     if plan.format not in STILL_FORMATS:
         ffmpeg_exe()  # fail before starting anything
+    sweep_for(plan)
     staging = _make_staging(plan)
     proc = None
     try:
-        with tempfile.TemporaryDirectory(prefix="mimica-export-") as tmp:
+        with temp_dir() as tmp:
             tmp = Path(tmp)
             _save_face_npz(face, tmp / "face.npz")
             spec = {"settings": settings.to_json(), "staging": str(staging), "face": str(tmp / "face.npz"),

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 from app.cli.common import CliError, export_video, open_project, parse_size
@@ -46,7 +45,9 @@ def run(args: argparse.Namespace) -> int:
         driven = int(sequence.mask.any(axis=0).sum())
         print(f"wrote {out} ({sequence.n_frames} frames at {fps:g} fps, {driven} FAPs)")
         return 0
-    with tempfile.TemporaryDirectory(prefix="mimica-export-") as tmp:
+    from app.export_sinks import temp_dir
+
+    with temp_dir() as tmp:  # named with this process's id: swept by a later export if this one is killed
         audio = speech_wav(project.speech, Path(tmp)) if suffix in (".mp4", ".avi") else None
         export_video(face, animation.vertices, out, size=args.size, fps=fps, duration=timeline.duration,
                      audio=audio)

@@ -322,6 +322,41 @@ def test_subprocess_reports_the_encoders_error(tmp_path, face):
     assert leftovers(tmp_path) == ["voice.wav"]
 
 
+# ------------------------------------------------------------------ leftovers of killed exports
+def dead_pid() -> int:
+    proc = subprocess.Popen(["true"])
+    proc.wait()
+    return proc.pid
+
+
+def test_sweep_removes_only_what_dead_exports_left(tmp_path, monkeypatch):
+    import os
+    import tempfile
+
+    from app.export_sinks import sweep_stale
+
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    out = tmp_path / "out"
+    out.mkdir()
+    dead, alive = dead_pid(), os.getpid()
+    stale = [out / f".clip.mimica-{dead}-ab12cd34.part.mp4", out / f".mimica-export-{dead}-x1y2z3.part",
+             temp / f"mimica-export-{dead}-q9w8e7r6"]
+    kept = [out / f".clip.mimica-{alive}-ab12cd34.part.mp4", out / f".mimica-export-{alive}-x1y2z3.part",
+            temp / f"mimica-export-{alive}-q9w8e7r6", out / "clip.mp4", out / ".clip.part.mp4",
+            temp / "mimica-export-notapid"]
+    for path in stale + kept:
+        if path.suffix == ".mp4":
+            path.write_bytes(b"x")
+        else:
+            path.mkdir()
+            (path / "face.npz").write_bytes(b"x")
+    removed = sweep_stale([out])
+    assert sorted(removed) == sorted(stale)
+    assert all(p.exists() for p in kept) and not any(p.exists() for p in stale)
+
+
 # ------------------------------------------------------------------ Qt job and dialog
 def test_export_job_signals_finished_and_cancelled(qtbot, tmp_path, face):
     from app.export_dialog import ExportJob
