@@ -19,7 +19,8 @@ Timing (a choice the theses leave open)
     sequences are numbered by ``k`` from 0 (``frame_0000.png`` is ``t_0``).
 
 Formats (from the path's suffix, or :attr:`ExportSettings.format`)
-    ``.mp4``  H.264 (libx264, yuv420p, CRF from ``quality``, ``+faststart``),
+    ``.mp4``  H.264 (libx264, yuv420p, CRF from ``quality``, ``+faststart``;
+              preset :func:`app.export_sinks.x264_preset`),
               optional audio as AAC; width and height must be even (4:2:0).
     ``.avi``  Motion JPEG (as thesis B exported), optional audio as 16-bit PCM.
     ``.gif``  two-pass palette (palettegen / paletteuse) from a lossless FFV1
