@@ -612,6 +612,7 @@ def test_run_export_dialog_from_the_window(qtbot, window, tmp_path, monkeypatch,
         pass
     assert imageio_ffmpeg.count_frames_and_secs(str(out / "from_window.mp4"))[0] == 12
     qtbot.waitUntil(lambda: "from_window.mp4" in window.statusBar().currentMessage(), timeout=5000)
+    assert re.search(r"in \d+\.\d s \(\d+\.\d fps\)", window.statusBar().currentMessage())
     assert not error_boxes and not export_job._RUNNING
 
     def refuse(dialog):
@@ -654,3 +655,22 @@ def test_dialog_defaults_to_where_the_animation_ends(qtbot, tmp_path):
     qtbot.addWidget(filled)
     assert filled.whole_radio.isChecked()
 
+
+def test_progress_text_says_the_speed_and_the_time_left():
+    from app.export_dialog import FrameRate, progress_text
+
+    now = [100.0]
+    rate = FrameRate(clock=lambda: now[0])
+    assert rate.add(1) is None                       # one sample: no speed yet
+    now[0] += 0.25
+    assert rate.add(3) is None                       # under half a second
+    now[0] += 0.75
+    assert rate.add(9) == pytest.approx(8.0)         # 8 frames in 1 s
+    for _ in range(10):                              # only the last few seconds count
+        now[0] += 1.0
+        fps = rate.add(rate.samples[-1][1] + 2)
+    assert fps == pytest.approx(2.0)
+    assert progress_text(10, 300, None) == "Rendering frame 10 of 300…"
+    assert progress_text(100, 300, 8.0) == "Rendering frame 100 of 300 — 8.0 fps, about 25 s left…"
+    assert progress_text(100, 3000, 8.0).endswith("about 6 min left…")
+    assert progress_text(300, 300, 8.0) == "Finishing the file…"
