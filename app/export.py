@@ -68,7 +68,7 @@ Never blocking the window: rendering runs in a child process
 
 Parallel rendering (:attr:`ExportSettings.workers`, default one per core)
     With more than one worker the frames are drawn by that many render
-    processes (:mod:`app.export_workers`), frame ``k`` by worker ``k % N``,
+    processes (:mod:`app.export_workers`), each frame by whichever is free,
     each with its own off-screen renderer (this module's
     :class:`_FaceRenderer`, so the pixels are those of the serial path); the
     exporting process (the child above, or the caller of :func:`export`)

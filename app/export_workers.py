@@ -2,29 +2,31 @@
 ----
 Frames rendered by several processes at once, for :mod:`app.export`.
 
-Software OpenGL (Mesa llvmpipe) draws a frame on one core: the default face at 1280x720 costs
-about 130 ms of CPU whatever else the machine has free. So an export with ``workers = N > 1``
-starts N render processes (``python -m app.export_workers SPEC.json``), each with its own
-off-screen renderer (:class:`app.export._FaceRenderer`, the code the serial path uses, so the
-pixels are the same), and the exporting process only computes the vertices, hands them out and
-passes the images to the encoder in order.
+Software OpenGL (Mesa llvmpipe) costs about 134 ms of CPU for a 1280x720 frame of the default
+face. One process spreads part of that over the cores (llvmpipe's rasterizer threads), but not
+its vertex processing, set-up and VTK's own work; so an export with ``workers = N > 1`` starts N
+render processes (``python -m app.export_workers SPEC.json``), each with its own off-screen
+renderer (:class:`app.export._FaceRenderer`, the code the serial path uses, so the pixels are the
+same), and the exporting process only computes the vertices, hands them out and passes the images
+to the encoder in order.
 
-Frames are interleaved: frame ``k`` goes to worker ``k % N``, so every worker renders its next
-frame while the encoder takes the current one, the images come back in the order the encoder
-needs them (no reordering buffer) and all workers finish together.
+Frames go to whichever worker is free (a shared queue, in frame order) and come back into a small
+reordering window: a worker slowed by other programs on the machine does not hold the others up,
+and no worker runs more than the window (about two frames per worker) ahead of the encoder, which
+bounds the memory.
 
 Protocol of a worker
-    stdin: each of its frames' vertices, (n, 3) little-endian float64, back to back; end of file
+    stdin: its frames' vertices, (n, 3) little-endian float64, one after the other; end of file
     means no more frames (and is how a worker learns that its exporter died).
     stdout: per frame one message, a 4-byte kind, a 4-byte little-endian length and the payload:
     ``IMG `` with (h, w, 3) uint8 RGB (top row first) or ``ERR `` with a message for the user (then
     the worker exits). Anything a library prints goes to stderr, a log file of the pool's.
 
-In the exporter :class:`RenderPool` runs one thread per worker (write one frame's vertices, read
-its image, queue it), so a worker never waits for the others; the calling thread takes images in
-frame order (:meth:`RenderPool.take`), polling its cancel flag. A worker that fails or dies
-becomes one :class:`ExportError` naming what it said; :meth:`RenderPool.close` kills the workers
-(they hold no files), so cancelling is as quick as with one renderer.
+In the exporter :class:`RenderPool` runs one thread per worker (take a frame, write its vertices,
+read its image); the calling thread takes images in frame order (:meth:`RenderPool.take`),
+polling its cancel flag. A worker that fails or dies becomes one :class:`ExportError` naming what
+it said; :meth:`RenderPool.close` kills the workers (they hold no files), so cancelling is as
+quick as with one renderer.
 """
 
 from __future__ import annotations
@@ -78,11 +80,14 @@ def _read_exact(stream, size: int) -> bytearray | None:
 
 
 class RenderPool:
-    """``workers`` render processes for one export; frame ``k`` is rendered by worker ``k % workers``.
+    """``workers`` render processes for one export.
 
     Feed frames in order with :meth:`submit` (from one thread) and :meth:`end_of_frames`; take the
     images in order with :meth:`take` (from another); always :meth:`close`.
     """
+
+    #: Images waiting for the encoder, at most (beyond one per worker), in bytes.
+    WINDOW_BYTES = 512 * 2**20
 
     def __init__(self, face_file: Path, settings: ExportSettings, size: tuple[int, int], n_vertices: int,
                  workers: int, work: Path, *, python: str | None = None):
@@ -90,9 +95,13 @@ class RenderPool:
         self.size = (int(size[0]), int(size[1]))
         self.n_vertices = int(n_vertices)
         self._frame_bytes = self.size[0] * self.size[1] * 3
+        self.window = self.workers + max(1, min(self.workers + 2, self.WINDOW_BYTES // self._frame_bytes))
         self._stop = threading.Event()
-        self._inbox = [queue.Queue(maxsize=1) for _ in range(self.workers)]
-        self._outbox = [queue.Queue(maxsize=2) for _ in range(self.workers)]
+        self._jobs: queue.Queue = queue.Queue(maxsize=self.workers)
+        self._done = threading.Condition()
+        self._images: dict[int, np.ndarray] = {}   # rendered, not yet taken (guarded by _done)
+        self._next = 0                               # the frame the encoder takes next
+        self._failure: tuple[str, object] | None = None
         self._logs: list[Path] = []
         self._procs: list[subprocess.Popen] = []
         self._threads: list[threading.Thread] = []
@@ -122,41 +131,50 @@ class RenderPool:
             self._threads.append(thread)
 
     # ------------------------------------------------------------ feeding (one thread, in frame order)
-    def _put(self, box: queue.Queue, item) -> bool:
+    def _put(self, item) -> bool:
         while not self._stop.is_set():
             try:
-                box.put(item, timeout=_POLL_S)
+                self._jobs.put(item, timeout=_POLL_S)
                 return True
             except queue.Full:
                 continue
         return False
 
     def submit(self, k: int, vertices: np.ndarray) -> bool:
-        """Queue frame ``k``'s (n, 3) vertices for its worker; blocks while that worker is busy.
-        False when the pool is closing."""
-        data = np.ascontiguousarray(vertices, dtype="<f8")
-        return self._put(self._inbox[k % self.workers], data)
+        """Queue frame ``k``'s (n, 3) vertices for the next free worker; blocks while all are busy or
+        the encoder is a window behind. False when the pool is closing."""
+        with self._done:
+            while k >= self._next + self.window and not self._stop.is_set():
+                self._done.wait(_POLL_S)
+        return self._put((k, np.ascontiguousarray(vertices, dtype="<f8")))
 
     def end_of_frames(self) -> None:
         """No more frames: each worker exits after its last one."""
-        for box in self._inbox:
-            if not self._put(box, _END):
+        for _ in range(self.workers):
+            if not self._put(_END):
                 return
 
     # ------------------------------------------------------------ one thread per worker
+    def _fail(self, kind: str, value) -> None:
+        with self._done:
+            if self._failure is None:
+                self._failure = (kind, value)
+            self._done.notify_all()
+
     def _serve(self, i: int) -> None:
-        proc, inbox, outbox = self._procs[i], self._inbox[i], self._outbox[i]
+        proc = self._procs[i]
         try:
             while not self._stop.is_set():
                 try:
-                    item = inbox.get(timeout=_POLL_S)
+                    item = self._jobs.get(timeout=_POLL_S)
                 except queue.Empty:
                     continue
                 if item is _END:
                     proc.stdin.close()
                     return
+                k, vertices = item
                 try:
-                    proc.stdin.write(memoryview(item).cast("B"))
+                    proc.stdin.write(memoryview(vertices).cast("B"))
                     proc.stdin.flush()
                 except OSError:
                     pass  # it stopped reading: what it said before exiting (if anything) is on its stdout
@@ -169,17 +187,18 @@ class RenderPool:
                     raise EOFError
                 if kind == _IMAGE and length == self._frame_bytes:
                     image = np.frombuffer(payload, dtype=np.uint8).reshape(self.size[1], self.size[0], 3)
-                    self._put(outbox, ("image", image))
+                    with self._done:
+                        self._images[k] = image
+                        self._done.notify_all()
                 elif kind == _ERROR:
-                    self._put(outbox, ("error", payload.decode("utf-8", "replace")))
+                    self._fail("error", payload.decode("utf-8", "replace"))
                     return
                 else:
-                    self._put(outbox, ("error", f"A render process sent an unexpected message ({kind!r}, "
-                                                f"{length} bytes)."))
+                    self._fail("error", f"A render process sent an unexpected message ({kind!r}, {length} bytes).")
                     return
         except (EOFError, OSError, ValueError):
             if not self._stop.is_set():
-                self._put(outbox, ("died", i))
+                self._fail("died", i)
 
     def _died(self, i: int) -> str:
         proc = self._procs[i]
@@ -195,23 +214,24 @@ class RenderPool:
 
     # ------------------------------------------------------------ taking images (in frame order)
     def take(self, k: int, cancelled: Callable[[], bool], check: Callable[[], None] = lambda: None) -> np.ndarray:
-        """Frame ``k``'s (h, w, 3) uint8 image once rendered. Polls ``cancelled`` (raises
-        :class:`ExportCancelled`) and ``check`` (which may raise the feeder's problem); a worker's
-        failure is an :class:`ExportError`."""
-        box = self._outbox[k % self.workers]
+        """Frame ``k``'s (h, w, 3) uint8 image once rendered (take them in order). Polls ``cancelled``
+        (raises :class:`ExportCancelled`) and ``check`` (which may raise the feeder's problem); a
+        worker's failure is an :class:`ExportError`."""
         while True:
             if cancelled():
                 raise ExportCancelled()
             check()
-            try:
-                kind, value = box.get(timeout=_POLL_S)
-            except queue.Empty:
-                continue
-            if kind == "image":
-                return value
-            if kind == "error":
-                raise ExportError(value)
-            raise ExportError(self._died(value))
+            with self._done:
+                if k in self._images:
+                    self._next = k + 1
+                    self._done.notify_all()
+                    return self._images.pop(k)
+                failure = self._failure
+                if failure is None:
+                    self._done.wait(_POLL_S)
+                    continue
+            kind, value = failure
+            raise ExportError(value if kind == "error" else self._died(value))
 
     def close(self, *, wait: bool = False) -> None:
         """Stop the workers (killed at once unless ``wait``: then given a few seconds to exit after

@@ -347,7 +347,7 @@ def read_png(path) -> np.ndarray:
 
 
 def test_parallel_workers_render_the_same_frames(tmp_path, face):
-    """Frame k is rendered by worker k % 2 with the serial path's renderer: the same pixels, in order."""
+    """Each frame is rendered by a free worker with the serial path's renderer: the same pixels, in order."""
     source = opening_mouth(face, 60.0)
     one = export(face, source, ExportSettings(tmp_path / "one", end_s=0.7, size=SMALL, fps=10, workers=1))
     two = export(face, source, ExportSettings(tmp_path / "two", end_s=0.7, size=SMALL, fps=10, workers=2))
