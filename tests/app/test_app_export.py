@@ -390,6 +390,11 @@ def test_default_worker_count_follows_cores_and_length(monkeypatch):
     assert plan(ExportSettings("x.mp4", workers=3), 10) == 3   # asked for: as asked
     assert plan(ExportSettings("x.mp4", workers=8), 5) == 5    # never more than the frames
     assert 1 <= export_plan.default_workers() <= export_plan.DEFAULT_MAX_WORKERS
+    monkeypatch.undo()
+    monkeypatch.setattr(export_plan, "_available_memory", lambda: 2 * export_plan.WORKER_MEMORY_BYTES + 1)
+    assert export_plan.default_workers() <= 2          # no more workers than the memory holds
+    monkeypatch.setattr(export_plan, "_available_memory", lambda: 0)
+    assert export_plan.default_workers() == 1
     with pytest.raises(ExportError, match="render workers"):
         export_frame_times(ExportSettings("x.mp4", end_s=1, workers=0))
 
