@@ -76,13 +76,18 @@ Parallel rendering (:attr:`ExportSettings.workers`, default one per core)
     in order. Short exports use fewer workers
     (:func:`app.export_plan.planned_workers`): each costs a start-up of 1-3 s.
 
-Speed (measured here: software rendering, Mesa llvmpipe, a 2-core machine shared with other jobs)
-    10 s of 1280x720 at 30 fps of the default face (53,772 vertices, textured): 300 frames in 134 s wall
-    through :func:`export_in_subprocess` at load average ~7 (not measured on an idle machine; the CPU
-    cost below suggests about a minute). Per frame: rendering (vertex upload + draw + read-back) 408 ms wall / 184 ms CPU; the
-    renderer waited 13 ms for the encoder, which used 27-32 ms CPU per frame in its own process (x264
-    preset medium). Rendering is about 93% of the time; with the window's 4x MSAA it cost 338-398 ms
-    CPU a frame, hence FXAA for export (see :class:`_FaceRenderer`).
+Speed (measured here: Mesa llvmpipe, a 2-core VM shared with other jobs; benchmarks/bench_export.py)
+    One renderer draws a 1280x720 frame of the default face (53,772 vertices, textured, FXAA) in 134 ms
+    of CPU (FXAA about 40 of them; 4x MSAA would double it), and llvmpipe spreads it over both cores:
+    78 ms wall. x264 (preset fast, CRF 19) costs about 16 ms of CPU a frame in its own process.
+    10 s at 30 fps (300 frames) at load average ~3.5: one worker 28.0 s (10.7 fps, 1.74 cores busy,
+    162 ms of CPU a frame for all the processes), two workers 26.7 s (11.2 fps, 1.94 cores busy,
+    173 ms: the second start-up is the difference). So on 2 cores the workers gain little: the
+    serial path already keeps both busy. They pay off with more cores: llvmpipe's share that one process cannot spread
+    (vertex processing, set-up, VTK; ~21 ms of the 134 from the 78 ms wall on 2 threads) caps one
+    process near 35 fps on any machine, while N processes draw about N x 7.5 fps (an estimate from
+    these numbers, not measured on a bigger machine). Under other jobs' load (load average 4-6) both
+    ran at 3.6-7 fps.
 """
 
 from __future__ import annotations
