@@ -19,7 +19,8 @@ Timing (a choice the theses leave open)
     sequences are numbered by ``k`` from 0 (``frame_0000.png`` is ``t_0``).
 
 Formats (from the path's suffix, or :attr:`ExportSettings.format`)
-    ``.mp4``  H.264 (libx264, yuv420p, CRF from ``quality``, ``+faststart``),
+    ``.mp4``  H.264 (libx264, yuv420p, CRF from ``quality``, ``+faststart``;
+              preset :func:`app.export_sinks.x264_preset`),
               optional audio as AAC; width and height must be even (4:2:0).
     ``.avi``  Motion JPEG (as thesis B exported), optional audio as 16-bit PCM.
     ``.gif``  two-pass palette (palettegen / paletteuse) from a lossless FFV1
@@ -35,9 +36,12 @@ Formats (from the path's suffix, or :attr:`ExportSettings.format`)
 
 Files
     Everything is written under a temporary name in the target folder
-    (``.name.XXXX.part.mp4``; a hidden folder for sequences) and renamed into
-    place only after the encoder succeeded: a cancelled or failed export never
-    leaves a broken file under the final name, and the partial file is removed.
+    (``.name.mimica-<pid>-XXXX.part.mp4``; a hidden folder for sequences) and
+    renamed into place only after the encoder succeeded: a cancelled or failed
+    export never leaves a broken file under the final name, and the partial
+    file is removed. Temporary names carry the owning process's id, and every
+    export first removes those of processes that no longer run (an export
+    killed with SIGKILL cannot clean up; :func:`app.export_sinks.sweep_stale`).
 
 Never blocking the window: rendering runs in a child process
     Measured here (Xvfb, Mesa llvmpipe, 2 cores): a ``pv.Plotter(off_screen=True)``
@@ -62,13 +66,28 @@ Never blocking the window: rendering runs in a child process
     :func:`export_in_subprocess` (the Qt job can run it on the GUI thread
     instead, see :class:`app.export_dialog.ExportJob`).
 
-Speed (measured here: software rendering, Mesa llvmpipe, a 2-core machine shared with other jobs)
-    10 s of 1280x720 at 30 fps of the default face (53,772 vertices, textured): 300 frames in 134 s wall
-    through :func:`export_in_subprocess` at load average ~7 (not measured on an idle machine; the CPU
-    cost below suggests about a minute). Per frame: rendering (vertex upload + draw + read-back) 408 ms wall / 184 ms CPU; the
-    renderer waited 13 ms for the encoder, which used 27-32 ms CPU per frame in its own process (x264
-    preset medium). Rendering is about 93% of the time; with the window's 4x MSAA it cost 338-398 ms
-    CPU a frame, hence FXAA for export (see :class:`_FaceRenderer`).
+Parallel rendering (:attr:`ExportSettings.workers`, default one per core)
+    With more than one worker the frames are drawn by that many render
+    processes (:mod:`app.export_workers`), each frame by whichever is free,
+    each with its own off-screen renderer (this module's
+    :class:`_FaceRenderer`, so the pixels are those of the serial path); the
+    exporting process (the child above, or the caller of :func:`export`)
+    computes or receives the vertices, hands them out and encodes the images
+    in order. Short exports use fewer workers
+    (:func:`app.export_plan.planned_workers`): each costs a start-up of 1-3 s.
+
+Speed (measured here: Mesa llvmpipe, a 2-core VM shared with other jobs; benchmarks/bench_export.py)
+    One renderer draws a 1280x720 frame of the default face (53,772 vertices, textured, FXAA) in 134 ms
+    of CPU (FXAA about 40 of them; 4x MSAA would double it), and llvmpipe spreads it over both cores:
+    78 ms wall. x264 (preset fast, CRF 19) costs about 16 ms of CPU a frame in its own process.
+    10 s at 30 fps (300 frames) at load average ~3.5: one worker 28.0 s (10.7 fps, 1.74 cores busy,
+    162 ms of CPU a frame for all the processes), two workers 26.7 s (11.2 fps, 1.94 cores busy,
+    173 ms: the second start-up is the difference). So on 2 cores the workers gain little: the
+    serial path already keeps both busy. They pay off with more cores: llvmpipe's share that one process cannot spread
+    (vertex processing, set-up, VTK; ~21 ms of the 134 from the 78 ms wall on 2 threads) caps one
+    process near 35 fps on any machine, while N processes draw about N x 7.5 fps (an estimate from
+    these numbers, not measured on a bigger machine). Under other jobs' load (load average 4-6) both
+    ran at 3.6-7 fps.
 """
 
 from __future__ import annotations
@@ -93,12 +112,12 @@ from app.export_plan import (  # noqa: F401 - re-exported
     FORMATS, AUDIO_FORMATS, STILL_FORMATS, ExportError, ExportCancelled, ExportSettings, ExportResult,
     frame_times, export_frame_times, resolve_format, _Plan, _plan)
 from app.export_sinks import (  # noqa: F401 - re-exported
-    ffmpeg_exe, _tail, _make_sink, _make_staging, _discard, _commit)
+    ffmpeg_exe, sweep_stale, _tail, _make_sink, _make_staging, _discard, _commit, sweep_for, temp_dir)
 
 __all__ = [
     "FORMATS", "AUDIO_FORMATS", "ExportError", "ExportCancelled", "ExportSettings", "ExportResult",
     "frame_times", "export_frame_times", "resolve_format", "export", "export_in_subprocess", "camera_state", "apply_camera",
-    "ffmpeg_exe",
+    "ffmpeg_exe", "sweep_stale",
 ]
 
 _TERMINATE_GRACE_S = 5.0
@@ -218,6 +237,7 @@ def export(face: Face, frame_vertices: Callable[[float], np.ndarray], settings: 
         ``cancelled()`` returned True; the partial output was removed.
     """
     plan = _plan(settings)
+    sweep_for(plan)
     staging = _make_staging(plan)
     try:
         stats = _render_to_staging(face, lambda k, t: frame_vertices(float(t)), settings, plan, staging,
@@ -234,46 +254,112 @@ def _result(plan: _Plan, settings: ExportSettings, files: list[Path], stats: dic
         path=plan.target, format=plan.format, frames=plan.n_frames, seconds=stats["seconds"], size=plan.size,
         fps=float(settings.fps), duration_s=plan.n_frames / float(settings.fps), has_audio=plan.audio is not None,
         render_seconds=stats["render_seconds"], encode_seconds=stats["encode_seconds"], files=files,
-        notes=list(plan.notes))
+        notes=list(plan.notes), workers=int(stats.get("workers", plan.workers)))
 
 
 def _render_to_staging(face: Face, next_vertices: Callable[[int, float], np.ndarray], settings: ExportSettings,
-                       plan: _Plan, staging: Path, *, progress, cancelled) -> dict:
-    """Render every frame into the staging output; returns timing stats (seconds)."""
+                       plan: _Plan, staging: Path, *, progress, cancelled, face_file: Path | None = None) -> dict:
+    """Render every frame into the staging output; returns timing stats (seconds) and the workers used.
+
+    One worker renders here, frame after frame; more render in parallel processes
+    (:mod:`app.export_workers`) while this thread encodes, and ``next_vertices`` is then called on a
+    helper thread (in frame order). ``face_file`` is the face as an NPZ if one exists already.
+    """
     start = time.perf_counter()
-    render_s = encode_s = 0.0
-    n_vertices = face.n_vertices
-    with tempfile.TemporaryDirectory(prefix="mimica-export-work-") as work:
-        sink = _make_sink(plan, settings, staging, Path(work))
-        renderer = None
+    with temp_dir() as work:
+        work = Path(work)
+        sink = _make_sink(plan, settings, staging, work)
         try:
-            renderer = _FaceRenderer(face, settings, plan.size)
-            total = plan.n_frames
-            for k, t in enumerate(plan.times):
-                if cancelled():
-                    raise ExportCancelled()
-                vertices = _checked_vertices(next_vertices(k, float(t)), n_vertices, float(t))
-                t0 = time.perf_counter()
-                image = renderer.render(vertices)
-                t1 = time.perf_counter()
-                sink.write(image)
-                t2 = time.perf_counter()
-                render_s += t1 - t0
-                encode_s += t2 - t1
-                if progress is not None:
-                    progress(k + 1, total)
-            renderer.close()
-            renderer = None
+            if plan.workers > 1:
+                if face_file is None:
+                    face_file = work / "face.npz"
+                    _save_face_npz(face, face_file)
+                render_s, encode_s = _render_parallel(face, next_vertices, settings, plan, sink, face_file, work,
+                                                      progress=progress, cancelled=cancelled)
+            else:
+                render_s, encode_s = _render_serial(face, next_vertices, settings, plan, sink,
+                                                    progress=progress, cancelled=cancelled)
             t0 = time.perf_counter()
             sink.finish(cancelled)
             encode_s += time.perf_counter() - t0
         except BaseException:
             sink.abort()
             raise
-        finally:
-            if renderer is not None:
-                renderer.close()
-    return {"seconds": time.perf_counter() - start, "render_seconds": render_s, "encode_seconds": encode_s}
+    return {"seconds": time.perf_counter() - start, "render_seconds": render_s, "encode_seconds": encode_s,
+            "workers": plan.workers}
+
+
+def _render_serial(face: Face, next_vertices, settings: ExportSettings, plan: _Plan, sink, *, progress,
+                   cancelled) -> tuple[float, float]:
+    """Every frame rendered in this process; (render s, encoder-wait s)."""
+    render_s = encode_s = 0.0
+    n_vertices = face.n_vertices
+    renderer = _FaceRenderer(face, settings, plan.size)
+    try:
+        total = plan.n_frames
+        for k, t in enumerate(plan.times):
+            if cancelled():
+                raise ExportCancelled()
+            vertices = _checked_vertices(next_vertices(k, float(t)), n_vertices, float(t))
+            t0 = time.perf_counter()
+            image = renderer.render(vertices)
+            t1 = time.perf_counter()
+            sink.write(image)
+            t2 = time.perf_counter()
+            render_s += t1 - t0
+            encode_s += t2 - t1
+            if progress is not None:
+                progress(k + 1, total)
+    finally:
+        renderer.close()
+    return render_s, encode_s
+
+
+def _render_parallel(face: Face, next_vertices, settings: ExportSettings, plan: _Plan, sink, face_file: Path,
+                     work: Path, *, progress, cancelled) -> tuple[float, float]:
+    """Frames rendered by ``plan.workers`` processes (:class:`app.export_workers.RenderPool`), encoded here
+    in order; ``next_vertices`` runs on a feeder thread. (s waiting for images, encoder-wait s)."""
+    from app.export_workers import RenderPool
+
+    n_vertices = face.n_vertices
+    problems: list[BaseException] = []
+    pool = RenderPool(face_file, settings, plan.size, n_vertices, plan.workers, work)
+
+    def feed() -> None:
+        try:
+            for k, t in enumerate(plan.times):
+                vertices = _checked_vertices(next_vertices(k, float(t)), n_vertices, float(t))
+                if not pool.submit(k, vertices):
+                    return  # closing
+            pool.end_of_frames()
+        except BaseException as exc:  # noqa: BLE001 - raised on the encoding thread
+            problems.append(exc)
+
+    def check() -> None:
+        if problems:
+            raise problems[0]
+
+    feeder = threading.Thread(target=feed, name="mimica-export-feeder", daemon=True)
+    render_s = encode_s = 0.0
+    finished = False
+    try:
+        feeder.start()
+        total = plan.n_frames
+        for k in range(total):
+            t0 = time.perf_counter()
+            image = pool.take(k, cancelled, check)
+            t1 = time.perf_counter()
+            sink.write(image)
+            t2 = time.perf_counter()
+            render_s += t1 - t0
+            encode_s += t2 - t1
+            if progress is not None:
+                progress(k + 1, total)
+        finished = True
+    finally:
+        pool.close(wait=finished)
+        feeder.join(timeout=1.0)  # it may be blocked in next_vertices (a pipe); it is a daemon
+    return render_s, encode_s
 
 
 # ------------------------------------------------------------------ export in a child process
@@ -316,10 +402,11 @@ def export_in_subprocess(face: Face, frame_vertices: Callable[[float], np.ndarra
     plan = _plan(settings)
     if plan.format not in STILL_FORMATS:
         ffmpeg_exe()  # fail before starting anything
+    sweep_for(plan)
     staging = _make_staging(plan)
     proc = None
     try:
-        with tempfile.TemporaryDirectory(prefix="mimica-export-") as tmp:
+        with temp_dir() as tmp:
             tmp = Path(tmp)
             _save_face_npz(face, tmp / "face.npz")
             spec = {"settings": settings.to_json(), "staging": str(staging), "face": str(tmp / "face.npz"),
@@ -480,7 +567,7 @@ def _child_main(spec_path: str) -> int:
 
         stats = _render_to_staging(face, next_vertices, settings, plan, staging,
                                     progress=lambda done, total: say("progress", f"{done} {total}"),
-                                    cancelled=_never)
+                                    cancelled=_never, face_file=Path(spec["face"]))
         say("result", json.dumps(stats))
         return 0
     except _Terminated:
@@ -501,6 +588,12 @@ def _child_main(spec_path: str) -> int:
 
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "--child":
-        sys.exit(_child_main(sys.argv[2]))
+        status = _child_main(sys.argv[2])
+        # Leave at once: a feeder thread may still be blocked reading stdin, and the interpreter's
+        # shutdown would wait on (or abort over) the lock of that stream.
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+            sys.stderr.flush()
+        os._exit(status)
     print("usage: python -m app.export --child SPEC.json  (internal: used by export_in_subprocess)", file=sys.stderr)
     sys.exit(2)

@@ -21,8 +21,10 @@ The Qt side of export (:mod:`app.export` does the work):
   appear in the dialog in words.
 * :func:`start_export` shows a window-modal progress dialog with Cancel driven
   by an :class:`ExportJob` (the window keeps repainting: nothing runs on the
-  GUI thread but the frame source), a message box on failure, and a status-bar
-  message saying where the file went.
+  GUI thread but the frame source) saying the frame, the speed (frames per
+  second over the last few seconds, :class:`FrameRate`) and the time left, a
+  message box on failure, and a status-bar message saying where the file went
+  and how fast it was made.
 * :func:`run_export_dialog` does all of it for the main window's
   File ▸ Export video… / Export still… actions.
 
@@ -66,7 +68,7 @@ from app.export_job import (  # noqa: F401 - re-exported
 from app.export_job import (  # noqa: F401 - re-exported
     PREFETCH)
 
-__all__ = ["ExportJob", "ExportDialog", "start_export", "run_export_dialog", "PREFETCH"]
+__all__ = ["ExportJob", "ExportDialog", "start_export", "run_export_dialog", "PREFETCH", "FrameRate", "progress_text"]
 
 #: (format, label, file-dialog filter) in menu order.
 FORMAT_CHOICES = (
@@ -414,6 +416,38 @@ def _format_of_path(path: Path) -> str | None:
 
 
 # ------------------------------------------------------------------ running it
+class FrameRate:
+    """Frames per second of the last few seconds of an export, from its progress counts."""
+
+    WINDOW_S = 4.0
+
+    def __init__(self, clock: Callable[[], float] | None = None):
+        import time
+
+        self.clock = clock or time.monotonic
+        self.samples: list[tuple[float, int]] = []
+
+    def add(self, done: int) -> float | None:
+        """Record ``done`` frames now; the rate (frames/s) once it spans half a second, else None."""
+        now = self.clock()
+        self.samples.append((now, int(done)))
+        while len(self.samples) > 2 and now - self.samples[1][0] >= self.WINDOW_S:
+            self.samples.pop(0)
+        (t0, d0), (t1, d1) = self.samples[0], self.samples[-1]
+        return (d1 - d0) / (t1 - t0) if t1 - t0 >= 0.5 and d1 > d0 else None
+
+
+def progress_text(done: int, total: int, fps: float | None) -> str:
+    """The progress dialog's line: the frame, the speed and the time left."""
+    if done >= total:
+        return "Finishing the file…"
+    if fps is None or fps <= 0:
+        return f"Rendering frame {done} of {total}…"
+    left = (total - done) / fps
+    left_text = f"{left:.0f} s" if left < 90 else f"{left / 60:.0f} min"
+    return f"Rendering frame {done} of {total} — {fps:.1f} fps, about {left_text} left…"
+
+
 def _show_error(parent, title: str, message: str) -> None:
     show = getattr(parent, "show_error", None)
     if callable(show):
@@ -450,13 +484,16 @@ def start_export(parent: QWidget | None, face, frame_vertices: Callable[[float],
     dialog.setAutoReset(False)
     job.progress_dialog = dialog
 
+    rate = FrameRate()
+
     def on_progress(done: int, total: int) -> None:
         if not shiboken6.isValid(dialog):
             return
         if dialog.maximum() != total:
             dialog.setMaximum(total)
         dialog.setValue(done)
-        dialog.setLabelText(f"Rendering frame {done} of {total}…" if done < total else "Finishing the file…")
+        fps = rate.add(done)
+        dialog.setLabelText(progress_text(done, total, fps))
 
     def on_cancel() -> None:
         dialog.setLabelText("Cancelling…")
@@ -473,6 +510,8 @@ def start_export(parent: QWidget | None, face, frame_vertices: Callable[[float],
     def on_finished(result: ExportResult) -> None:
         if close_dialog():
             message = result.describe()
+            if result.frames > 1:
+                message += f" in {result.seconds:.1f} s ({result.frames_per_second:.1f} fps)"
             if result.notes:
                 message += " — " + " ".join(result.notes)
             _show_status(parent, message)

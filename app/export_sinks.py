@@ -1,11 +1,22 @@
 """Where exported frames go: ffmpeg encoders (MP4, AVI, GIF with a palette pass) and image writers
-(PNG/JPG stills and sequences), staged in a temporary folder and committed atomically."""
+(PNG/JPG stills and sequences), staged in a temporary folder and committed atomically.
+
+Leftovers of crashed exports
+    Every temporary thing an export makes carries the id of the process that owns it: the staging
+    file beside the target (``.clip.mimica-<pid>-XXXX.part.mp4``), a sequence's hidden staging
+    folder (``.mimica-export-<pid>-XXXX.part``) and the work folders in the system's temporary
+    folder (``mimica-export-<pid>-XXXX``: the face, the speech, the GIF's frames, logs). An export
+    that ends in any ordinary way (done, failed, cancelled, SIGINT/SIGTERM/SIGHUP) removes its own;
+    one killed outright (SIGKILL, a power cut) cannot, so every export first removes those whose
+    owner is no longer running (:func:`sweep_stale`). A live owner's files are never touched.
+"""
 
 from __future__ import annotations
 
 import abc
 import contextlib
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -178,6 +189,17 @@ class _StillSink(_Sink):
             raise ExportError(f"Could not write the image: {exc.strerror or exc}.") from None
 
 
+def x264_preset(quality: int) -> str:
+    """The x264 preset for ``quality`` (1..100; the quality itself is the CRF, 35..15).
+
+    "fast" up to 89: measured on 90 frames of the default face at 1280x720, CRF 19 (quality 80) and
+    27 (quality 40), it gave the same PSNR and SSIM against the rendered frames as "medium" (43.42
+    vs 43.38 dB, 0.98976 vs 0.98971; 41.81 vs 41.79 dB) and files as small (-1 %, -6 %) for 24 %
+    less encoder CPU, which the render processes use instead. From 90 on, where the user asks for
+    the best, "medium" (its better motion search is worth the time there)."""
+    return "medium" if int(quality) >= 90 else "fast"
+
+
 def _make_sink(plan: _Plan, settings: ExportSettings, staging: Path, work: Path) -> _Sink:
     fmt, quality = plan.format, int(settings.quality)
     if fmt in STILL_FORMATS:
@@ -194,7 +216,7 @@ def _make_sink(plan: _Plan, settings: ExportSettings, staging: Path, work: Path)
                       "-af", f"apad=whole_dur={length},atrim=end={length}"]
     if fmt == "mp4":
         crf = round(35 - 20 * (quality - 1) / 99)
-        out = ["-c:v", "libx264", "-preset", "medium", "-crf", str(crf), "-pix_fmt", "yuv420p",
+        out = ["-c:v", "libx264", "-preset", x264_preset(quality), "-crf", str(crf), "-pix_fmt", "yuv420p",
                "-movflags", "+faststart"]
         if plan.audio is not None:
             out += ["-c:a", "aac", "-b:a", "192k"]
@@ -215,15 +237,96 @@ def _make_sink(plan: _Plan, settings: ExportSettings, staging: Path, work: Path)
                        log, what="write the PNG images")
 
 
+# ------------------------------------------------------------------ temporary names and the sweep
+_TEMP_DIR = re.compile(r"^mimica-export-(\d+)-")
+_STAGING_FILE = re.compile(r"^\..*\.mimica-(\d+)-[^.]+\.part(\.[^.]*)?$")
+_STAGING_DIR = re.compile(r"^\.mimica-export-(\d+)-[^.]+\.part$")
+
+
+def temp_prefix(pid: int | None = None) -> str:
+    """Prefix of this process's temporary export folders (``mimica-export-<pid>-``)."""
+    return f"mimica-export-{os.getpid() if pid is None else int(pid)}-"
+
+
+def temp_dir() -> tempfile.TemporaryDirectory:
+    """A temporary folder owned by this process (removed on exit from its ``with``; swept if it is killed)."""
+    return tempfile.TemporaryDirectory(prefix=temp_prefix())
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie (another user's process counts as alive)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # exists, but not ours to signal
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return True
+    return state not in ("Z", "X")  # a killed process its parent has not waited for yet
+
+
+def _stale(name: str, pattern: re.Pattern) -> bool:
+    match = pattern.match(name)
+    return match is not None and not process_alive(int(match.group(1)))
+
+
+def sweep_stale(folders=()) -> list[Path]:
+    """Remove what crashed exports left: staging files and folders in ``folders`` (the target's
+    folder) and work folders in the system's temporary folder, each only when the process named
+    in it is gone. Returns what was removed; errors are ignored (it is housekeeping)."""
+    removed: list[Path] = []
+    places = [(Path(tempfile.gettempdir()), ((_TEMP_DIR, True),))]
+    places += [(Path(f), ((_STAGING_FILE, False), (_STAGING_DIR, True))) for f in folders]
+    seen = set()
+    for folder, patterns in places:
+        if folder in seen:
+            continue
+        seen.add(folder)
+        try:
+            entries = list(os.scandir(folder))
+        except OSError:
+            continue
+        for entry in entries:
+            for pattern, is_dir in patterns:
+                if not _stale(entry.name, pattern):
+                    continue
+                try:
+                    if is_dir and entry.is_dir(follow_symlinks=False):
+                        shutil.rmtree(entry.path)
+                    elif not is_dir and entry.is_file(follow_symlinks=False):
+                        os.unlink(entry.path)
+                    else:
+                        continue
+                except OSError:
+                    continue
+                removed.append(Path(entry.path))
+    return removed
+
+
+def sweep_for(plan: _Plan) -> list[Path]:
+    """:func:`sweep_stale` for the places an export of ``plan`` writes to."""
+    folder = plan.folder
+    return sweep_stale([folder if folder.is_dir() else folder.parent] if plan.format == "png-sequence"
+                       else [folder])
+
+
 # ------------------------------------------------------------------ staging and commit
 def _make_staging(plan: _Plan) -> Path:
-    """Create the temporary output (a file, or a folder for sequences) beside the target."""
+    """Create the temporary output (a file, or a folder for sequences) beside the target, named
+    with this process's id (see :func:`sweep_stale`)."""
     folder = plan.folder
+    pid = os.getpid()
     try:
         if plan.format == "png-sequence":
             parent = folder if folder.is_dir() else folder.parent
-            return Path(tempfile.mkdtemp(prefix=".mimica-export-", suffix=".part", dir=parent))
-        fd, name = tempfile.mkstemp(prefix=f".{plan.target.stem}.", suffix=f".part{plan.target.suffix}", dir=folder)
+            return Path(tempfile.mkdtemp(prefix=f".mimica-export-{pid}-", suffix=".part", dir=parent))
+        fd, name = tempfile.mkstemp(prefix=f".{plan.target.stem}.mimica-{pid}-", suffix=f".part{plan.target.suffix}",
+                                    dir=folder)
         os.close(fd)
         return Path(name)
     except PermissionError:

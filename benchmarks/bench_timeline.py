@@ -11,8 +11,10 @@ interpolation). For random times t (a scrub):
 Also printed: the timeline evaluation alone. Medians over ``--repeats`` times.
 
 With ``--export``, also the wall seconds to export 10 s of 1280x720 video at 30 fps of this timeline
-(``export_s``, through the window's path: a child process renders off screen, ffmpeg encodes), with
-the per-frame render / encoder-wait split. Rendering here is software (Mesa llvmpipe).
+(``export_s``, through the window's path: a child process hands the frames to the default number of
+render processes (one per core) and encodes with ffmpeg), with the per-frame render / encoder-wait
+split. Rendering here is software (Mesa llvmpipe). ``benchmarks/bench_export.py`` compares worker
+counts.
 
 Usage: python benchmarks/bench_timeline.py [--repeats 300] [--export]
 """
@@ -114,7 +116,8 @@ def export_video(face, pose) -> None:
         result = export_in_subprocess(face, lambda t: np.array(pose(t)), settings)
         wall = time.perf_counter() - t0
     per = 1000.0 / max(result.frames, 1)
-    print(f"export_s={wall:.1f} ({result.frames} frames 1280x720; render {result.render_seconds * per:.0f} ms/frame, "
+    print(f"export_s={wall:.1f} ({result.frames} frames 1280x720, {getattr(result, 'workers', 1)} render "
+          f"process(es); render {result.render_seconds * per:.0f} ms/frame, "
           f"waiting for the encoder {result.encode_seconds * per:.0f} ms/frame)")
 
 

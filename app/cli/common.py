@@ -5,6 +5,7 @@ into canonical parameter keys (``core.parameters``), so every subcommand spells 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -296,11 +297,47 @@ def positive_factor(text: str) -> float:
 
 
 # ---------------------------------------------------------------- video out
-def export_video(face, frame_vertices, out: Path, *, size, fps: float, duration: float, audio: Path | None) -> None:
-    """Render ``frame_vertices(t)`` for 0..duration to ``out`` (MP4/GIF/AVI/PNG/JPG) with progress on stderr."""
+class Stopped(KeyboardInterrupt):
+    """SIGTERM or SIGHUP during an export: handled like Ctrl-C (everything temporary is removed)."""
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+    """While inside, SIGTERM and SIGHUP raise :class:`Stopped` (a KeyboardInterrupt) in the main thread,
+    like SIGINT does, so ``finally`` blocks and ``with`` exits remove temporary files; a second signal
+    during that clean-up is ignored. Restores the previous handlers on exit."""
+    import signal
+
+    names = [name for name in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, name)]
+    numbers = [getattr(signal, name) for name in names]
+
+    def stop(signum, _frame):
+        for number in numbers:
+            signal.signal(number, signal.SIG_IGN)  # let the clean-up finish
+        raise Stopped(signal.Signals(signum).name)
+
+    try:
+        previous = {number: signal.signal(number, stop) for number in numbers}
+    except ValueError:  # not the main thread: nothing to install
+        previous = {}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+def export_video(face, frame_vertices, out: Path, *, size, fps: float, duration: float, audio: Path | None,
+                 workers: int | None = None) -> None:
+    """Render ``frame_vertices(t)`` for 0..duration to ``out`` (MP4/GIF/AVI/PNG/JPG) with progress on stderr.
+
+    ``workers`` render processes work in parallel (default: one per core, fewer for short
+    animations). Prints what was written and, last, ``exported N frames in S s (F fps, W workers)``.
+    Call it inside :func:`stop_on_signals` so SIGTERM/SIGHUP stop it cleanly.
+    """
     from app.export import ExportError, ExportSettings, export
 
-    settings = ExportSettings(path=out, end_s=duration, size=size, fps=fps, audio_path=audio)
+    settings = ExportSettings(path=out, end_s=duration, size=size, fps=fps, audio_path=audio, workers=workers)
     total = [0]
 
     def progress(done: int, n: int) -> None:
@@ -315,4 +352,5 @@ def export_video(face, frame_vertices, out: Path, *, size, fps: float, duration:
     finally:
         if total[0]:
             print(file=sys.stderr)
-    print(result.describe() + f" in {result.seconds:.0f} s")
+    print(result.describe())
+    print(f"exported {result.speed()}", flush=True)

@@ -1,17 +1,19 @@
 """``mimica export PROJECT --out FILE``: render a project (MP4, GIF, AVI, PNG/JPG still) or write its .fap.
 
 The project is evaluated by ``core.animation.ProjectAnimation`` — the same code the window's export
-runs on a copy of its rig — so both make identical frames.
+runs on a copy of its rig — so both make identical frames. ``--workers N`` render processes draw
+the frames in parallel (default: one per core) while this process evaluates the animation and
+encodes; the last line says how fast (``exported 300 frames in 41.2 s (7.3 fps, 2 workers)``).
+SIGTERM and SIGHUP stop it like Ctrl-C (exit status 130, nothing temporary left behind).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
-from app.cli.common import CliError, export_video, open_project, parse_size
+from app.cli.common import CliError, export_video, open_project, parse_size, stop_on_signals
 
 VIDEO_SUFFIXES = (".mp4", ".gif", ".avi", ".png", ".jpg")
 
@@ -46,10 +48,13 @@ def run(args: argparse.Namespace) -> int:
         driven = int(sequence.mask.any(axis=0).sum())
         print(f"wrote {out} ({sequence.n_frames} frames at {fps:g} fps, {driven} FAPs)")
         return 0
-    with tempfile.TemporaryDirectory(prefix="mimica-export-") as tmp:
+    from app.export_sinks import temp_dir
+
+    # SIGTERM/SIGHUP like Ctrl-C: the speech file, the staging file and the work folders are removed.
+    with stop_on_signals(), temp_dir() as tmp:
         audio = speech_wav(project.speech, Path(tmp)) if suffix in (".mp4", ".avi") else None
         export_video(face, animation.vertices, out, size=args.size, fps=fps, duration=timeline.duration,
-                     audio=audio)
+                     audio=audio, workers=args.workers)
     return 0
 
 
@@ -61,4 +66,19 @@ def add_parser(sub) -> None:
     p.add_argument("--out", "-o", required=True, metavar="FILE")
     p.add_argument("--size", type=parse_size, default=(1280, 720), metavar="WxH", help="default 1280x720")
     p.add_argument("--fps", type=float, help="frames per second (default: the project's)")
+    p.add_argument("--workers", type=_workers, metavar="N",
+                   help="render processes working in parallel (default: one per core, fewer for short "
+                        "animations; 1 renders in this process)")
     p.set_defaults(func=run)
+
+
+def _workers(text: str) -> int:
+    from app.export_plan import MAX_WORKERS
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of workers, got {text!r}") from None
+    if not 1 <= value <= MAX_WORKERS:
+        raise argparse.ArgumentTypeError(f"--workers must be between 1 and {MAX_WORKERS}, got {value}")
+    return value

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -196,3 +197,139 @@ def test_a_texture_image_is_turned_upright_from_the_scan_itself(tmp_path, capsys
     assert (with_texture(face, args).texture[:4, :, 0] == 255).all(), "uv counted from the bottom: as drawn"
     args.flip_texture = True
     assert (with_texture(down, args).texture[:4, :, 0] == 255).all(), "--flip-texture overrides"
+
+
+# ---------------------------------------------------------------- export: workers, speed, signals, leftovers
+def _worktree_mimica(*args: str, tmpdir: Path) -> subprocess.Popen:
+    """``python -m app.cli ARGS`` of this checkout, headless, with its own temporary folder."""
+    env = dict(os.environ)
+    for var in ("DISPLAY", "WAYLAND_DISPLAY", "XAUTHORITY"):
+        env.pop(var, None)
+    env.update(QT_QPA_PLATFORM="offscreen", TMPDIR=str(tmpdir), PYTHONUNBUFFERED="1",
+               PYTHONPATH=str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else ""))
+    return subprocess.Popen([sys.executable, "-m", "app.cli", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _jaw_project(path: Path, seconds: float) -> Path:
+    """A project on the default face: the jaw opens over ``seconds``."""
+    from core.formats.project import Project, save_project
+    from core.timeline import Timeline
+
+    timeline = Timeline(seconds, 30)
+    timeline.add_keys({"fap:3": [(0.0, 0.0, "linear"), (seconds, 400.0, "linear")]})
+    return save_project(path, Project(timeline=timeline))
+
+
+def _export_leftovers(out_dir: Path, tmpdir: Path, pid: int) -> list[str]:
+    names = [p.name for p in out_dir.iterdir() if f"mimica-{pid}-" in p.name or f"mimica-export-{pid}-" in p.name]
+    return sorted(names + [p.name for p in tmpdir.iterdir() if p.name.startswith(f"mimica-export-{pid}-")])
+
+
+def _processes_mentioning(*fragments: str) -> list[int]:
+    """Live processes whose command line mentions any of ``fragments`` (render workers, ffmpeg)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode("utf-8", "replace")
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state not in ("Z", "X") and any(f in cmdline for f in fragments):
+            found.append(int(entry.name))
+    return found
+
+
+def _wait_until(condition, timeout: float, what: str) -> None:
+    import time
+
+    end = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.1)
+
+
+def _start_export_and_wait_for_frames(tmp_path: Path, seconds: float = 60.0) -> tuple[subprocess.Popen, Path, Path]:
+    """A ``mimica export --workers 2`` under way: its staging file exists and frames are coming."""
+    import threading
+
+    out_dir, tmpdir = tmp_path / "out", tmp_path / "tmp"
+    out_dir.mkdir()
+    tmpdir.mkdir()
+    project = _jaw_project(tmp_path / "jaw.mimica", seconds)
+    proc = _worktree_mimica("export", str(project), "--out", str(out_dir / "jaw.mp4"), "--size", "160x120",
+                            "--workers", "2", tmpdir=tmpdir)
+    err: list[str] = []
+    threading.Thread(target=lambda: err.extend(iter(lambda: proc.stderr.read(1), "")), daemon=True).start()
+    try:
+        _wait_until(lambda: "rendering frame" in "".join(err) or proc.poll() is not None, 240, "the first frames")
+    except AssertionError:
+        proc.kill()
+        raise
+    assert proc.poll() is None, "".join(err)
+    proc.captured_stderr = err
+    return proc, out_dir, tmpdir
+
+
+def test_export_with_workers_prints_its_speed(tmp_path):
+    project = _jaw_project(tmp_path / "jaw.mimica", 2.0)
+    out = tmp_path / "jaw.mp4"
+    proc = _worktree_mimica("export", str(project), "--out", str(out), "--size", "160x120", "--workers", "2",
+                            tmpdir=tmp_path)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
+    last = stdout.strip().splitlines()[-1]
+    assert re.fullmatch(r"exported 60 frames in \d+\.\d s \(\d+\.\d fps, 2 workers\)", last), stdout
+    assert out.is_file() and sorted(p.name for p in tmp_path.iterdir()) == ["jaw.mimica", "jaw.mp4"]
+    bad = _worktree_mimica("export", str(project), "--out", str(out), "--workers", "0", tmpdir=tmp_path)
+    _, stderr = bad.communicate(timeout=60)
+    assert bad.returncode == 2 and "--workers must be between 1 and" in stderr and "Traceback" not in stderr
+
+
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGHUP"])
+def test_export_stopped_by_a_signal_leaves_nothing(tmp_path, signame):
+    """SIGTERM/SIGHUP are handled like Ctrl-C: the staging file, the speech/work folders and the render
+    processes are gone when the command returns."""
+    import signal
+
+    proc, out_dir, tmpdir = _start_export_and_wait_for_frames(tmp_path)
+    proc.send_signal(getattr(signal, signame))
+    proc.wait(timeout=30)
+    stderr = "".join(proc.captured_stderr)
+    assert proc.returncode == 130, stderr
+    assert "mimica: interrupted" in stderr and "Traceback" not in stderr
+    assert sorted(p.name for p in out_dir.iterdir()) == [] and list(tmpdir.iterdir()) == []
+    _wait_until(lambda: not _processes_mentioning(str(tmpdir), str(out_dir)), 10, "the render processes to end")
+
+
+def test_next_export_sweeps_what_a_killed_one_left(tmp_path, monkeypatch):
+    """SIGKILL leaves the staging file and the work folders (named with the dead process's id); the next
+    export removes them, and only them."""
+    import tempfile
+
+    from app_helpers import make_synthetic_face
+
+    from app.export import ExportSettings, export
+
+    proc, out_dir, tmpdir = _start_export_and_wait_for_frames(tmp_path)
+    proc.kill()
+    proc.wait(timeout=30)
+    # its render processes and encoder see their input end and stop by themselves
+    _wait_until(lambda: not _processes_mentioning(str(tmpdir), str(out_dir)), 30, "the orphans to end")
+    left = _export_leftovers(out_dir, tmpdir, proc.pid)
+    assert any(name.startswith(".jaw.mimica-") and name.endswith(".part.mp4") for name in left), left
+    assert sum(name.startswith(f"mimica-export-{proc.pid}-") for name in left) >= 2, left  # speech + work
+    other = out_dir / f".other.mimica-{os.getpid()}-abcd1234.part.mp4"   # a live export's: kept
+    other.write_bytes(b"x")
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmpdir))
+    face = make_synthetic_face(32, 40)
+    result = export(face, lambda t: face.vertices, ExportSettings(out_dir / "next.gif", end_s=0.2, size=(64, 48),
+                                                                  fps=10))
+    assert result.path.is_file()
+    assert _export_leftovers(out_dir, tmpdir, proc.pid) == []
+    assert sorted(p.name for p in out_dir.iterdir()) == [other.name, "next.gif"]
+    assert list(tmpdir.iterdir()) == []

@@ -15,7 +15,8 @@ from PIL import Image
 
 from app import export as ex
 from app import export_sinks
-from app.export import ExportCancelled, ExportError, ExportSettings, export, export_in_subprocess, frame_times
+from app.export import (
+    ExportCancelled, ExportError, ExportSettings, export, export_frame_times, export_in_subprocess, frame_times)
 
 SMALL = (160, 120)
 
@@ -322,6 +323,173 @@ def test_subprocess_reports_the_encoders_error(tmp_path, face):
     assert leftovers(tmp_path) == ["voice.wav"]
 
 
+# ------------------------------------------------------------------ parallel render processes
+def render_workers() -> list[int]:
+    """Pids of this process's live render workers (python -m app.export_workers)."""
+    import os
+
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
+            stat = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if b"app.export_workers" in cmdline and int(stat[1]) == os.getpid() and stat[0] not in ("Z", "X"):
+            pids.append(int(entry.name))
+    return pids
+
+
+def read_png(path) -> np.ndarray:
+    return np.asarray(Image.open(path).convert("RGB")).astype(int)
+
+
+def test_parallel_workers_render_the_same_frames(tmp_path, face):
+    """Each frame is rendered by a free worker with the serial path's renderer: the same pixels, in order."""
+    source = opening_mouth(face, 60.0)
+    one = export(face, source, ExportSettings(tmp_path / "one", end_s=0.7, size=SMALL, fps=10, workers=1))
+    two = export(face, source, ExportSettings(tmp_path / "two", end_s=0.7, size=SMALL, fps=10, workers=2))
+    assert (one.workers, two.workers) == (1, 2) and one.frames == two.frames == 7
+    assert [p.name for p in one.files] == [p.name for p in two.files]
+    for a, b in zip(one.files, two.files):
+        assert np.abs(read_png(a) - read_png(b)).max() <= 1, a.name
+    # the frames do move (so the order is checked too), and nothing temporary is left
+    assert image_difference(read_png(one.files[0]), read_png(one.files[-1])) > 2
+    assert leftovers(tmp_path) == ["one", "two"] and not render_workers()
+    # the window's path: the child process hands the frames to its own workers
+    three = export_in_subprocess(face, source, ExportSettings(tmp_path / "three", end_s=0.7, size=SMALL, fps=10,
+                                                              workers=3))
+    assert three.workers == 3
+    for a, b in zip(one.files, three.files):
+        assert np.abs(read_png(a) - read_png(b)).max() <= 1, a.name
+
+
+def test_parallel_mp4_matches_the_serial_one(tmp_path, face):
+    source = opening_mouth(face)
+    serial = export(face, source, ExportSettings(tmp_path / "one.mp4", end_s=1.0, size=SMALL, fps=10, workers=1))
+    parallel = export(face, source, ExportSettings(tmp_path / "two.mp4", end_s=1.0, size=SMALL, fps=10,
+                                                   workers=2))
+    assert imageio_ffmpeg.count_frames_and_secs(str(parallel.path))[0] == 10
+    for k in (0, 4, 9):
+        a, b = decode_frame(serial.path, k, tmp_path), decode_frame(parallel.path, k, tmp_path)
+        assert np.abs(a.astype(int) - b.astype(int)).max() <= 2, k
+    assert "2 workers" in parallel.speed() and parallel.frames_per_second > 0
+
+
+def test_default_worker_count_follows_cores_and_length(monkeypatch):
+    from app import export_plan
+
+    monkeypatch.setattr(export_plan, "default_workers", lambda: 4)
+    plan = export_plan.planned_workers
+    assert plan(ExportSettings("x.mp4"), 300) == 4             # one per core
+    assert plan(ExportSettings("x.mp4"), 50) == 2              # short: at least 24 frames each
+    assert plan(ExportSettings("x.mp4"), 10) == 1
+    assert plan(ExportSettings("x.png"), 1) == 1               # a still
+    assert plan(ExportSettings("x.mp4", workers=3), 10) == 3   # asked for: as asked
+    assert plan(ExportSettings("x.mp4", workers=8), 5) == 5    # never more than the frames
+    assert 1 <= export_plan.default_workers() <= export_plan.DEFAULT_MAX_WORKERS
+    monkeypatch.undo()
+    monkeypatch.setattr(export_plan, "_available_memory", lambda: 2 * export_plan.WORKER_MEMORY_BYTES + 1)
+    assert export_plan.default_workers() <= 2          # no more workers than the memory holds
+    monkeypatch.setattr(export_plan, "_available_memory", lambda: 0)
+    assert export_plan.default_workers() == 1
+    with pytest.raises(ExportError, match="render workers"):
+        export_frame_times(ExportSettings("x.mp4", end_s=1, workers=0))
+
+
+def test_parallel_cancel_is_prompt_and_leaves_nothing(tmp_path, face):
+    import time
+
+    out = tmp_path / "cancelled.mp4"
+    done, asked = [], []
+
+    def cancelled():
+        if len(done) >= 3 and not asked:
+            asked.append(time.perf_counter())
+        return bool(asked)
+
+    with pytest.raises(ExportCancelled):
+        export(face, opening_mouth(face), ExportSettings(out, end_s=60.0, size=SMALL, fps=10, workers=2),
+               progress=lambda d, n: done.append(d), cancelled=cancelled)
+    assert time.perf_counter() - asked[0] < 3.0
+    assert len(done) == 3 and leftovers(tmp_path) == [] and not render_workers()
+
+
+def test_parallel_errors_become_one_message(tmp_path, face, monkeypatch):
+    import os
+    import signal
+
+    # the frame source fails: its message, the old file kept, nothing else left
+    out = tmp_path / "keep.mp4"
+    out.write_bytes(b"old video")
+
+    def broken(t):
+        if t > 0.35:
+            raise ExportError("no vertices here")
+        return face.vertices
+
+    with pytest.raises(ExportError, match="no vertices here"):
+        export(face, broken, ExportSettings(out, end_s=2.0, size=SMALL, fps=10, workers=2))
+    assert out.read_bytes() == b"old video" and leftovers(tmp_path) == ["keep.mp4"] and not render_workers()
+
+    # a render process dies: one sentence saying so
+    def kill_a_worker(done, total):
+        if done == 2:
+            os.kill(render_workers()[0], signal.SIGKILL)
+
+    with pytest.raises(ExportError, match=r"render process of the export stopped unexpectedly \(killed by signal 9\)"):
+        export(face, opening_mouth(face), ExportSettings(tmp_path / "x.mp4", end_s=30.0, size=SMALL, fps=10,
+                                                         workers=2), progress=kill_a_worker)
+    assert leftovers(tmp_path) == ["keep.mp4"] and not render_workers()
+
+    # a render process cannot start its renderer: what it said, once
+    monkeypatch.setattr(ex, "_save_face_npz", lambda face, path: Path(path).write_bytes(b"not a face"))
+    with pytest.raises(ExportError) as info:
+        export(face, opening_mouth(face), ExportSettings(tmp_path / "y.mp4", end_s=1.0, size=SMALL, fps=10,
+                                                         workers=2))
+    message = str(info.value)
+    assert message.startswith("The export renderer failed: ") and message.count("The export renderer failed") == 1
+    assert "Traceback" not in message
+    assert leftovers(tmp_path) == ["keep.mp4"] and not render_workers()
+
+
+# ------------------------------------------------------------------ leftovers of killed exports
+def dead_pid() -> int:
+    proc = subprocess.Popen(["true"])
+    proc.wait()
+    return proc.pid
+
+
+def test_sweep_removes_only_what_dead_exports_left(tmp_path, monkeypatch):
+    import os
+    import tempfile
+
+    from app.export_sinks import sweep_stale
+
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    out = tmp_path / "out"
+    out.mkdir()
+    dead, alive = dead_pid(), os.getpid()
+    stale = [out / f".clip.mimica-{dead}-ab12cd34.part.mp4", out / f".mimica-export-{dead}-x1y2z3.part",
+             temp / f"mimica-export-{dead}-q9w8e7r6"]
+    kept = [out / f".clip.mimica-{alive}-ab12cd34.part.mp4", out / f".mimica-export-{alive}-x1y2z3.part",
+            temp / f"mimica-export-{alive}-q9w8e7r6", out / "clip.mp4", out / ".clip.part.mp4",
+            temp / "mimica-export-notapid"]
+    for path in stale + kept:
+        if path.suffix == ".mp4":
+            path.write_bytes(b"x")
+        else:
+            path.mkdir()
+            (path / "face.npz").write_bytes(b"x")
+    removed = sweep_stale([out])
+    assert sorted(removed) == sorted(stale)
+    assert all(p.exists() for p in kept) and not any(p.exists() for p in stale)
+
+
 # ------------------------------------------------------------------ Qt job and dialog
 def test_export_job_signals_finished_and_cancelled(qtbot, tmp_path, face):
     from app.export_dialog import ExportJob
@@ -449,6 +617,7 @@ def test_run_export_dialog_from_the_window(qtbot, window, tmp_path, monkeypatch,
         pass
     assert imageio_ffmpeg.count_frames_and_secs(str(out / "from_window.mp4"))[0] == 12
     qtbot.waitUntil(lambda: "from_window.mp4" in window.statusBar().currentMessage(), timeout=5000)
+    assert re.search(r"in \d+\.\d s \(\d+\.\d fps\)", window.statusBar().currentMessage())
     assert not error_boxes and not export_job._RUNNING
 
     def refuse(dialog):
@@ -490,3 +659,23 @@ def test_dialog_defaults_to_where_the_animation_ends(qtbot, tmp_path):
     filled = ExportDialog(None, duration_s=10.0, fps=30, default_path=tmp_path / "take.mp4", content_end_s=10.0)
     qtbot.addWidget(filled)
     assert filled.whole_radio.isChecked()
+
+
+def test_progress_text_says_the_speed_and_the_time_left():
+    from app.export_dialog import FrameRate, progress_text
+
+    now = [100.0]
+    rate = FrameRate(clock=lambda: now[0])
+    assert rate.add(1) is None                       # one sample: no speed yet
+    now[0] += 0.25
+    assert rate.add(3) is None                       # under half a second
+    now[0] += 0.75
+    assert rate.add(9) == pytest.approx(8.0)         # 8 frames in 1 s
+    for _ in range(10):                              # only the last few seconds count
+        now[0] += 1.0
+        fps = rate.add(rate.samples[-1][1] + 2)
+    assert fps == pytest.approx(2.0)
+    assert progress_text(10, 300, None) == "Rendering frame 10 of 300…"
+    assert progress_text(100, 300, 8.0) == "Rendering frame 100 of 300 — 8.0 fps, about 25 s left…"
+    assert progress_text(100, 3000, 8.0).endswith("about 6 min left…")
+    assert progress_text(300, 300, 8.0) == "Finishing the file…"

@@ -1,0 +1,117 @@
+"""How fast does a video export go, with one render process and with several?
+
+Exports ``--seconds`` (default 10) of 1280x720 MP4 at 30 fps of the default face (53,772 vertices,
+textured) animated by the 46-FAP timeline of ``bench_timeline.py``, through the window's path
+(:func:`app.export.export_in_subprocess`: the rig is evaluated here, a child process encodes and
+renders, or hands the frames to ``--workers`` render processes) or with ``--path cli`` through
+``mimica export``'s in-process :func:`app.export.export`. Each worker count runs ``--repeats``
+times, alternating, so a change in the machine's load hits both alike.
+
+Prints per run the wall time, frames per second (start-up included, as a user waits for it) and the
+render / encoder-wait split, then per worker count::
+
+    export_fps median=<fps> workers=<n> (ratio to 1 worker: <x>)
+
+and the load average before and after (this machine is shared; software OpenGL, Mesa llvmpipe,
+draws a frame on one core, so the speed-up is bounded by the idle cores).
+
+Usage: python benchmarks/bench_export.py [--workers 1 2] [--repeats 3] [--seconds 10] [--size 1280x720]
+       [--quality 80] [--path window|cli]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_timeline import build_timeline  # noqa: E402
+
+from core.default_face import load_default_face  # noqa: E402
+from core.rig import FaceRig  # noqa: E402
+from core.timeline import apply_to_rig  # noqa: E402
+
+
+def cpu_seconds() -> float:
+    """CPU time (user + system) of this process and of its finished child processes (all descendants)."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def load() -> str:
+    return " ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
+def main() -> None:
+    from app.export import ExportSettings, export, export_in_subprocess
+
+    try:
+        from app.export_plan import default_workers
+    except ImportError:  # the code before parallel export: one worker
+        def default_workers() -> int:
+            return 1
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--workers", type=int, nargs="+", default=None,
+                        help=f"worker counts to compare (default: 1 and {default_workers()}, the cores)")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--size", default="1280x720")
+    parser.add_argument("--quality", type=int, default=80)
+    parser.add_argument("--path", choices=("window", "cli"), default="window")
+    args = parser.parse_args()
+    counts = args.workers or sorted({1, default_workers()})
+    size = tuple(int(v) for v in args.size.lower().split("x"))
+
+    face = load_default_face()
+    rig = FaceRig(face)
+    timeline = build_timeline(np.random.default_rng(0))
+
+    def pose(t: float) -> np.ndarray:
+        apply_to_rig(rig, timeline.evaluate(t))
+        return np.array(rig.vertices())
+
+    pose(0.0)
+    print(f"export of {args.seconds:g} s at 30 fps, {size[0]}x{size[1]} MP4 (quality {args.quality}), "
+          f"{face.n_vertices} vertices, path={args.path}, {os.cpu_count()} cores; load average {load()}")
+    fps: dict[int, list[float]] = {n: [] for n in counts}
+    with tempfile.TemporaryDirectory() as tmp:
+        for repeat in range(args.repeats):
+            for n in counts:
+                options = {"workers": n} if "workers" in ExportSettings.__dataclass_fields__ else {}  # older code
+                settings = ExportSettings(path=Path(tmp) / f"bench{n}.mp4", end_s=args.seconds, size=size, fps=30,
+                                          quality=args.quality, **options)
+                run = export_in_subprocess if args.path == "window" else export
+                cpu0 = cpu_seconds()
+                t0 = time.perf_counter()
+                result = run(face, pose, settings)
+                wall = time.perf_counter() - t0
+                cpu = cpu_seconds() - cpu0
+                fps[n].append(result.frames / wall)
+                per = 1000.0 / max(result.frames, 1)
+                print(f"  run {repeat + 1} workers={getattr(result, 'workers', 1)}: {result.frames} frames in {wall:.1f} s "
+                      f"({result.frames / wall:.2f} fps; waiting for frames {result.render_seconds * per:.0f} "
+                      f"ms/frame, for the encoder {result.encode_seconds * per:.0f} ms/frame; CPU of all the "
+                      f"export's processes {cpu * per:.0f} ms/frame = {cpu / wall:.2f} cores busy; "
+                      f"{Path(result.path).stat().st_size / 1e6:.2f} MB); load {load()}", flush=True)
+    base = float(np.median(fps[counts[0]]))
+    for n in counts:
+        median = float(np.median(fps[n]))
+        print(f"export_fps median={median:.2f} workers={n} (ratio to {counts[0]} worker"
+              f"{'s' if counts[0] != 1 else ''}: {median / base:.2f})")
+    print(f"load average after: {load()}")
+
+
+if __name__ == "__main__":
+    main()
