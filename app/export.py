@@ -36,12 +36,13 @@ Formats (from the path's suffix, or :attr:`ExportSettings.format`)
 
 Files
     Everything is written under a temporary name in the target folder
-    (``.name.mimica-<pid>-XXXX.part.mp4``; a hidden folder for sequences) and
+    (``.name.mimica-<pid>-<host>-XXXX.part.mp4``; a hidden folder for sequences) and
     renamed into place only after the encoder succeeded: a cancelled or failed
     export never leaves a broken file under the final name, and the partial
-    file is removed. Temporary names carry the owning process's id, and every
-    export first removes those of processes that no longer run (an export
-    killed with SIGKILL cannot clean up; :func:`app.export_sinks.sweep_stale`).
+    file is removed. Temporary names carry the owning process's id and machine,
+    and every export first removes this machine's whose process no longer runs
+    (an export killed with SIGKILL cannot clean up;
+    :func:`app.export_sinks.sweep_stale`).
 
 Never blocking the window: rendering runs in a child process
     Measured here (Xvfb, Mesa llvmpipe, 2 cores): a ``pv.Plotter(off_screen=True)``

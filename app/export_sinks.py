@@ -2,13 +2,15 @@
 (PNG/JPG stills and sequences), staged in a temporary folder and committed atomically.
 
 Leftovers of crashed exports
-    Every temporary thing an export makes carries the id of the process that owns it: the staging
-    file beside the target (``.clip.mimica-<pid>-XXXX.part.mp4``), a sequence's hidden staging
-    folder (``.mimica-export-<pid>-XXXX.part``) and the work folders in the system's temporary
-    folder (``mimica-export-<pid>-XXXX``: the face, the speech, the GIF's frames, logs). An export
-    that ends in any ordinary way (done, failed, cancelled, SIGINT/SIGTERM/SIGHUP) removes its own;
-    one killed outright (SIGKILL, a power cut) cannot, so every export first removes those whose
-    owner is no longer running (:func:`sweep_stale`). A live owner's files are never touched.
+    Every temporary thing an export makes carries the id of the process that owns it and the name
+    of its machine: the staging file beside the target (``.clip.mimica-<pid>-<host>-XXXX.part.mp4``),
+    a sequence's hidden staging folder (``.mimica-export-<pid>-<host>-XXXX.part``) and the work
+    folders in the system's temporary folder (``mimica-export-<pid>-<host>-XXXX``: the face, the
+    speech, the GIF's frames, logs). An export that ends in any ordinary way (done, failed,
+    cancelled, SIGINT/SIGTERM/SIGHUP) removes its own; one killed outright (SIGKILL, a power cut)
+    cannot, so every export first removes those of this machine whose owner is no longer running
+    (:func:`sweep_stale`). A live owner's files are never touched, nor another machine's (a shared
+    network folder), whose processes cannot be seen from here.
 """
 
 from __future__ import annotations
@@ -238,14 +240,26 @@ def _make_sink(plan: _Plan, settings: ExportSettings, staging: Path, work: Path)
 
 
 # ------------------------------------------------------------------ temporary names and the sweep
-_TEMP_DIR = re.compile(r"^mimica-export-(\d+)-")
-_STAGING_FILE = re.compile(r"^\..*\.mimica-(\d+)-[^.]+\.part(\.[^.]*)?$")
-_STAGING_DIR = re.compile(r"^\.mimica-export-(\d+)-[^.]+\.part$")
+_TEMP_DIR = re.compile(r"^mimica-export-(\d+)-([a-z0-9]+)-")
+_STAGING_FILE = re.compile(r"^\..*\.mimica-(\d+)-([a-z0-9]+)-[^.-]+\.part(\.[^.]*)?$")
+_STAGING_DIR = re.compile(r"^\.mimica-export-(\d+)-([a-z0-9]+)-[^.-]+\.part$")
+
+
+def _host() -> str:
+    """This machine's name as it appears in temporary names (lower-case letters and digits)."""
+    import socket
+
+    return re.sub(r"[^a-z0-9]", "", socket.gethostname().lower())[:24] or "host"
+
+
+def owner_tag(pid: int | None = None) -> str:
+    """``<pid>-<host>``: who owns a temporary export file (this process by default)."""
+    return f"{os.getpid() if pid is None else int(pid)}-{_host()}"
 
 
 def temp_prefix(pid: int | None = None) -> str:
-    """Prefix of this process's temporary export folders (``mimica-export-<pid>-``)."""
-    return f"mimica-export-{os.getpid() if pid is None else int(pid)}-"
+    """Prefix of this process's temporary export folders (``mimica-export-<pid>-<host>-``)."""
+    return f"mimica-export-{owner_tag(pid)}-"
 
 
 def temp_dir() -> tempfile.TemporaryDirectory:
@@ -272,13 +286,14 @@ def process_alive(pid: int) -> bool:
 
 def _stale(name: str, pattern: re.Pattern) -> bool:
     match = pattern.match(name)
-    return match is not None and not process_alive(int(match.group(1)))
+    return match is not None and match.group(2) == _host() and not process_alive(int(match.group(1)))
 
 
 def sweep_stale(folders=()) -> list[Path]:
     """Remove what crashed exports left: staging files and folders in ``folders`` (the target's
-    folder) and work folders in the system's temporary folder, each only when the process named
-    in it is gone. Returns what was removed; errors are ignored (it is housekeeping)."""
+    folder) and work folders in the system's temporary folder, each only when it names this
+    machine and a process that is gone. Returns what was removed; errors are ignored (it is
+    housekeeping)."""
     removed: list[Path] = []
     places = [(Path(tempfile.gettempdir()), ((_TEMP_DIR, True),))]
     places += [(Path(f), ((_STAGING_FILE, False), (_STAGING_DIR, True))) for f in folders]
@@ -320,12 +335,12 @@ def _make_staging(plan: _Plan) -> Path:
     """Create the temporary output (a file, or a folder for sequences) beside the target, named
     with this process's id (see :func:`sweep_stale`)."""
     folder = plan.folder
-    pid = os.getpid()
+    owner = owner_tag()
     try:
         if plan.format == "png-sequence":
             parent = folder if folder.is_dir() else folder.parent
-            return Path(tempfile.mkdtemp(prefix=f".mimica-export-{pid}-", suffix=".part", dir=parent))
-        fd, name = tempfile.mkstemp(prefix=f".{plan.target.stem}.mimica-{pid}-", suffix=f".part{plan.target.suffix}",
+            return Path(tempfile.mkdtemp(prefix=f".mimica-export-{owner}-", suffix=".part", dir=parent))
+        fd, name = tempfile.mkstemp(prefix=f".{plan.target.stem}.mimica-{owner}-", suffix=f".part{plan.target.suffix}",
                                     dir=folder)
         os.close(fd)
         return Path(name)

@@ -322,7 +322,9 @@ def test_next_export_sweeps_what_a_killed_one_left(tmp_path, monkeypatch):
     left = _export_leftovers(out_dir, tmpdir, proc.pid)
     assert any(name.startswith(".jaw.mimica-") and name.endswith(".part.mp4") for name in left), left
     assert sum(name.startswith(f"mimica-export-{proc.pid}-") for name in left) >= 2, left  # speech + work
-    other = out_dir / f".other.mimica-{os.getpid()}-abcd1234.part.mp4"   # a live export's: kept
+    from app.export_sinks import owner_tag
+
+    other = out_dir / f".other.mimica-{owner_tag()}-abcd1234.part.mp4"   # a live export's: kept
     other.write_bytes(b"x")
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmpdir))

@@ -466,21 +466,23 @@ def test_sweep_removes_only_what_dead_exports_left(tmp_path, monkeypatch):
     import os
     import tempfile
 
-    from app.export_sinks import sweep_stale
+    from app.export_sinks import owner_tag, sweep_stale
 
     temp = tmp_path / "tmp"
     temp.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(temp))
     out = tmp_path / "out"
     out.mkdir()
-    dead, alive = dead_pid(), os.getpid()
+    dead, alive = owner_tag(dead_pid()), owner_tag(os.getpid())
+    elsewhere = dead.split("-")[0] + "-othermachine"   # a dead pid here may be alive on another machine
     stale = [out / f".clip.mimica-{dead}-ab12cd34.part.mp4", out / f".mimica-export-{dead}-x1y2z3.part",
-             temp / f"mimica-export-{dead}-q9w8e7r6"]
+             temp / f"mimica-export-{dead}-q9w8e7r6", out / f".my.clip.mimica-{dead}-a_b.part.gif"]
     kept = [out / f".clip.mimica-{alive}-ab12cd34.part.mp4", out / f".mimica-export-{alive}-x1y2z3.part",
             temp / f"mimica-export-{alive}-q9w8e7r6", out / "clip.mp4", out / ".clip.part.mp4",
-            temp / "mimica-export-notapid"]
+            temp / "mimica-export-notapid", out / f".clip.mimica-{elsewhere}-ab12cd34.part.mp4",
+            temp / f"mimica-export-{elsewhere}-q9w8e7r6"]
     for path in stale + kept:
-        if path.suffix == ".mp4":
+        if path.suffix in (".mp4", ".gif"):
             path.write_bytes(b"x")
         else:
             path.mkdir()
