@@ -242,6 +242,9 @@ def test_wheel_scrolls_the_dock_not_an_unfocused_slider(qtbot, dock, rig):
 
 # ------------------------------------------------------------------ viewport
 def test_viewport_follows_the_rig_once_per_burst(qtbot, win, dock, rig, monkeypatch):
+    # The muscle layer joining the rig when its background build ends also moves the mesh: let it land first.
+    qtbot.waitUntil(lambda: not win.muscle_dock.simulation.building, timeout=120000)
+    _wait_tick(qtbot, win)
     actor = win.face_actor
     mesh = actor.mesh
     before = np.array(mesh.points)
