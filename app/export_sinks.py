@@ -29,6 +29,7 @@ import numpy as np
 
 from app.export_plan import (
     STILL_FORMATS, ExportError, ExportCancelled, ExportSettings, _Plan)
+from core.processes import process_alive
 
 
 # ------------------------------------------------------------------ ffmpeg
@@ -265,23 +266,6 @@ def temp_prefix(pid: int | None = None) -> str:
 def temp_dir() -> tempfile.TemporaryDirectory:
     """A temporary folder owned by this process (removed on exit from its ``with``; swept if it is killed)."""
     return tempfile.TemporaryDirectory(prefix=temp_prefix())
-
-
-def process_alive(pid: int) -> bool:
-    """Whether process ``pid`` exists and is not a zombie (another user's process counts as alive)."""
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:
-        return True  # exists, but not ours to signal
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return True
-    return state not in ("Z", "X")  # a killed process its parent has not waited for yet
 
 
 def _stale(name: str, pattern: re.Pattern) -> bool:

@@ -6,27 +6,13 @@ from __future__ import annotations
 
 import contextlib
 import traceback
-import os
 from pathlib import Path
 
 from PySide6.QtCore import QTimer
 from PySide6.QtWidgets import QMessageBox
 
 from core.formats import project as cp
-
-
-def _pid_alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    except OSError:
-        return False
-    return True
+from core.processes import process_alive
 
 
 def _owner_pid(path: Path) -> int | None:
@@ -206,7 +192,7 @@ class ProjectRecoveryMixin:
         out = []
         for p in cp.untitled_autosaves(self.state_dir):
             pid = _owner_pid(p)
-            if pid is not None and _pid_alive(pid):
+            if pid is not None and process_alive(pid):
                 continue
             out.append(p)
         return out

@@ -103,3 +103,4 @@ def test_a_damaged_fap_table_is_rebuilt_with_a_note(small_face, tmp_path):
     values[2] = 300.0
     np.testing.assert_array_equal(again.deform(values), built.deform(values))
     assert FapDeformer.for_face(small_face, DiskCache(tmp_path)) is not None and entry.stat().st_size > 0
+
