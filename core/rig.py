@@ -102,6 +102,9 @@ class FaceRig:
 
     def add_layer(self, layer: RigLayer) -> RigLayer:
         """Append ``layer`` (replacing one of the same name, in its place) and listen to it."""
+        joined = getattr(layer, "joined", None)
+        if joined is not None:   # a layer that reads other layers (correctives follow this rig's FAPs)
+            joined(self)
         old = self._layers.get(layer.name)
         if old is not None:
             self._disconnect(old)

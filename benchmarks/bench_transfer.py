@@ -1,0 +1,231 @@
+"""How well expression transfer, caricature and FAP correctives reproduce known faces.
+
+Transfer (one line per method and data set; RMS in mm over vertices and poses):
+
+    transfer_rms_mm method=<bbox|deformation|local_affine> data=<synthetic|sfm> value=<x>
+
+* ``synthetic``: the synthetic protocol database (``core.registration.synthetic``). Persons A and B
+  are scanned in each pose and registered (template mpeg4_80, landmarks from the scans: the real
+  pipeline). A's library (neutral + 6 expressions, each pose aligned to the neutral) is transferred
+  onto B's registered neutral and compared with **B's true pose**: the generator's own displacement
+  of B's face (its rig at that expression), carried to B's canonical vertices through the neutral
+  scan's known pose. B's *registered* pose is not the reference, because its projection slides along
+  the skin differently from A's (≈ 1 mm of noise no method can predict); that noisy comparison is
+  printed too, as ``transfer_vs_registered_rms_mm``. Pairs (A, B) = (1, 2), (2, 1), (1, 3), (3, 2).
+* ``sfm``: the Surrey Face Model in ``../shared/data/sfm`` (benchmark data only, never copied into
+  Mimica): random identities A, B (shape coefficients ~ N(0, 1)), A + one expression offset is A's
+  pose; the truth on B is B + the same offset (SFM expressions do not depend on identity). 5 pairs ×
+  the 6 expression offsets.
+
+Goal: the better method (``deformation`` or ``local_affine``) beats the thesis's ``bbox`` on
+synthetic and is no worse on SFM; the last line says which goals are met.
+
+Caricature (``caricature_rms_mm e=<%> data=<d> value=<x>``): at −100 % the caricature must be the
+mean face (RMS to the mean), at 0 % the face (RMS to the face); ``e=100`` gives how far the face
+is from the mean (what +100 % adds). On SFM, ``e=-100`` is also measured against the model's true
+mean (the mean face of 40 random identities estimates it: ``vs=model_mean``).
+
+Corrective (``corrective_rms_mm fit=<fap_only|fap_corrective> at=<100|50> value=<x>``): B's rig
+on its registered neutral, FAP values fitted to each registered expression scan at 100 %; the
+residual becomes a corrective driven by those FAPs. ``at=100``: against the scan it was fitted to
+(the corrective restores it by construction); ``at=50``: the FAPs at half the fitted values, with
+the corrective at half weight, against B's true pose at 50 % intensity (held out).
+
+Usage: python benchmarks/bench_transfer.py [--sfm PATH] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from core.layers.blend.caricature import caricature, mean_face  # noqa: E402
+from core.layers.blend.library import build_library, rigid_align  # noqa: E402
+from core.layers.blend.transfer import DeformationTransfer, LocalAffineTransfer, transfer_bbox  # noqa: E402
+
+METHODS = ("bbox", "deformation", "local_affine")
+PAIRS = ((1, 2), (2, 1), (1, 3), (3, 2))
+SFM_DEFAULT = ROOT.parent / "shared" / "data" / "sfm"
+
+
+def rms(a, b) -> float:
+    """RMS (mm) of the per-vertex distance between (..., n, 3) arrays."""
+    return float(np.sqrt(np.mean(np.sum((np.asarray(a) - np.asarray(b)) ** 2, axis=-1))))
+
+
+def transfer(method: str, base_rest, disp, model_rest, triangles) -> np.ndarray:
+    if method == "bbox":
+        return transfer_bbox(base_rest, disp, model_rest)
+    if method == "deformation":
+        return DeformationTransfer(base_rest, model_rest, triangles).transfer(disp)
+    return LocalAffineTransfer(base_rest, model_rest).transfer(disp)
+
+
+# ------------------------------------------------------------------ synthetic database
+class Person:
+    """A synthetic person: registered neutral and poses (canonical mpeg4_80), and the truth."""
+
+    def __init__(self, person: int, poses):
+        from core.registration.pipeline import register_scan
+        from core.registration.synthetic import synthetic_scan
+
+        self.person = person
+        self.faces = {}
+        for pose in ("neutral",) + tuple(poses):
+            scan = synthetic_scan(person, pose)
+            self.faces[pose] = register_scan(scan, scan.landmarks, template="mpeg4_80").face
+        self.neutral = self.faces["neutral"]
+        self.library = build_library(self.neutral, {p: self.faces[p] for p in poses}, template="mpeg4_80",
+                                     base=f"synthetic person {person}")
+
+    def registered_pose(self, pose: str, intensity: float) -> np.ndarray:
+        """(N, 3) mm: a new scan of the person at ``pose`` × ``intensity`` (FAP 2 preset), registered
+        like the others and aligned onto the neutral (held-out data for the corrective)."""
+        from core.registration import synthetic
+        from core.registration.pipeline import register_scan
+        from core.registration.virtual_scanner import scan_face
+
+        rig = synthetic._rig(self.person, 0)
+        rig.reset_faps()
+        rig.set_expression(pose, intensity)
+        v = np.array(rig.vertices())
+        rig.set_expression(None, 0.0)
+        rng = np.random.default_rng([0, self.person, synthetic.poses().index(pose), 50])
+        scan = scan_face(rig.face, vertices=v, rng=rng, **synthetic.SCAN_SETTINGS).face
+        face = register_scan(scan, scan.landmarks, template="mpeg4_80").face
+        return rigid_align(face.vertices, self.neutral.vertices)[0]
+
+
+def synthetic_transfer(people, poses) -> dict[str, float]:
+    out = {m: [] for m in METHODS}
+    for a, b in PAIRS:
+        A, B = people[a], people[b]
+        tri = B.neutral.triangles
+        for m in METHODS:
+            d = transfer(m, A.library.rest, A.library.displacements, B.library.rest, tri)
+            out[m].append(rms(d, B.library.displacements))
+    return {m: float(np.mean(v)) for m, v in out.items()}
+
+
+# ------------------------------------------------------------------ SFM
+def load_sfm(folder: Path):
+    mean = np.load(folder / "sfm_mean.npy").astype(float)
+    basis = np.load(folder / "sfm_basis.npy").astype(float)
+    ev = np.load(folder / "sfm_ev.npy").astype(float).reshape(-1)
+    tri = np.load(folder / "sfm_tri.npy").astype(np.int64)
+    names = ("anger", "disgust", "fear", "happiness", "sadness", "surprise")
+    offsets = np.array([np.load(folder / f"bs_{n}.npy").astype(float) for n in names])
+    return mean, basis, ev, tri, names, offsets
+
+
+def sfm_identity(mean, basis, ev, rng) -> np.ndarray:
+    alpha = rng.standard_normal(len(ev))
+    return mean + (basis @ (alpha * np.sqrt(ev))).reshape(-1, 3)
+
+
+def sfm_transfer(folder: Path, pairs: int = 5) -> dict[str, float]:
+    mean, basis, ev, tri, names, offsets = load_sfm(folder)
+    rng = np.random.default_rng(16)
+    out = {m: [] for m in METHODS}
+    for _ in range(pairs):
+        A, B = sfm_identity(mean, basis, ev, rng), sfm_identity(mean, basis, ev, rng)
+        lib = build_library(A, {n: A + o for n, o in zip(names, offsets)})
+        truth = build_library(B, {n: B + o for n, o in zip(names, offsets)}).displacements   # aligned like A's
+        for m in METHODS:
+            out[m].append(rms(transfer(m, A, lib.displacements, B, tri), truth))
+    return {m: float(np.mean(v)) for m, v in out.items()}
+
+
+def sfm_caricature(folder: Path, n: int = 40) -> list[str]:
+    mean, basis, ev, *_ = load_sfm(folder)
+    rng = np.random.default_rng(4)
+    faces = [sfm_identity(mean, basis, ev, rng) for _ in range(n)]
+    m = mean_face(faces)
+    f = faces[0]
+    lines = [f"caricature_rms_mm e=-100 data=sfm vs=mean_face value={rms(caricature(f, m, -1.0), rigid_align(m, f, robust=False)[0]):.2e}",
+             f"caricature_rms_mm e=0 data=sfm vs=face value={rms(caricature(f, m, 0.0), f):.2e}",
+             f"caricature_rms_mm e=100 data=sfm vs=face value={rms(caricature(f, m, 1.0), f):.3f}",
+             f"caricature_rms_mm e=-100 data=sfm vs=model_mean n_faces={n} "
+             f"value={rms(caricature(f, m, -1.0), rigid_align(mean, f, robust=False)[0]):.3f}"]
+    return lines
+
+
+# ------------------------------------------------------------------ corrective
+def corrective_lines(B: Person, poses) -> list[str]:
+    from core.layers.blend.corrective import Corrective, fit_faps
+    from core.layers.fap.fat import FapDeformer
+
+    deformer = FapDeformer(B.neutral)
+    full_fap, full_corr, half_fap, half_corr = [], [], [], []
+    for p in poses:
+        fit = fit_faps(deformer, B.faces[p])
+        full_fap.append(fit.rms_fap_only_mm)
+        full_corr.append(fit.rms_with_corrective_mm)
+        corr = Corrective.from_fit(p, fit)
+        held_out = B.registered_pose(p, 0.5) - B.neutral.vertices
+        half = 0.5 * fit.fap_only
+        half_fap.append(rms(half, held_out))
+        half_corr.append(rms(half + corr.weight(0.5 * fit.values) * corr.shape, held_out))
+    return [f"corrective_rms_mm fit=fap_only at=100 data=synthetic value={np.mean(full_fap):.3f}",
+            f"corrective_rms_mm fit=fap_corrective at=100 data=synthetic value={np.mean(full_corr):.2e}",
+            f"corrective_rms_mm fit=fap_only at=50 data=synthetic value={np.mean(half_fap):.3f}",
+            f"corrective_rms_mm fit=fap_corrective at=50 data=synthetic value={np.mean(half_corr):.3f}"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sfm", type=Path, default=SFM_DEFAULT, help="folder of the Surrey Face Model .npy files")
+    parser.add_argument("--quick", action="store_true", help="one synthetic pair, two poses")
+    args = parser.parse_args()
+    print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}")
+    from core.registration.synthetic import poses as all_poses
+
+    poses = all_poses()[1:]
+    global PAIRS
+    if args.quick:
+        PAIRS = ((1, 2),)
+        poses = poses[:2]
+    t0 = time.perf_counter()
+    people = {p: Person(p, poses) for p in sorted({x for pair in PAIRS for x in pair})}
+    print(f"registered {len(people)} synthetic people x {len(poses) + 1} poses in {time.perf_counter() - t0:.1f} s")
+    syn = synthetic_transfer(people, poses)
+    for m, v in syn.items():
+        print(f"transfer_rms_mm method={m} data=synthetic value={v:.3f}")
+    sfm = None
+    if (args.sfm / "sfm_mean.npy").exists():
+        sfm = sfm_transfer(args.sfm)
+        for m, v in sfm.items():
+            print(f"transfer_rms_mm method={m} data=sfm value={v:.3f}")
+    else:
+        print(f"sfm: no data in {args.sfm}; skipped")
+    neutrals = [people[p].neutral.vertices for p in sorted(people)]
+    m = mean_face(neutrals)
+    f = neutrals[0]
+    print(f"caricature_rms_mm e=-100 data=synthetic vs=mean_face value="
+          f"{rms(caricature(f, m, -1.0), rigid_align(m, f, robust=False)[0]):.2e}")
+    print(f"caricature_rms_mm e=0 data=synthetic vs=face value={rms(caricature(f, m, 0.0), f):.2e}")
+    print(f"caricature_rms_mm e=100 data=synthetic vs=face value={rms(caricature(f, m, 1.0), f):.3f}")
+    if sfm is not None:
+        for line in sfm_caricature(args.sfm):
+            print(line)
+    for line in corrective_lines(people[PAIRS[0][1]], poses):
+        print(line)
+    for better in ("deformation", "local_affine"):
+        ok_syn = syn[better] < syn["bbox"]
+        ok_sfm = sfm is None or sfm[better] <= sfm["bbox"]
+        print(f"goal method={better}: beats bbox on synthetic {'met' if ok_syn else 'NOT met'} "
+              f"({syn[better]:.3f} vs {syn['bbox']:.3f} mm); no worse on sfm "
+              + ("skipped" if sfm is None else f"{'met' if ok_sfm else 'NOT met'} ({sfm[better]:.3f} vs {sfm['bbox']:.3f} mm)"))
+    print(f"total {time.perf_counter() - t0:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
