@@ -155,6 +155,21 @@ def read_library(path, *, template: str | None = None, n_vertices: int | None = 
     shapes = {"rest": (n, 3), "displacements": (len(poses), n, 3)}
     if head.get("has_mean", False):
         shapes["mean"] = (n, 3)
+    try:
+        arrays = _read_arrays(npz_path, raw, shapes)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError) as exc:
+        raise LibraryFileError(f"'{npz_path.name}' is not an expression library's array file: it is not a readable "
+                               f"NumPy .npz archive ({exc}). Save the library again, or open a backup.") from None
+    try:
+        return ExpressionLibrary(arrays["rest"], tuple(poses), arrays["displacements"], template=head["template"],
+                                 mean=arrays.get("mean"), base=head.get("base", ""),
+                                 transfer=head.get("transfer", ""))
+    except LibraryError as exc:
+        raise LibraryFileError(f"'{path.name}' is not a usable expression library: {exc}") from None
+
+
+def _read_arrays(npz_path: Path, raw: bytes, shapes: dict) -> dict[str, np.ndarray]:
+    """The arrays of ``shapes`` from the .npz bytes, each member's size checked before it is inflated."""
     arrays = {}
     with reading(LibraryFileError, f"'{npz_path.name}'", "expression library array"):
         with zipfile.ZipFile(io.BytesIO(raw)) as zf:
@@ -176,9 +191,4 @@ def read_library(path, *, template: str | None = None, n_vertices: int | None = 
                 if not np.all(np.isfinite(a)):
                     raise _field_error(npz_path, key, "holds NaN or infinite values")
                 arrays[key] = a.astype(float)
-    try:
-        return ExpressionLibrary(arrays["rest"], tuple(poses), arrays["displacements"], template=head["template"],
-                                 mean=arrays.get("mean"), base=head.get("base", ""),
-                                 transfer=head.get("transfer", ""))
-    except LibraryError as exc:
-        raise LibraryFileError(f"'{path.name}' is not a usable expression library: {exc}") from None
+    return arrays

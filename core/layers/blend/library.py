@@ -72,24 +72,31 @@ def rigid_transform_between(source, target, weights=None) -> tuple[np.ndarray, n
     return R, cq - R @ cp
 
 
-def rigid_align(points, reference, *, robust: bool = True, iterations: int = 10) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rigid_align(points, reference, *, robust: bool = True, iterations: int = 50) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``points`` moved rigidly onto ``reference`` (same topology): (aligned (n, 3), R, t).
 
-    robust : reweight by the residual (Tukey biweight with a cut at 4.685 × 1.4826 × the median
-        residual, at least 0.5 mm): the moving parts of an expression get small weights, so the
-        head's still parts (forehead, nose, temples) decide the alignment. False: plain Procrustes.
+    robust : reweight by the residual (Tukey biweight, cut at 4.685 × 1.4826 × the median residual,
+        at least 1e-9 × the face's size): the moving parts of an expression get weight 0, so the
+        head's still parts (forehead, nose, temples) decide the alignment; when they are exactly
+        still, the rigid motion is recovered exactly. Iterates until the pose changes by < 1e-12 of
+        the size, at most ``iterations`` times. False: plain Procrustes.
     """
     p = _points(points, "points")
     q = _points(reference, "reference", len(p))
     R, t = rigid_transform_between(p, q)
-    if robust:
+    if robust and len(p) >= 3:
+        size = float(np.linalg.norm(q.max(0) - q.min(0))) or 1.0
         for _ in range(int(iterations)):
             r = np.linalg.norm(p @ R.T + t - q, axis=1)
-            c = 4.685 * max(1.4826 * float(np.median(r)), 0.5)
+            c = 4.685 * max(1.4826 * float(np.median(r)), 1e-9 * size)
             w = np.clip(1.0 - (r / c) ** 2, 0.0, None) ** 2
-            if w.sum() < 3:
+            if np.count_nonzero(w) < 3:
                 break
-            R, t = rigid_transform_between(p, q, w)
+            R_new, t_new = rigid_transform_between(p, q, w)
+            step = np.abs(R_new - R).max() * size + np.abs(t_new - t).max()
+            R, t = R_new, t_new
+            if step < 1e-12 * size:
+                break
     return p @ R.T + t, R, t
 
 

@@ -1,0 +1,302 @@
+"""Expression blends (issue 16): libraries, the blend layer, transfer, caricature, correctives, files.
+
+Known answers on faces built in code (a bumpy grid patch as "a person"; poses are that patch plus
+known local displacements, then moved rigidly the way a scanner would see them)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from core import parameters as P
+from core.formats.blend_library import LibraryFileError, read_library, write_library
+from core.layers.blend.caricature import caricature, mean_face
+from core.layers.blend.corrective import Corrective, CorrectiveLayer, fit_faps
+from core.layers.blend.layer import BlendLayer
+from core.layers.blend.library import ExpressionLibrary, LibraryError, build_library, rigid_align
+from core.layers.blend.transfer import DeformationTransfer, LocalAffineTransfer, transfer_bbox, transfer_library
+from core.registration.icp import rotation_about_axis
+from tests.core.conftest import make_grid_face
+
+SCALE_MM = 200.0
+
+
+def _rigid(points, angle_deg=7.0, axis=(0.3, 1.0, 0.2), shift=(4.0, -2.0, 9.0)):
+    R = rotation_about_axis(axis, angle_deg)
+    return points @ R.T + np.asarray(shift), R
+
+
+@pytest.fixture(scope="module")
+def person():
+    """(face, {pose: true local displacement (n, 3)}): two poses moving separate patches."""
+    face = make_grid_face(nx=24, ny=20, size_mm=SCALE_MM)
+    v = face.vertices
+    # compact bumps: (1 - d²/r²)³ inside radius r, exactly 0 outside (the rest of the face is still)
+    bump = lambda c, r: np.clip(1 - np.sum((v[:, :2] - c) ** 2, axis=1) / (r * r), 0, None) ** 3   # noqa: E731
+    smile = np.column_stack([6.0 * bump((40.0, -40.0), 35.0), 4.0 * bump((40.0, -40.0), 35.0), 0 * v[:, 0]])
+    brow = np.column_stack([0 * v[:, 0], 5.0 * bump((-50.0, 60.0), 30.0), 2.0 * bump((-50.0, 60.0), 30.0)])
+    return face, {"smile": smile, "brow_up": brow}
+
+
+@pytest.fixture(scope="module")
+def library(person):
+    face, truth = person
+    poses = {name: _rigid(face.vertices + d, angle_deg=5.0 + i)[0] for i, (name, d) in enumerate(truth.items())}
+    return build_library(face, poses, base="grid person")
+
+
+# ------------------------------------------------------------------ libraries and blending
+def test_zero_weights_give_the_rest_exactly(library):
+    np.testing.assert_array_equal(library.blend({}), library.rest)
+    np.testing.assert_array_equal(library.blend(np.zeros(len(library.names))), library.rest)
+
+
+def test_weight_one_reproduces_the_aligned_pose(person, library):
+    face, truth = person
+    for name, d in truth.items():
+        # the scanner moved the pose rigidly; alignment onto the neutral undoes it exactly
+        np.testing.assert_allclose(library.blend({name: 1.0}), face.vertices + d, atol=1e-6 * SCALE_MM)
+    both = library.blend({"smile": 0.5, "brow_up": 2.0})
+    np.testing.assert_allclose(both, face.vertices + 0.5 * truth["smile"] + 2.0 * truth["brow_up"], atol=1e-6 * SCALE_MM)
+
+
+def test_rigid_align_recovers_a_known_motion(person):
+    face, _ = person
+    moved, R = _rigid(face.vertices)
+    aligned, R_back, _ = rigid_align(moved, face.vertices)
+    np.testing.assert_allclose(aligned, face.vertices, atol=1e-9)
+    np.testing.assert_allclose(R_back @ R, np.eye(3), atol=1e-12)
+
+
+def test_bad_libraries_are_refused_with_a_reason(library):
+    with pytest.raises(LibraryError, match="pose names"):
+        library.replace(names=("Smile", "brow_up"))
+    with pytest.raises(LibraryError, match="'neutral' is the library's rest"):
+        library.replace(names=("neutral", "brow_up"))
+    with pytest.raises(LibraryError, match="NaN"):
+        library.replace(displacements=np.full(library.displacements.shape, np.nan))
+    with pytest.raises(LibraryError, match="no pose 'frown'"):
+        library.blend({"frown": 1.0})
+
+
+# ------------------------------------------------------------------ the rig layer
+def test_blend_layer_parameters_offsets_and_errors(person, library):
+    face, truth = person
+    layer = BlendLayer(face, library)
+    assert layer.parameters() == ("blend:smile", "blend:brow_up")
+    assert layer.offset(face.vertices) is None
+    layer.set_values({"blend:smile": 100.0})
+    np.testing.assert_allclose(layer.offset(face.vertices), truth["smile"], atol=1e-6 * SCALE_MM)
+    with pytest.raises(P.ParameterError, match="outside its range -50 to 200 %"):
+        layer.set_values({"blend:smile": 250.0})
+    with pytest.raises(P.ParameterError, match="not a pose of this face's expression library; its poses are smile, brow_up"):
+        layer.set_values({"blend:frown": 10.0})
+    assert layer.value("blend:smile") == 100.0                      # nothing changed
+    other = make_grid_face(nx=5, ny=5)
+    with pytest.raises(LibraryError, match="register the face"):
+        BlendLayer(other, library)
+
+
+def test_blend_layer_maps_through_a_correspondence(person, library):
+    import scipy.sparse
+
+    face, truth = person
+    n = face.n_vertices
+    # a face with the library's vertices twice (e.g. a finer mesh bound to the canonical one)
+    M = scipy.sparse.vstack([scipy.sparse.identity(n), scipy.sparse.identity(n)]).tocsr()
+    layer = BlendLayer(np.zeros((2 * n, 3)), library, correspondence=M)
+    layer.set_values({"blend:brow_up": 50.0})
+    off = layer.offset(None)
+    np.testing.assert_allclose(off[:n], 0.5 * truth["brow_up"], atol=1e-6 * SCALE_MM)
+    np.testing.assert_array_equal(off[n:], off[:n])
+
+
+def test_blend_key_through_the_rig_snapshot_restore_and_copy(default_rig):
+    rig = default_rig
+    rig.reset()
+    rest = rig.face.vertices
+    rng = np.random.default_rng(3)
+    lib = ExpressionLibrary(rest, ("joy", "blink"), rng.normal(0, 1.0, (2, len(rest), 3)), base="default face")
+    try:
+        rig.add_layer(BlendLayer(rig.face, lib))
+        assert "blend:joy" in rig.parameters()
+        base = np.array(rig.vertices())
+        rig.set_values({"blend:joy": 80.0, "fap:3": 100.0})
+        snap = rig.snapshot()
+        posed = np.array(rig.vertices())
+        np.testing.assert_allclose(posed - rig.copy().vertices(), 0, atol=1e-12)   # an export's copy agrees
+        rig.set_values({"fap:3": 100.0, "blend:joy": 0.0})
+        np.testing.assert_allclose(posed - np.array(rig.vertices()), 0.8 * lib.displacements[0], atol=1e-9)
+        rig.restore(snap)
+        assert rig.value("blend:joy") == 80.0
+        np.testing.assert_array_equal(rig.vertices(), posed)
+        rig.reset()
+        np.testing.assert_array_equal(rig.vertices(), base)
+    finally:
+        rig.remove_layer("blend")
+        rig.reset()
+
+
+def test_registry_knows_blend_and_caricature_keys():
+    assert P.key_of("blend:Joy") == "blend:joy"
+    assert P.describe("caricature").minimum == -100.0 and P.describe("caricature").maximum == 200.0
+    assert P.describe("blend:joy").unit == "%"
+    with pytest.raises(P.ParameterError, match="blend:neutral"):
+        P.key_of("blend:neutral")
+    with pytest.raises(P.ParameterError, match="outside its range -100 to 200"):
+        P.check_value("caricature", -150)
+
+
+# ------------------------------------------------------------------ transfer
+def test_transfer_to_the_base_itself_is_the_identity(library, person):
+    face, _ = person
+    np.testing.assert_allclose(transfer_bbox(library.rest, library.displacements, library.rest),
+                               library.displacements, atol=1e-12)
+    dt = DeformationTransfer(library.rest, library.rest, face.triangles)
+    np.testing.assert_allclose(dt.transfer(library.displacements), library.displacements, atol=1e-8)
+    la = LocalAffineTransfer(library.rest, library.rest)
+    np.testing.assert_allclose(la.transfer(library.displacements), library.displacements, atol=1e-8)
+    out = transfer_library(library, face, method="deformation")
+    assert out.transfer == "deformation" and "deformation" in out.base
+
+
+def test_transfer_to_a_scaled_moved_copy_scales_and_rotates(library, person):
+    face, _ = person
+    model, R = _rigid(1.25 * library.rest, angle_deg=20.0)
+    expected = 1.25 * library.displacements @ R.T
+    np.testing.assert_allclose(transfer_bbox(library.rest, library.displacements, model), expected, atol=1e-8)
+    dt = DeformationTransfer(library.rest, model, face.triangles)
+    np.testing.assert_allclose(dt.transfer(library.displacements), expected, atol=1e-6)
+    with pytest.raises(LibraryError, match="unknown transfer method"):
+        transfer_library(library, model, face.triangles, method="magic")
+
+
+# ------------------------------------------------------------------ caricature
+def test_caricature_zero_is_the_face_and_minus_100_the_mean(person):
+    face, truth = person
+    faces = [face.vertices, face.vertices + truth["smile"], _rigid(face.vertices + truth["brow_up"])[0]]
+    mean = mean_face(faces)
+    np.testing.assert_allclose(mean_face([faces[0], _rigid(faces[0])[0]]), faces[0], atol=1e-9)
+    f = faces[1]
+    np.testing.assert_array_equal(caricature(f, mean, 0.0), f)
+    np.testing.assert_allclose(caricature(f, mean, -1.0), rigid_align(mean, f, robust=False)[0], atol=1e-9)
+    with pytest.raises(LibraryError, match="−100 % … \\+200 %"):
+        caricature(f, mean, 2.5)
+
+
+def test_caricature_parameter_of_the_layer(person, library):
+    face, truth = person
+    mean = face.vertices - np.column_stack([0 * truth["smile"][:, 0], truth["smile"][:, :2]])[:, [1, 2, 0]]
+    lib = library.replace(mean=mean)
+    layer = BlendLayer(face, lib)
+    assert "caricature" in layer.parameters()
+    layer.set_values({"caricature": -100.0})
+    np.testing.assert_allclose(face.vertices + layer.offset(face.vertices),
+                               rigid_align(mean, face.vertices, robust=False)[0], atol=1e-9)
+
+
+# ------------------------------------------------------------------ files
+def test_library_files_round_trip(tmp_path, library):
+    lib = library.replace(mean=library.rest + 1.0, template="custom")
+    path = write_library(lib, tmp_path / "person.json")
+    back = read_library(path)
+    assert back.names == lib.names and back.template == "custom" and back.base == "grid person"
+    np.testing.assert_allclose(back.rest, lib.rest, atol=1e-4)
+    np.testing.assert_allclose(back.displacements, lib.displacements, atol=1e-5)
+    np.testing.assert_allclose(back.mean, lib.mean, atol=1e-4)
+    write_library(back, tmp_path / "again.json")
+    assert (tmp_path / "again.npz").read_bytes() == (tmp_path / "person.npz").read_bytes()
+
+
+def _damaged(tmp_path, library, *, header=None, arrays=None):
+    path = write_library(library, tmp_path / "lib.json")
+    if header is not None:
+        head = json.loads(path.read_text())
+        head.update(header)
+        path.write_text(json.dumps(head))
+    if arrays is not None:
+        npz = tmp_path / "lib.npz"
+        with np.load(npz) as data:
+            a = {k: data[k] for k in data.files}
+        a.update(arrays)
+        np.savez_compressed(npz, **a)
+    return path
+
+
+@pytest.mark.parametrize("header, arrays, field", [
+    ({"template": "mpeg4_80"}, None, "vertex_count"),          # other template: its faces have 4560 vertices
+    ({"template": "nosuch"}, None, "template"),
+    ({"vertex_count": 17}, None, "rest"),                       # arrays do not match the header
+    ({"version": 9}, None, "version"),
+    ({"poses": ["smile", "Brow"]}, None, "poses"),
+    ({"format": "something"}, None, "format"),
+    ({"units": "cm"}, None, "units"),
+    ({"arrays": "../elsewhere.npz"}, None, "arrays"),
+    (None, {"displacements": "nan"}, "displacements"),
+    (None, {"rest": "short"}, "rest"),
+])
+def test_malformed_library_files_name_file_and_field(tmp_path, library, header, arrays, field):
+    if arrays is not None:
+        key, kind = next(iter(arrays.items()))
+        a = getattr(library, key).astype(np.float32).copy()
+        if kind == "nan":
+            a.reshape(-1)[5] = np.nan
+        else:
+            a = a[:-1]
+        arrays = {key: a}
+    path = _damaged(tmp_path, library, header=header, arrays=arrays)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    with pytest.raises(LibraryFileError) as err:
+        read_library(path)
+    assert f"'{field}'" in str(err.value) and "lib." in str(err.value)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before     # nothing changed
+
+
+def test_mismatched_library_for_a_face_says_what_to_do(tmp_path, library):
+    path = write_library(library, tmp_path / "lib.json")
+    with pytest.raises(LibraryFileError, match="field 'template'.*register the face"):
+        read_library(path, template="a48")
+    with pytest.raises(LibraryFileError, match="field 'vertex_count'.*this face has 9 vertices"):
+        read_library(path, n_vertices=9)
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(LibraryFileError, match="bad.json"):
+        read_library(tmp_path / "bad.json")
+    (tmp_path / "lib.npz").write_bytes(b"PK\x03\x04 broken")
+    with pytest.raises(LibraryFileError, match="lib.npz"):
+        read_library(path)
+
+
+# ------------------------------------------------------------------ FAP fit and corrective
+def test_fap_fit_recovers_known_values_and_the_corrective_restores_the_scan(default_rig):
+    rig = default_rig
+    rig.reset()
+    deformer = rig.deformer
+    known = {3: 200.0, 5: -150.0, 6: 80.0, 7: 80.0, 12: 60.0, 13: 60.0}
+    values = np.zeros(68)
+    for n, v in known.items():
+        values[n - 1] = v
+    fap_part = deformer.displacement(values)
+    rest = rig.face.vertices
+    centre = rest[np.argmax(rest[:, 2])]
+    detail = 0.4 * np.exp(-np.sum((rest - centre) ** 2, axis=1) / 50.0)[:, None] * np.array([0.0, 0.0, 1.0])
+    fit = fit_faps(deformer, rest + fap_part, faps=sorted(known), align=False)
+    np.testing.assert_allclose(fit.values[[n - 1 for n in known]], list(known.values()), rtol=1e-6, atol=1e-6)
+    assert fit.rms_fap_only_mm < 1e-6
+    fit = fit_faps(deformer, rest + fap_part + detail, faps=sorted(known), align=False)
+    assert fit.rms_with_corrective_mm < 1e-9 < fit.rms_fap_only_mm
+    corrective = Corrective.from_fit("nose_detail", fit)
+    layer = CorrectiveLayer(rig.faps, [corrective])
+    try:
+        rig.add_layer(layer)
+        rig.set_faps({n: v for n, v in zip(fit.fitted, fit.values[[n - 1 for n in fit.fitted]])})
+        assert layer.weights()[0] == pytest.approx(1.0)
+        np.testing.assert_allclose(rig.vertices(), rest + fap_part + detail, atol=1e-6)
+        twin = rig.copy()                                         # the copy's corrective follows the copy's FAPs
+        twin.reset_faps()
+        np.testing.assert_array_equal(twin.vertices(), rest)
+        np.testing.assert_allclose(rig.vertices(), rest + fap_part + detail, atol=1e-6)
+    finally:
+        rig.remove_layer("correctives")
+        rig.reset()
