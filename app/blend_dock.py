@@ -1,0 +1,218 @@
+"""blend_dock.py
+----
+The expression-blend dock (thesis A ch. 4): a slider per pose of the face's expression library
+(``blend:<pose>``, in %), the caricature slider when the library has a mean face, and the
+library's files.
+
+* Rows: the shared :class:`app.parameter_row.ParameterRow` of each key; edits go to
+  ``rig.set_values`` (undo steps and timeline keys come from the rig's events, as for every layer);
+  the rows follow ``rig.parameters_changed`` with their signals blocked.
+* "Built-in": the default face's library (``core.layers.blend.builtin``), on the default face or
+  its registered canonical face. "Open…" reads a library (.json + .npz); a file that does not fit
+  the face shows its message and changes nothing. "Save…" writes the current library.
+* The library becomes the rig's ``blend`` layer (``BlendLayer``); the rows are rebuilt for it.
+
+``BlendDock(document, window)`` joins the window's right dock area, tabified with the FAP dock.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+from PySide6.QtCore import QSignalBlocker, Qt
+from PySide6.QtWidgets import (QDockWidget, QFileDialog, QHBoxLayout, QLabel, QMessageBox, QPushButton, QScrollArea,
+                               QVBoxLayout, QWidget)
+
+from app.parameter_row import ParameterRow, align_rows
+
+NO_LIBRARY = "No expression library on this face. Use the built-in one (default face) or open a library file."
+
+
+class BlendDock(QDockWidget):
+    """The blend dock (see the module docstring)."""
+
+    def __init__(self, document=None, window=None):
+        super().__init__("Blends", window)
+        self.setObjectName("blendDock")
+        self.setAllowedAreas(Qt.DockWidgetArea.LeftDockWidgetArea | Qt.DockWidgetArea.RightDockWidgetArea)
+        self.document = document
+        self.window_ = window
+        self.rig = None
+        self.rows: dict[str, ParameterRow] = {}
+        body = QWidget(self)
+        outer = QVBoxLayout(body)
+        self.info_label = QLabel(NO_LIBRARY, body)
+        self.info_label.setWordWrap(True)
+        outer.addWidget(self.info_label)
+        buttons = QHBoxLayout()
+        self.builtin_button = QPushButton("Built-in", body)
+        self.builtin_button.setToolTip("Use the default face's built-in library (6 expressions, 14 visemes)")
+        self.open_button = QPushButton("Open…", body)
+        self.save_button = QPushButton("Save…", body)
+        self.reset_button = QPushButton("Reset", body)
+        self.reset_button.setToolTip("Put every blend weight (and the caricature) back to 0 %")
+        for b in (self.builtin_button, self.open_button, self.save_button, self.reset_button):
+            buttons.addWidget(b)
+        outer.addLayout(buttons)
+        self.rows_widget = QWidget(body)
+        self.rows_layout = QVBoxLayout(self.rows_widget)
+        self.rows_layout.setContentsMargins(0, 0, 0, 0)
+        scroll = QScrollArea(body)
+        scroll.setWidgetResizable(True)
+        scroll.setWidget(self.rows_widget)
+        outer.addWidget(scroll, 1)
+        self.setWidget(body)
+        self.builtin_button.clicked.connect(self.use_builtin)
+        self.open_button.clicked.connect(lambda: self.open_library())
+        self.save_button.clicked.connect(lambda: self.save_library())
+        self.reset_button.clicked.connect(self.reset)
+        if document is not None:
+            document.rig_changed.connect(lambda _rig: self.follow_document())
+            document.face_changed.connect(lambda _face: self.follow_document())
+        if window is not None:
+            window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self)
+            fap_dock = getattr(window, "fap_dock", None)
+            if fap_dock is not None:
+                window.tabifyDockWidget(fap_dock, self)
+                fap_dock.raise_()
+            if getattr(window, "view_menu", None) is not None:
+                self.toggleViewAction().setText("&Blends")
+                window.view_menu.addAction(self.toggleViewAction())
+        self.follow_document()
+
+    # ------------------------------------------------------------ the rig and its layer
+    @property
+    def layer(self):
+        return None if self.rig is None else self.rig.layer("blend")
+
+    def follow_document(self) -> None:
+        rig = None if self.document is None else self.document.rig
+        if rig is not self.rig:
+            if self.rig is not None:
+                with contextlib.suppress(Exception):
+                    self.rig.parameters_changed.disconnect(self._on_parameters)
+            self.rig = rig
+            if rig is not None:
+                rig.parameters_changed.connect(self._on_parameters)
+        self._rebuild()
+
+    def set_library(self, library) -> None:
+        """Make ``library`` the rig's blend layer (raises LibraryError, changing nothing, if it does
+        not fit the face)."""
+        from core.layers.blend.layer import BlendLayer
+
+        if self.rig is None:
+            raise ValueError("No face is loaded yet: open a face first.")
+        layer = BlendLayer(self.rig.face, library, correspondence=self._correspondence(library))
+        self.rig.add_layer(layer)
+        self._rebuild()
+
+    def _correspondence(self, library):
+        if self.rig.face.n_vertices == library.n_vertices:
+            return None
+        from core.layers.blend.builtin import builtin_library_for
+
+        found = builtin_library_for(self.rig.face)
+        if found is not None and found[0].n_vertices == library.n_vertices:
+            return found[1]
+        return None
+
+    def use_builtin(self) -> bool:
+        from core.layers.blend.builtin import builtin_library_for
+
+        if self.rig is None:
+            return self._message("No face is loaded yet.")
+        found = builtin_library_for(self.rig.face)
+        if found is None:
+            return self._message("The built-in library belongs to the default face; for another face, register "
+                                 "it and transfer a library onto it.")
+        self.set_library(found[0])
+        return True
+
+    def open_library(self, path: str | None = None) -> bool:
+        from core.formats.blend_library import read_library
+        from core.layers.blend.library import LibraryError
+
+        if path is None:
+            path, _ = QFileDialog.getOpenFileName(self, "Open expression library", "", "Expression library (*.json)")
+            if not path:
+                return False
+        try:
+            self.set_library(read_library(path))
+        except (LibraryError, ValueError) as exc:
+            return self._message(str(exc))
+        return True
+
+    def save_library(self, path: str | None = None) -> bool:
+        from core.formats.blend_library import write_library
+
+        layer = self.layer
+        if layer is None or not layer.library.names:
+            return self._message("There is no expression library to save.")
+        if path is None:
+            path, _ = QFileDialog.getSaveFileName(self, "Save expression library", "", "Expression library (*.json)")
+            if not path:
+                return False
+        try:
+            write_library(layer.library, path)
+        except (OSError, ValueError) as exc:
+            return self._message(str(exc))
+        return True
+
+    def reset(self) -> None:
+        if self.layer is not None and self.layer.parameters():
+            self.rig.reset(self.layer.parameters())
+
+    # ------------------------------------------------------------ rows
+    def _rebuild(self) -> None:
+        for row in self.rows.values():
+            row.setParent(None)
+            row.deleteLater()
+        self.rows = {}
+        layer = self.layer
+        keys = () if layer is None else layer.parameters()
+        if not keys:
+            self.info_label.setText(NO_LIBRARY)
+        else:
+            lib = layer.library
+            how = f", transferred ({lib.transfer})" if lib.transfer else ""
+            self.info_label.setText(f"{len(lib.names)} poses of {lib.base or 'a person'}{how}; "
+                                    f"template {lib.template}, {lib.n_vertices} vertices")
+        for key in keys:
+            row = ParameterRow(key, self.rows_widget)
+            row.edited.connect(self._row_edited)
+            row.reset_requested.connect(lambda k: self._apply({k: 0.0}))
+            row.show_value(self.rig.value(key))
+            self.rows_layout.addWidget(row)
+            self.rows[key] = row
+        self.rows_layout.addStretch(1)
+        if self.rows:
+            align_rows(self.rows.values())
+        self.save_button.setEnabled(bool(keys))
+        self.reset_button.setEnabled(bool(keys))
+
+    def _row_edited(self, key: str, value: float) -> None:
+        self._apply({key: value})
+
+    def _apply(self, values) -> None:
+        if self.rig is None:
+            return
+        try:
+            self.rig.set_values(values)
+        except ValueError as exc:
+            self._message(str(exc))
+            self._on_parameters(None)
+
+    def _on_parameters(self, change) -> None:
+        keys = self.rows if change is None else [k for k in change.values if k in self.rows]
+        for key in keys:
+            row = self.rows[key]
+            with QSignalBlocker(row):
+                row.show_value(self.rig.value(key))
+
+    def _message(self, text: str) -> bool:
+        if self.window_ is not None and self.isVisible():
+            QMessageBox.warning(self, "Expression library", text)
+        else:
+            self.info_label.setText(text)
+        return False

@@ -1,0 +1,171 @@
+"""The built-in expression library of the default face, and its builder.
+
+Made through the real pipeline, not copied from the FAP presets' displacements:
+
+1. the default face is posed by each preset (the six expressions of FAP 2 and the 14 visemes of
+   FAP 1, at full intensity) and *scanned* by the virtual scanner with the synthetic database's
+   settings (``core.registration.synthetic.SCAN_SETTINGS``: depth noise, pose jitter, resampling);
+2. each scan is landmarked automatically (``detect_landmarks``, template mpeg4_80); when the
+   detection reports trouble or lands far from the scanner's known truth, the scan's ground-truth
+   landmarks stand in for the user's correction in the picker, and the summary says which;
+3. each scan is registered (``register_scan``: subdivision + projection onto the scan), aligned
+   rigidly onto the registered default face, and D_k = pose − neutral (``build_library``).
+
+The neutral is the default face itself registered with its own landmarks, so the library's rest
+(4560 vertices, template mpeg4_80) is in the default face's frame. The default face (53k vertices)
+uses it through :func:`builtin_library_for`, which binds its vertices to that canonical face.
+
+Build: ``python -m core.layers.blend.builtin`` writes ``resources/blend/default_face.json`` + ``.npz``.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+
+import numpy as np
+
+from core.layers.blend.library import ExpressionLibrary, build_library
+
+__all__ = ["RESOURCE", "builtin_library", "builtin_library_for", "build_builtin_library", "main"]
+
+RESOURCE = "blend/default_face.json"
+TEMPLATE = "mpeg4_80"
+LANDMARK_TOLERANCE_MM = 3.0   # a detected landmark further than this from the truth counts as "needed correction"
+
+
+@functools.lru_cache(maxsize=1)
+def builtin_library() -> ExpressionLibrary | None:
+    """The built-in library (None when the resource is not installed)."""
+    import resources
+    from core.formats.blend_library import read_library
+
+    try:
+        p = resources.path(RESOURCE)
+    except FileNotFoundError:
+        return None
+    return read_library(p, template=TEMPLATE)
+
+
+@functools.lru_cache(maxsize=2)
+def _binding_for_default(key: str):
+    from core.default_face import load_default_face
+    from core.face import Face
+    from core.registration.correspondence import bind_scan, canonical_triangles
+
+    lib = builtin_library()
+    canonical = Face(lib.rest, canonical_triangles(TEMPLATE))
+    return bind_scan(load_default_face(), canonical)
+
+
+def builtin_library_for(face):
+    """(library, correspondence or None) of the built-in library for ``face``, or None when it does
+    not fit: the default face (bound to the library's canonical face) or that canonical face itself."""
+    lib = builtin_library()
+    if lib is None:
+        return None
+    v = np.asarray(face.vertices)
+    if v.shape == lib.rest.shape and np.allclose(v, lib.rest, atol=1e-3):
+        return lib, None
+    from core.default_face import load_default_face
+
+    default = load_default_face()
+    if v.shape == default.vertices.shape and np.array_equal(v, default.vertices):
+        return lib, _binding_for_default("default")
+    return None
+
+
+def _scan_and_register(rig, preset: str, name, index: int, report, *, detect: bool = True):
+    from core.registration.pipeline import detect_landmarks, register_scan
+    from core.registration.synthetic import SCAN_SETTINGS
+    from core.registration.virtual_scanner import scan_face
+
+    rig.reset_faps()
+    if preset == "expression":
+        rig.set_expression(name, 1.0)
+    else:
+        rig.set_viseme(name, 1.0)
+    verts = np.array(rig.vertices())
+    rig.reset_faps()
+    rig.set_expression(None, 0.0)
+    rig.set_viseme(None, 0.0)
+    result = scan_face(rig.face, vertices=verts, rng=np.random.default_rng([16, index]), **SCAN_SETTINGS)
+    scan = result.face
+    truth = {n: scan.landmark_position(n) for n in scan.landmark_names}
+    landmarks = truth
+    note = "ground-truth landmarks"
+    if detect:
+        try:
+            det = detect_landmarks(scan, template=TEMPLATE)
+            found = {n: np.asarray(p, float) for n, p in _positions(scan, det.landmarks).items()}
+            far = [n for n in found if n in truth and np.linalg.norm(found[n] - truth[n]) > LANDMARK_TOLERANCE_MM]
+            from core.registration.templates import get_template
+
+            missing = [n for n in get_template(TEMPLATE).base.feature_points if n not in found and n in truth]
+            if far or missing:
+                landmarks = {**found, **{n: truth[n] for n in far + missing}}
+                note = f"automatic; {len(far) + len(missing)} landmark(s) corrected ({', '.join((far + missing)[:6])})"
+            else:
+                landmarks = found
+                note = "automatic, no correction"
+        except Exception as exc:  # noqa: BLE001 - a failed detection is corrected by hand (the truth)
+            note = f"automatic detection failed ({exc}); all landmarks corrected"
+    reg = register_scan(scan, landmarks, template=TEMPLATE)
+    report(f"{preset} {name}: {note}; {reg.fallbacks} projection fallbacks")
+    return reg.face
+
+
+def _positions(scan, landmarks) -> dict:
+    from core.registration.correspondence import landmark_positions_on
+
+    return landmark_positions_on(scan, dict(landmarks))
+
+
+def build_builtin_library(*, detect: bool = True, report=print) -> ExpressionLibrary:
+    """Scan, landmark, register the default face's 6 expressions and 14 visemes; the library."""
+    from core.default_face import load_default_face
+    from core.layers.fap import tables
+    from core.registration.pipeline import register_scan
+    from core.rig import FaceRig
+
+    face = load_default_face()
+    neutral = register_scan(face, face.landmarks, template=TEMPLATE).face
+    rig = FaceRig(face)
+    poses = {}
+    index = 0
+    for name in tables.expression_names()[1:]:
+        index += 1
+        poses[name] = _scan_and_register(rig, "expression", name, index, report, detect=detect)
+    for vid in range(1, len(tables.viseme_phonemes())):
+        index += 1
+        poses[f"viseme_{vid}"] = _scan_and_register(rig, "viseme", vid, index, report, detect=detect)
+    return build_library(neutral, poses, template=TEMPLATE,
+                         base="default face (virtual scans, registered with mpeg4_80)")
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    import resources
+    from core.formats.blend_library import write_library
+
+    parser = argparse.ArgumentParser(description="Build the default face's built-in expression library.")
+    parser.add_argument("--no-detect", action="store_true", help="use the scans' ground-truth landmarks")
+    parser.add_argument("--out", default=None, help="output .json (default: resources/blend/default_face.json)")
+    args = parser.parse_args(argv)
+    t0 = time.perf_counter()
+    lib = build_builtin_library(detect=not args.no_detect)
+    out = args.out
+    if out is None:
+        from pathlib import Path
+
+        out = Path(str(resources._ROOT)) / RESOURCE
+        out.parent.mkdir(parents=True, exist_ok=True)
+    path = write_library(lib, out)
+    print(f"wrote {path} ({len(lib.names)} poses, {lib.n_vertices} vertices) in {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
