@@ -493,6 +493,9 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self.landmark_editor = self.landmark_dock.editor
         self.muscle_dock = MuscleDock(self.document, self)
         self.timeline_dock = TimelineDock(self.document, self)   # registers document.timeline / .project
+        from app.blend_dock import BlendDock
+
+        self.blend_dock = BlendDock(self.document, self)         # expression library: poses, caricature
         # The timeline starts tall enough to show a few tracks.
         self.resizeDocks([self.timeline_dock], [260], Qt.Orientation.Vertical)
         self.landmark_dock.detect_requested.connect(self.detect_landmarks)

@@ -1,0 +1,58 @@
+"""The blend dock: the built-in library on the default face, a row per pose driving the rig, undo and
+timeline keys through the rig's events, a bad library file refused without changing anything."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture
+def win(qtbot, settings, error_boxes, default_face, deformer):
+    from app.main_window import MainWindow
+    from core.rig import FaceRig
+
+    w = MainWindow(settings=settings, load_default=False)
+    qtbot.addWidget(w)
+    w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
+    w.show()
+    qtbot.waitExposed(w)
+    yield w
+    w.close()
+
+
+def test_blend_dock_drives_the_rig_keys_undoes_and_refuses_bad_files(qtbot, win, tmp_path, error_boxes):
+    from app.undo import gestures
+
+    dock, rig, stack = win.blend_dock, win.rig, win.undo_stack
+    assert not dock.rows
+    assert dock.use_builtin()
+    assert "blend:joy" in dock.rows and "blend:viseme_1" in dock.rows
+    neutral = np.array(rig.vertices())
+    gestures().new()
+    dock.rows["blend:joy"].edited.emit("blend:joy", 80.0)
+    assert rig.value("blend:joy") == 80.0
+    assert np.abs(np.array(rig.vertices()) - neutral).max() > 3.0      # the mouth moved by millimetres
+    assert stack.undoText() == "joy"
+    stack.undo()
+    assert rig.value("blend:joy") == 0.0 and dock.rows["blend:joy"].value == 0.0
+    np.testing.assert_allclose(rig.vertices(), neutral, atol=1e-12)
+    # a key on the timeline like any parameter
+    c = win.timeline
+    c.seek(0.0)
+    rig.set_values({"blend:surprise": 100.0})
+    c.set_key(["blend:surprise"])
+    assert c.timeline.track("blend:surprise").values.tolist() == [100.0]
+    # save, damage, reopen: refused with the file's message, the layer unchanged
+    path = tmp_path / "lib.json"
+    assert dock.save_library(str(path))
+    head = json.loads(path.read_text())
+    head["vertex_count"] = 12
+    path.write_text(json.dumps(head))
+    before = rig.layer("blend")
+    assert not dock.open_library(str(path))
+    assert rig.layer("blend") is before
+    assert rig.value("blend:surprise") == 100.0
+    assert error_boxes and "vertex_count" in error_boxes[-1][1]
