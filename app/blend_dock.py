@@ -110,19 +110,16 @@ class BlendDock(QDockWidget):
     def _correspondence(self, library):
         if self.rig.face.n_vertices == library.n_vertices:
             return None
-        from core.layers.blend.builtin import builtin_library_for
+        from core.layers.blend.builtin import rig_correspondence
 
-        found = builtin_library_for(self.rig.face)
-        if found is not None and found[0].n_vertices == library.n_vertices:
-            return found[1]
-        return None
+        return rig_correspondence(getattr(self.rig, "deformer", None), library.n_vertices)
 
     def use_builtin(self) -> bool:
         from core.layers.blend.builtin import builtin_library_for
 
         if self.rig is None:
             return self._message("No face is loaded yet.")
-        found = builtin_library_for(self.rig.face)
+        found = builtin_library_for(self.rig.face, getattr(self.rig, "deformer", None))
         if found is None:
             return self._message("The built-in library belongs to the default face; for another face, register "
                                  "it and transfer a library onto it.")

@@ -24,8 +24,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     from app.render import render_face_png
 
-    if args.fap or args.expression or args.viseme or args.muscles or args.jaw is not None:
-        face = face.with_vertices(posed_vertices(face, rig_values(args)))
+    values = {**rig_values(args), **blend_values(args)}
+    if values:
+        face = face.with_vertices(posed_vertices(face, values))
     try:
         render_face_png(face, out, view=args.view, size=args.size, mode=args.mode,
                         show_landmarks=args.landmarks)
@@ -33,6 +34,26 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"cannot write {out}: {exc.strerror or exc}") from None
     print(f"wrote {out} ({args.size[0]}x{args.size[1]}, {args.view}, {args.mode})")
     return 0
+
+
+def blend_values(args) -> dict[str, float]:
+    """{key: %} of --blend POSE[:PERCENT] (repeatable; 100 % when no percent) and --caricature PERCENT."""
+    from core import parameters as P
+
+    values: dict[str, float] = {}
+    for item in getattr(args, "blend", None) or []:
+        name, _, percent = item.partition(":")
+        try:
+            key = P.key_of(f"blend:{name.strip()}")
+            values[key] = P.check_value(key, float(percent) if percent.strip() else 100.0)
+        except (P.ParameterError, ValueError) as exc:
+            raise CliError(f"--blend {item!r}: {exc}; write POSE or POSE:PERCENT, e.g. --blend joy:80") from None
+    if getattr(args, "caricature", None) is not None:
+        try:
+            values["caricature"] = P.check_value("caricature", args.caricature)
+        except P.ParameterError as exc:
+            raise CliError(f"--caricature: {exc}") from None
+    return values
 
 
 def posed_vertices(face, values: dict[str, float]) -> np.ndarray:
@@ -88,4 +109,9 @@ def add_parser(sub) -> None:
                      help="a preset (discreet_smile, half_smile, sadness, disgust, kiss) or forces such as "
                           "risorius=42,zygomatic_major:left=9 (no side = both sides)")
     bio.add_argument("--jaw", type=float, metavar="DEG", help="jaw rotation in degrees (opens the mouth)")
+    blend = p.add_argument_group("expression blends (the face's expression library; the default face has a built-in one)")
+    blend.add_argument("--blend", action="append", default=[], metavar="POSE[:PERCENT]",
+                       help="add a library pose, e.g. joy:80 or viseme_10 (repeatable; 100 %% without a percent)")
+    blend.add_argument("--caricature", type=float, metavar="PERCENT",
+                       help="exaggerate the face's difference from the library's mean face (-100 = the mean)")
     p.set_defaults(func=run)

@@ -300,3 +300,33 @@ def test_fap_fit_recovers_known_values_and_the_corrective_restores_the_scan(defa
     finally:
         rig.remove_layer("correctives")
         rig.reset()
+
+
+# ------------------------------------------------------------------ the built-in library
+def test_builtin_library_on_the_default_face_through_a_project(default_rig, tmp_path):
+    from core.formats.project import FaceRef, Project, load_project, save_project
+    from core.layers.blend.builtin import builtin_library
+    from core.rig import FaceRig
+
+    lib = builtin_library()
+    assert lib is not None and lib.template == "mpeg4_80" and lib.n_vertices == 4560
+    assert {"joy", "surprise", "viseme_1", "viseme_14"} <= set(lib.names)
+    rig = default_rig
+    rig.reset()
+    try:
+        assert rig.ensure_layers(["blend:joy"]) == ["blend"]            # the registered factory finds it
+        rig.set_values({"blend:joy": 80.0})
+        moved = np.linalg.norm(np.array(rig.vertices()) - rig.face.vertices, axis=1)
+        assert 5.0 < moved.max() < 40.0                                   # the mouth opens by millimetres
+        for part in ("eyeball_l", "eyeball_r", "teeth_upper"):
+            assert moved[rig.face.parts[part]].max() == 0.0               # parts that stay with the skull
+        path = tmp_path / "blend.mimica"
+        save_project(path, Project.from_state(rig.face, FaceRef.default_face(), rig))
+        assert '"blend:joy": 80.0' in path.read_text(encoding="utf-8")
+        fresh = FaceRig(rig.face, rig.deformer)
+        assert load_project(path).rig.apply(fresh) == {}
+        assert fresh.value("blend:joy") == 80.0
+        np.testing.assert_array_equal(fresh.vertices(), rig.vertices())
+    finally:
+        rig.remove_layer("blend")
+        rig.reset()

@@ -9,7 +9,13 @@ Made through the real pipeline, not copied from the FAP presets' displacements:
    detection reports trouble or lands far from the scanner's known truth, the scan's ground-truth
    landmarks stand in for the user's correction in the picker, and the summary says which;
 3. each scan is registered (``register_scan``: subdivision + projection onto the scan), aligned
-   rigidly onto the registered default face, and D_k = pose − neutral (``build_library``).
+   rigidly onto the registered default face, and D_k = pose − neutral (``build_library``);
+4. the mean face (for the ``caricature`` slider) is the mean of the registered neutral default face
+   and synthetic identities 1..8 of the protocol database (``core.registration.synthetic``).
+
+Known defect: in open-mouth poses the inner-lip landmarks (2.2, 2.3) are hidden from the scanner and
+land on the teeth or the mouth floor, so the registered inner lower lip is pulled down by up to
+~20 mm (joy, surprise): a little of the lower teeth shows through the lower lip.
 
 The neutral is the default face itself registered with its own landmarks, so the library's rest
 (4560 vertices, template mpeg4_80) is in the default face's frame. The default face (53k vertices)
@@ -48,20 +54,75 @@ def builtin_library() -> ExpressionLibrary | None:
     return read_library(p, template=TEMPLATE)
 
 
-@functools.lru_cache(maxsize=2)
-def _binding_for_default(key: str):
-    from core.default_face import load_default_face
+#: Parts that do not follow the skin: eyeballs and upper teeth stay with the skull, the mouth cavity
+#: stays (the lips open over it); the lower teeth follow the chin (see :func:`bind_face`).
+STILL_PARTS = ("eyeball_l", "eyeball_r", "teeth_upper", "mouth_cavity")
+CHIN_POINT, CHIN_RADIUS_MM = "2.10", 12.0
+
+
+def _lower_teeth_rows(m, parts, canonical_vertices, template: str):
+    """Rows of ``m`` (lil) for the lower teeth: the mean of the canonical vertices near the chin."""
+    from core.registration.templates import get_template
+
+    lower = parts.get("teeth_lower", ())
+    if len(lower):
+        chin = canonical_vertices[get_template(template).base.index(CHIN_POINT)]
+        jaw = np.flatnonzero(np.linalg.norm(canonical_vertices - chin, axis=1) < CHIN_RADIUS_MM)
+        for i in lower:
+            m.rows[i], m.data[i] = list(jaw), [1.0 / len(jaw)] * len(jaw)
+    return m
+
+
+def rig_correspondence(deformer, n_library: int, template: str = TEMPLATE):
+    """(n_face, N) sparse map from canonical vertices to the face's, from the face's FAP deformer:
+    its dense template *is* the face's canonical face (same template, same subdivision), and its
+    binding already keeps upper and lower lips apart and leaves the eyeballs, teeth and mouth cavity
+    alone; the lower teeth are added to follow the chin. None when the deformer's dense template is
+    not of ``template`` with ``n_library`` vertices."""
+    import scipy.sparse
+
+    from core.registration.correspondence import canonical_triangles
+
+    dense = getattr(deformer, "dense", None)
+    binding = getattr(deformer, "binding", None)
+    if dense is None or binding is None or len(dense.vertices) != n_library:
+        return None
+    if not np.array_equal(dense.triangles, canonical_triangles(template)):
+        return None
+    m = _lower_teeth_rows(binding.tolil(copy=True), getattr(deformer.face, "parts", {}) or {}, dense.vertices, template)
+    return scipy.sparse.csr_matrix(m)
+
+
+def bind_face(face, canonical_vertices, template: str = TEMPLATE):
+    """(n_face, N) sparse map from a registered canonical face's vertices (N, 3) mm to ``face``'s
+    when no FAP deformer is at hand: skin vertices move with their closest canonical surface point
+    (``bind_scan``; lips that touch may catch each other's motion), the parts in
+    :data:`STILL_PARTS` do not move, the lower teeth follow the chin."""
+    import scipy.sparse
+
     from core.face import Face
     from core.registration.correspondence import bind_scan, canonical_triangles
 
-    lib = builtin_library()
-    canonical = Face(lib.rest, canonical_triangles(TEMPLATE))
-    return bind_scan(load_default_face(), canonical)
+    canonical = Face(np.asarray(canonical_vertices, float), canonical_triangles(template))
+    m = bind_scan(face, canonical).matrix.tolil()
+    parts = getattr(face, "parts", {}) or {}
+    for name in STILL_PARTS:
+        for i in parts.get(name, ()):
+            m.rows[i], m.data[i] = [], []
+    return scipy.sparse.csr_matrix(_lower_teeth_rows(m, parts, canonical.vertices, template))
 
 
-def builtin_library_for(face):
+@functools.lru_cache(maxsize=2)
+def _binding_for_default(key: str):
+    from core.default_face import load_default_face
+
+    return bind_face(load_default_face(), builtin_library().rest)
+
+
+def builtin_library_for(face, deformer=None):
     """(library, correspondence or None) of the built-in library for ``face``, or None when it does
-    not fit: the default face (bound to the library's canonical face) or that canonical face itself."""
+    not fit: the default face (through its FAP ``deformer``'s binding when given, else bound to the
+    library's canonical face) or that canonical face itself."""
     lib = builtin_library()
     if lib is None:
         return None
@@ -72,7 +133,8 @@ def builtin_library_for(face):
 
     default = load_default_face()
     if v.shape == default.vertices.shape and np.array_equal(v, default.vertices):
-        return lib, _binding_for_default("default")
+        m = rig_correspondence(deformer, lib.n_vertices) if deformer is not None else None
+        return lib, (m if m is not None else _binding_for_default("default"))
     return None
 
 
@@ -122,8 +184,9 @@ def _positions(scan, landmarks) -> dict:
     return landmark_positions_on(scan, dict(landmarks))
 
 
-def build_builtin_library(*, detect: bool = True, report=print) -> ExpressionLibrary:
-    """Scan, landmark, register the default face's 6 expressions and 14 visemes; the library."""
+def build_builtin_library(*, detect: bool = True, mean_people: int = 8, report=print) -> ExpressionLibrary:
+    """Scan, landmark, register the default face's 6 expressions and 14 visemes; the library, with
+    the mean face of the default face and ``mean_people`` synthetic identities (caricatures)."""
     from core.default_face import load_default_face
     from core.layers.fap import tables
     from core.registration.pipeline import register_scan
@@ -140,7 +203,18 @@ def build_builtin_library(*, detect: bool = True, report=print) -> ExpressionLib
     for vid in range(1, len(tables.viseme_phonemes())):
         index += 1
         poses[f"viseme_{vid}"] = _scan_and_register(rig, "viseme", vid, index, report, detect=detect)
-    return build_library(neutral, poses, template=TEMPLATE,
+    mean = None
+    if mean_people > 0:
+        from core.layers.blend.caricature import mean_face
+        from core.registration.synthetic import synthetic_scan
+
+        faces = [neutral.vertices]
+        for person in range(1, int(mean_people) + 1):
+            scan = synthetic_scan(person, "neutral")
+            faces.append(register_scan(scan, scan.landmarks, template=TEMPLATE).face.vertices)
+        mean = mean_face(faces)          # in the first face's (the default face's) frame
+        report(f"mean face: the default face and synthetic people 1..{mean_people} (registered neutrals)")
+    return build_library(neutral, poses, template=TEMPLATE, mean=mean,
                          base="default face (virtual scans, registered with mpeg4_80)")
 
 
@@ -152,10 +226,11 @@ def main(argv=None) -> int:
 
     parser = argparse.ArgumentParser(description="Build the default face's built-in expression library.")
     parser.add_argument("--no-detect", action="store_true", help="use the scans' ground-truth landmarks")
+    parser.add_argument("--mean-people", type=int, default=8, help="synthetic identities in the mean face (default 8)")
     parser.add_argument("--out", default=None, help="output .json (default: resources/blend/default_face.json)")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    lib = build_builtin_library(detect=not args.no_detect)
+    lib = build_builtin_library(detect=not args.no_detect, mean_people=args.mean_people)
     out = args.out
     if out is None:
         from pathlib import Path

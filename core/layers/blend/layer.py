@@ -87,7 +87,7 @@ class BlendLayer(ValueLayer):
             from core.layers.blend.builtin import builtin_library_for
         except ImportError:
             return cls(rig.face)
-        found = builtin_library_for(rig.face)
+        found = builtin_library_for(rig.face, getattr(rig, "deformer", None))
         return cls(rig.face) if found is None else cls(rig.face, found[0], correspondence=found[1])
 
     @property
