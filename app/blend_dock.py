@@ -39,6 +39,7 @@ class BlendDock(QDockWidget):
         self.window_ = window
         self.rig = None
         self.rows: dict[str, ParameterRow] = {}
+        self._source = None   # the library the current one was transferred from (or itself)
         body = QWidget(self)
         outer = QVBoxLayout(body)
         self.info_label = QLabel(NO_LIBRARY, body)
@@ -49,9 +50,12 @@ class BlendDock(QDockWidget):
         self.builtin_button.setToolTip("Use the default face's built-in library (6 expressions, 14 visemes)")
         self.open_button = QPushButton("Open…", body)
         self.save_button = QPushButton("Save…", body)
+        self.transfer_button = QPushButton("Transfer…", body)
+        self.transfer_button.setToolTip("Move the library's poses onto this face: the thesis's bounding-box scaling "
+                                        "or deformation transfer (adapts to the face's local shape)")
         self.reset_button = QPushButton("Reset", body)
         self.reset_button.setToolTip("Put every blend weight (and the caricature) back to 0 %")
-        for b in (self.builtin_button, self.open_button, self.save_button, self.reset_button):
+        for b in (self.builtin_button, self.open_button, self.save_button, self.transfer_button, self.reset_button):
             buttons.addWidget(b)
         outer.addLayout(buttons)
         self.rows_widget = QWidget(body)
@@ -66,6 +70,7 @@ class BlendDock(QDockWidget):
         self.open_button.clicked.connect(lambda: self.open_library())
         self.save_button.clicked.connect(lambda: self.save_library())
         self.reset_button.clicked.connect(self.reset)
+        self.transfer_button.clicked.connect(lambda: self.transfer())
         if document is not None:
             document.rig_changed.connect(lambda _rig: self.follow_document())
             document.face_changed.connect(lambda _face: self.follow_document())
@@ -94,17 +99,20 @@ class BlendDock(QDockWidget):
             self.rig = rig
             if rig is not None:
                 rig.parameters_changed.connect(self._on_parameters)
+            self._source = None
         self._rebuild()
 
-    def set_library(self, library) -> None:
+    def set_library(self, library, *, source=None) -> None:
         """Make ``library`` the rig's blend layer (raises LibraryError, changing nothing, if it does
-        not fit the face)."""
+        not fit the face). ``source``: the library it was transferred from (what Transfer starts
+        from next time; default ``library`` itself)."""
         from core.layers.blend.layer import BlendLayer
 
         if self.rig is None:
             raise ValueError("No face is loaded yet: open a face first.")
         layer = BlendLayer(self.rig.face, library, correspondence=self._correspondence(library))
         self.rig.add_layer(layer)
+        self._source = source if source is not None else library
         self._rebuild()
 
     def _correspondence(self, library):
@@ -153,6 +161,40 @@ class BlendDock(QDockWidget):
         try:
             write_library(layer.library, path)
         except (OSError, ValueError) as exc:
+            return self._message(str(exc))
+        return True
+
+    def transfer(self, method: str | None = None, library=None) -> bool:
+        """Transfer ``library`` (default: the current one, else the built-in one) onto this face's
+        canonical face (its FAP rig's dense template) by ``method`` ("bbox" or "deformation"; asked
+        when None); the dock then says which method made the poses."""
+        from core.layers.blend.builtin import builtin_library, transferred_to
+        from core.layers.blend.library import LibraryError
+        from core.layers.blend.transfer import METHODS
+
+        if self.rig is None:
+            return self._message("No face is loaded yet.")
+        library = library or self._source or builtin_library()
+        if library is None:
+            return self._message("There is no expression library to transfer: open one first.")
+        if method is None:
+            from PySide6.QtWidgets import QInputDialog
+
+            labels = {"deformation": "Deformation transfer (adapts to the face's local shape)",
+                      "bbox": "Bounding-box scaling (thesis A eqs. 4.4–4.6)"}
+            text, ok = QInputDialog.getItem(self, "Transfer expressions", "Method:", [labels[m] for m in
+                                            ("deformation", "bbox")], 0, False)
+            if not ok:
+                return False
+            method = next(m for m, t in labels.items() if t == text)
+        if method not in METHODS:
+            return self._message(f"Unknown transfer method {method!r}.")
+        dense = getattr(getattr(self.rig, "deformer", None), "dense", None)
+        if dense is None or len(dense.vertices) != library.n_vertices:
+            return self._message(f"This face has no canonical face of template {library.template!r} to transfer onto.")
+        try:
+            self.set_library(transferred_to(library, dense.vertices, method), source=library)
+        except (LibraryError, ValueError) as exc:
             return self._message(str(exc))
         return True
 

@@ -56,3 +56,14 @@ def test_blend_dock_drives_the_rig_keys_undoes_and_refuses_bad_files(qtbot, win,
     assert rig.layer("blend") is before
     assert rig.value("blend:surprise") == 100.0
     assert error_boxes and "vertex_count" in error_boxes[-1][1]
+
+
+def test_blend_dock_transfers_and_says_which_method(qtbot, win):
+    dock = win.blend_dock
+    assert dock.transfer("bbox")
+    lib = win.rig.layer("blend").library
+    assert lib.transfer == "bbox" and "(bbox)" in dock.info_label.text()
+    assert dock.transfer("deformation")
+    assert "deformation" in dock.info_label.text()
+    win.rig.set_values({"blend:joy": 50.0})
+    assert np.abs(np.array(win.rig.vertices()) - win.face.vertices).max() > 2.0

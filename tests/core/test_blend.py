@@ -330,3 +330,18 @@ def test_builtin_library_on_the_default_face_through_a_project(default_rig, tmp_
     finally:
         rig.remove_layer("blend")
         rig.reset()
+
+
+def test_builtin_library_is_transferred_onto_another_rigged_face():
+    from core.layers.blend.builtin import builtin_library, transferred_to
+    from core.registration.correspondence import canonical_triangles
+
+    lib = builtin_library()
+    other = 1.1 * lib.rest + 3.0                                  # another (larger) person's canonical face
+    moved = transferred_to(lib, other, "deformation")
+    assert moved.transfer == "deformation" and moved.names == lib.names
+    np.testing.assert_array_equal(moved.rest, other)
+    bbox = transferred_to(lib, other, "bbox")
+    np.testing.assert_allclose(bbox.displacements, 1.1 * lib.displacements, atol=1e-9)
+    assert transferred_to(lib, lib.rest) is lib
+    assert canonical_triangles("mpeg4_80").max() + 1 == lib.n_vertices

@@ -119,10 +119,12 @@ def _binding_for_default(key: str):
     return bind_face(load_default_face(), builtin_library().rest)
 
 
-def builtin_library_for(face, deformer=None):
+def builtin_library_for(face, deformer=None, method: str = "deformation"):
     """(library, correspondence or None) of the built-in library for ``face``, or None when it does
     not fit: the default face (through its FAP ``deformer``'s binding when given, else bound to the
-    library's canonical face) or that canonical face itself."""
+    library's canonical face), that canonical face itself, or any face whose FAP ``deformer`` has an
+    mpeg4_80 dense template: the library is transferred onto it by ``method`` (its ``transfer``
+    field says which)."""
     lib = builtin_library()
     if lib is None:
         return None
@@ -135,7 +137,24 @@ def builtin_library_for(face, deformer=None):
     if v.shape == default.vertices.shape and np.array_equal(v, default.vertices):
         m = rig_correspondence(deformer, lib.n_vertices) if deformer is not None else None
         return lib, (m if m is not None else _binding_for_default("default"))
-    return None
+    m = rig_correspondence(deformer, lib.n_vertices) if deformer is not None else None
+    if m is None:
+        return None
+    # Another face with a FAP rig: its dense template is its canonical face; move the library onto it.
+    return transferred_to(lib, deformer.dense.vertices, method), m
+
+
+def transferred_to(library: ExpressionLibrary, canonical_vertices, method: str = "deformation") -> ExpressionLibrary:
+    """``library`` transferred (``core.layers.blend.transfer``) onto a canonical face (N, 3) mm of its
+    template; the library itself when that face is its rest already."""
+    from core.layers.blend.transfer import transfer_library
+    from core.registration.correspondence import canonical_triangles
+
+    v = np.asarray(canonical_vertices, float)
+    if method == "deformation" and v.shape == library.rest.shape and np.allclose(v, library.rest, atol=1e-3):
+        return library
+    return transfer_library(library, v, canonical_triangles(library.template if library.template != "custom"
+                                                            else TEMPLATE), method=method)
 
 
 def _scan_and_register(rig, preset: str, name, index: int, report, *, detect: bool = True):
