@@ -345,3 +345,26 @@ def test_builtin_library_is_transferred_onto_another_rigged_face():
     np.testing.assert_allclose(bbox.displacements, 1.1 * lib.displacements, atol=1e-9)
     assert transferred_to(lib, lib.rest) is lib
     assert canonical_triangles("mpeg4_80").max() + 1 == lib.n_vertices
+
+
+def test_a_persons_scans_become_a_library_with_a_summary(default_rig):
+    """Virtual scans of the default face (neutral, joy) through landmarks → registration → library."""
+    from core.layers.blend.scans import library_from_scans
+    from core.registration.virtual_scanner import scan_face
+
+    rig = default_rig
+    rig.reset()
+    neutral = scan_face(rig.face, noise_mm=0.05, rng=1).face
+    rig.set_expression("joy", 1.0)
+    joy = scan_face(rig.face, vertices=np.array(rig.vertices()), noise_mm=0.05, rng=2).face
+    rig.reset()
+    given = {"neutral": {n: neutral.landmarks[n] for n in neutral.landmark_names}}   # "corrected" by the user
+    lib, reports = library_from_scans(neutral, {"joy": joy}, landmarks=given, base="default face")
+    assert lib.names == ("joy",) and lib.n_vertices == 4560 and lib.template == "mpeg4_80"
+    assert [r.pose for r in reports] == ["neutral", "joy"]
+    assert reports[0].landmarks == "given" and reports[1].landmarks == "detected"
+    assert "joy: landmarks detected" in reports[1].line()
+    moved = np.linalg.norm(lib.displacements[0], axis=1)
+    assert 5.0 < moved.max() < 40.0 and np.median(moved) < 1.0     # the mouth moves, most of the face not
+    with pytest.raises(LibraryError, match="pose names"):
+        library_from_scans(neutral, {"Joy!": joy}, landmarks=given)

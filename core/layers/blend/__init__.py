@@ -6,5 +6,7 @@ transfer between faces, caricatures, and FAP correctives.
 - ``caricature``: mean face and exaggeration;
 - ``corrective``: FAP least-squares fit of a scan and the residual as a FAP-driven corrective;
 - ``layer``: :class:`BlendLayer`, the rig layer (keys ``blend:<pose>`` and ``caricature``);
+- ``scans``: a person's expression scans → landmarks → registration → library, with a per-scan summary;
+- ``builtin``: the default face's built-in library and its builder (``python -m core.layers.blend.builtin``);
 - ``parameters``: the parameter kinds; files: ``core.formats.blend_library``.
 """

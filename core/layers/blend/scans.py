@@ -1,0 +1,75 @@
+"""A person's expression scans → an expression library (issue 16 item 2, the core of the import).
+
+Each scan (a Face in mm) is landmarked automatically (``detect_landmarks``), unless the caller
+passes landmarks for it (the user's corrections from the landmark picker), registered to the
+template (``register_scan``: subdivision + projection), and the poses are aligned rigidly onto the
+neutral before their displacements are taken (``build_library``). The summary says, per scan,
+where its landmarks came from and which detected ones have low confidence (worth correcting in
+the picker before trusting the pose).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+from core.layers.blend.library import ExpressionLibrary, LibraryError, build_library, check_pose_name
+
+__all__ = ["ScanReport", "library_from_scans"]
+
+
+@dataclass(frozen=True)
+class ScanReport:
+    """One scan of the import: pose name ("neutral" for the rest), landmark source ("detected" or
+    "given"), low-confidence landmark names (detected only), projection fallbacks."""
+
+    pose: str
+    landmarks: str
+    low_confidence: tuple[str, ...] = ()
+    fallbacks: int = 0
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def needs_correction(self) -> bool:
+        return bool(self.low_confidence)
+
+    def line(self) -> str:
+        low = f"; check {len(self.low_confidence)} landmark(s): {', '.join(self.low_confidence[:8])}" \
+            if self.low_confidence else ""
+        return f"{self.pose}: landmarks {self.landmarks}{low}; {self.fallbacks} projection fallbacks"
+
+
+def library_from_scans(neutral, poses: Mapping[str, object], *, template: str = "mpeg4_80",
+                       landmarks: Mapping[str, Mapping] | None = None, base: str = "",
+                       progress: Callable[[float, str], None] | None = None
+                       ) -> tuple[ExpressionLibrary, list[ScanReport]]:
+    """(library, per-scan reports) from a neutral scan and {pose name: scan} (Faces in mm).
+
+    landmarks : {pose name or "neutral": {landmark: SurfacePoint or (3,) mm}} for scans whose
+        landmarks the user gave or corrected (not detected again).
+    Raises LibraryError (bad pose names) or the registration's own ValueErrors, naming the pose.
+    """
+    from core.registration.pipeline import detect_landmarks, register_scan
+
+    given = dict(landmarks or {})
+    names = [check_pose_name(n) for n in poses]
+    scans = [("neutral", neutral)] + list(zip(names, poses.values()))
+    faces, reports = {}, []
+    for i, (name, scan) in enumerate(scans):
+        if progress is not None:
+            progress(i / len(scans), f"registering {name}")
+        try:
+            if name in given:
+                lms, source, low = given[name], "given", ()
+            else:
+                det = detect_landmarks(scan, template=template)
+                lms, source, low = det.landmarks, "detected", tuple(det.low_confidence())
+            reg = register_scan(scan, lms, template=template)
+        except ValueError as exc:
+            raise LibraryError(f"scan of pose {name!r}: {exc}") from None
+        faces[name] = reg.face
+        reports.append(ScanReport(name, source, low, int(reg.fallbacks)))
+    if progress is not None:
+        progress(1.0, "building the library")
+    lib = build_library(faces["neutral"], {n: faces[n] for n in names}, template=template, base=base)
+    return lib, reports
