@@ -7,6 +7,10 @@ library's files.
 * Rows: the shared :class:`app.parameter_row.ParameterRow` of each key; edits go to
   ``rig.set_values`` (undo steps and timeline keys come from the rig's events, as for every layer);
   the rows follow ``rig.parameters_changed`` with their signals blocked.
+* "Displacement heat map" is the window's heat map (the FAP dock's box, kept in step): with one pose
+  at 100 % it shows that pose's displacement magnitude (thesis A Fig. 4.2).
+* "Transfer…": the library moved onto this face (bounding-box scaling or deformation transfer, asked);
+  the label names the method.
 * "Built-in": the default face's library (``core.layers.blend.builtin``), on the default face or
   its registered canonical face. "Open…" reads a library (.json + .npz); a file that does not fit
   the face shows its message and changes nothing. "Save…" writes the current library.
@@ -20,7 +24,7 @@ from __future__ import annotations
 import contextlib
 
 from PySide6.QtCore import QSignalBlocker, Qt
-from PySide6.QtWidgets import (QDockWidget, QFileDialog, QHBoxLayout, QLabel, QMessageBox, QPushButton, QScrollArea,
+from PySide6.QtWidgets import (QCheckBox, QDockWidget, QFileDialog, QHBoxLayout, QLabel, QMessageBox, QPushButton, QScrollArea,
                                QVBoxLayout, QWidget)
 
 from app.parameter_row import ParameterRow, align_rows
@@ -58,6 +62,10 @@ class BlendDock(QDockWidget):
         for b in (self.builtin_button, self.open_button, self.save_button, self.transfer_button, self.reset_button):
             buttons.addWidget(b)
         outer.addLayout(buttons)
+        self.heat_check = QCheckBox("Displacement heat map", body)
+        self.heat_check.setToolTip("Colour the face by how far each point moved from the neutral face, in mm "
+                                   "(a pose at 100 % alone shows that pose's displacement, thesis A Fig. 4.2)")
+        outer.addWidget(self.heat_check)
         self.rows_widget = QWidget(body)
         self.rows_layout = QVBoxLayout(self.rows_widget)
         self.rows_layout.setContentsMargins(0, 0, 0, 0)
@@ -80,6 +88,11 @@ class BlendDock(QDockWidget):
             if fap_dock is not None:
                 window.tabifyDockWidget(fap_dock, self)
                 fap_dock.raise_()
+            fap_heat = getattr(fap_dock, "heat_check", None)
+            if fap_heat is not None:   # one heat map (the window's overlay): the two boxes move together
+                self.heat_check.setChecked(fap_heat.isChecked())
+                self.heat_check.toggled.connect(fap_heat.setChecked)
+                fap_heat.toggled.connect(self.heat_check.setChecked)
             if getattr(window, "view_menu", None) is not None:
                 self.toggleViewAction().setText("&Blends")
                 window.view_menu.addAction(self.toggleViewAction())

@@ -67,3 +67,7 @@ def test_blend_dock_transfers_and_says_which_method(qtbot, win):
     assert "deformation" in dock.info_label.text()
     win.rig.set_values({"blend:joy": 50.0})
     assert np.abs(np.array(win.rig.vertices()) - win.face.vertices).max() > 2.0
+    dock.heat_check.setChecked(True)
+    assert win.fap_dock.heat_check.isChecked()
+    win.fap_dock.heat_check.setChecked(False)
+    assert not dock.heat_check.isChecked()
