@@ -42,9 +42,22 @@ def test_blend_dock_drives_the_rig_keys_undoes_and_refuses_bad_files(qtbot, win,
     # a key on the timeline like any parameter
     c = win.timeline
     c.seek(0.0)
+    c.set_key(["blend:surprise"])
+    c.seek(1.0)
     rig.set_values({"blend:surprise": 100.0})
     c.set_key(["blend:surprise"])
-    assert c.timeline.track("blend:surprise").values.tolist() == [100.0]
+    assert c.timeline.track("blend:surprise").values.tolist() == [0.0, 100.0]
+    # export renders the key (the export evaluates its own copy of the rig)
+    from app.export import ExportSettings, export
+    from PIL import Image
+
+    frames = {}
+    for t in (0.0, 1.0):
+        out = tmp_path / f"frame{t:g}.png"
+        export(win.face, win.timeline.frame_vertices, ExportSettings(path=out, start_s=t, end_s=t, size=(160, 120),
+                                                                    format="png", view="front"))
+        frames[t] = np.asarray(Image.open(out).convert("L"), dtype=float)
+    assert np.abs(frames[0.0] - frames[1.0]).mean() > 0.2
     # save, damage, reopen: refused with the file's message, the layer unchanged
     path = tmp_path / "lib.json"
     assert dock.save_library(str(path))

@@ -100,7 +100,7 @@ def rigid_align(points, reference, *, robust: bool = True, iterations: int = 50)
     return p @ R.T + t, R, t
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)   # arrays inside: identity comparison, no elementwise ==
 class ExpressionLibrary:
     """Displacement sets of one person (base) on one canonical topology.
 

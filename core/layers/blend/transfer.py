@@ -23,6 +23,10 @@ Both faces must share the canonical topology (register both with the same templa
     their per-triangle gradients are noisy and a weak anchor is worse than bbox (1.28 vs 1.15 mm). The normal equations, a sparse SPD Poisson system (n × n, the same matrix for
     x, y, z and every pose), are factorised once per model (:class:`DeformationTransfer`).
 
+:class:`LocalAffineTransfer` (per-vertex affine maps fitted to the two faces' neighbourhoods) is kept
+for comparison only: benchmarks/bench_transfer.py measures it worse than both (registration noise in
+the neighbourhood fits), so it is not one of :data:`METHODS`.
+
 Every result records the method used (``TransferResult.method``; ``ExpressionLibrary.transfer``).
 """
 
