@@ -13,9 +13,11 @@ Made through the real pipeline, not copied from the FAP presets' displacements:
 4. the mean face (for the ``caricature`` slider) is the mean of the registered neutral default face
    and synthetic identities 1..8 of the protocol database (``core.registration.synthetic``).
 
-Known defect: in open-mouth poses the inner-lip landmarks (2.2, 2.3) are hidden from the scanner and
-land on the teeth or the mouth floor, so the registered inner lower lip is pulled down by up to
-~20 mm (joy, surprise): a little of the lower teeth shows through the lower lip.
+Known defect: in open-mouth poses (joy, surprise) a little of the lower teeth shows below the lower
+lip on the default face. Not yet pinned down: the inner-lip landmarks are visible to the scanner
+and the inner lower lip's 19.5 mm drop in joy is the FAP preset's own (raise_b_midlip −500 MNS), so
+the suspects are the canonical vertices along the mouth opening (their projection rays pass through
+the opened mouth) and the lower teeth, which follow the chin, not the lip.
 
 The neutral is the default face itself registered with its own landmarks, so the library's rest
 (4560 vertices, template mpeg4_80) is in the default face's frame. The default face (53k vertices)
