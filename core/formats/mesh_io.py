@@ -29,9 +29,10 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import secrets
 import tempfile
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 import scipy.sparse
@@ -342,23 +343,54 @@ def write_reporting_errors(path: Path, write, error_type: type[Exception]) -> No
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``.
+    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``
+    (see :func:`write_set_atomic`, of which this is the one-file case)."""
+    write_set_atomic({Path(path): data})
 
-    Through a symbolic link the link's target is written (the link stays a link)."""
-    path = Path(path)
-    if path.is_symlink():
-        path = Path(os.path.realpath(path))
-    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+
+def write_set_atomic(files: Mapping[Path, bytes]) -> None:
+    """Write several files as one set (a mesh and its ``.mtl`` and texture): all or nothing.
+
+    Every file is staged beside its target first; only when all are staged are they moved into
+    place, companions first and the first file given (the mesh, which names them) last. If a move
+    fails, the files already replaced get their previous contents back and no staging file stays.
+    Through a symbolic link the link's target is written (the link stays a link).
+    """
+    staged: list[tuple[Path, str]] = []
+    moved: list[tuple[Path, str | None]] = []      # (target, its backup or None when it was new)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
+        for path, data in files.items():
+            path = Path(os.path.realpath(path)) if Path(path).is_symlink() else Path(path)
+            mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+            staged.append((path, tmp))
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+            os.chmod(tmp, mode)
+        for path, tmp in [*staged[1:], *staged[:1]]:
+            backup = None
+            if path.exists():
+                backup = str(path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.bak")
+                os.link(path, backup)   # the previous contents, kept until the whole set is in place
+            moved.append((path, backup))
+            os.replace(tmp, path)
     except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        for path, backup in reversed(moved):
+            with contextlib.suppress(OSError):
+                if backup is not None:
+                    os.replace(backup, path)
+                    if os.path.exists(backup):
+                        os.unlink(backup)   # rename() does nothing when both names are one file (never replaced)
+                else:
+                    os.unlink(path)   # it did not exist before this save
+        for _, tmp in staged:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
         raise
+    for _, backup in moved:
+        if backup is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(backup)
 
 
 def _rows(fmt: str, array: np.ndarray) -> str:
@@ -377,10 +409,10 @@ def _png_bytes(texture: np.ndarray) -> bytes:
 def _write_obj(face: Face, path: Path) -> None:
     textured = face.texture is not None and face.uv is not None
     header = "# Written by Mimica; units: millimetres\n"
+    companions: dict[Path, bytes] = {}
     if textured:
         mtl = f"# Written by Mimica\nnewmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {path.stem}.png\n"
-        write_atomic(path.with_suffix(".png"), _png_bytes(face.texture))
-        write_atomic(path.with_suffix(".mtl"), mtl.encode())
+        companions = {path.with_suffix(".png"): _png_bytes(face.texture), path.with_suffix(".mtl"): mtl.encode()}
         header += f"mtllib {path.stem}.mtl\nusemtl face\n"
     if face.vertex_colors is not None:
         rows = np.hstack([face.vertices, face.vertex_colors / 255.0])
@@ -393,7 +425,7 @@ def _write_obj(face: Face, path: Path) -> None:
         body.append(_rows("f %d/%d %d/%d %d/%d\n", np.repeat(corners, 2, axis=1)))
     else:
         body.append(_rows("f %d %d %d\n", corners))
-    write_atomic(path, (header + "".join(body)).encode())
+    write_set_atomic({path: (header + "".join(body)).encode(), **companions})
 
 
 def _write_ply(face: Face, path: Path) -> None:
@@ -416,13 +448,15 @@ def _write_ply(face: Face, path: Path) -> None:
     tri["n"], tri["i"] = 3, face.triangles
     ply_type = {"<f8": "double", "u1": "uchar"}
     header = ["ply", "format binary_little_endian 1.0", "comment Written by Mimica; units: millimetres"]
+    companions: dict[Path, bytes] = {}
     if face.texture is not None and face.uv is not None:
-        write_atomic(path.with_suffix(".png"), _png_bytes(face.texture))
+        companions[path.with_suffix(".png")] = _png_bytes(face.texture)
         header.append(f"comment TextureFile {path.stem}.png")
     header.append(f"element vertex {face.n_vertices}")
     header += [f"property {ply_type[t]} {n}" for n, t in fields]
     header += [f"element face {face.n_triangles}", "property list uchar int vertex_indices", "end_header"]
-    write_atomic(path, ("\n".join(header) + "\n").encode("ascii") + vertex.tobytes() + tri.tobytes())
+    write_set_atomic({path: ("\n".join(header) + "\n").encode("ascii") + vertex.tobytes() + tri.tobytes(),
+                      **companions})
 
 
 def _sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
