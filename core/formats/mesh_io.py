@@ -29,8 +29,6 @@ from __future__ import annotations
 import contextlib
 import io
 import os
-import secrets
-import tempfile
 from pathlib import Path
 from typing import Callable, Mapping
 
@@ -39,6 +37,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from core.face import Face, FaceMetadata
+from core.formats.atomic_files import write_atomic, write_set_atomic  # noqa: F401 - the writers' one path
 from core.formats.mesh_formats import READERS, RawMesh, _image_to_rgb, plural, reason, weld
 from core.formats.text_files import check_file
 
@@ -340,57 +339,6 @@ def write_reporting_errors(path: Path, write, error_type: type[Exception]) -> No
         ) from None
     except OSError as exc:
         raise error_type(f"Could not save '{path}': {exc.strerror or exc}.") from None
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``
-    (see :func:`write_set_atomic`, of which this is the one-file case)."""
-    write_set_atomic({Path(path): data})
-
-
-def write_set_atomic(files: Mapping[Path, bytes]) -> None:
-    """Write several files as one set (a mesh and its ``.mtl`` and texture): all or nothing.
-
-    Every file is staged beside its target first; only when all are staged are they moved into
-    place, companions first and the first file given (the mesh, which names them) last. If a move
-    fails, the files already replaced get their previous contents back and no staging file stays.
-    Through a symbolic link the link's target is written (the link stays a link).
-    """
-    staged: list[tuple[Path, str]] = []
-    moved: list[tuple[Path, str | None]] = []      # (target, its backup or None when it was new)
-    try:
-        for path, data in files.items():
-            path = Path(os.path.realpath(path)) if Path(path).is_symlink() else Path(path)
-            mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-            staged.append((path, tmp))
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-            os.chmod(tmp, mode)
-        for path, tmp in [*staged[1:], *staged[:1]]:
-            backup = None
-            if path.exists():
-                backup = str(path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.bak")
-                os.link(path, backup)   # the previous contents, kept until the whole set is in place
-            moved.append((path, backup))
-            os.replace(tmp, path)
-    except BaseException:
-        for path, backup in reversed(moved):
-            with contextlib.suppress(OSError):
-                if backup is not None:
-                    os.replace(backup, path)
-                    if os.path.exists(backup):
-                        os.unlink(backup)   # rename() does nothing when both names are one file (never replaced)
-                else:
-                    os.unlink(path)   # it did not exist before this save
-        for _, tmp in staged:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-        raise
-    for _, backup in moved:
-        if backup is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(backup)
 
 
 def _rows(fmt: str, array: np.ndarray) -> str:
