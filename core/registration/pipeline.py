@@ -68,6 +68,12 @@ class Detection:
     def low_confidence(self, threshold: float = LOW_CONFIDENCE) -> list[str]:
         return [n for n, c in self.confidence.items() if c < threshold]
 
+    @property
+    def scan_confidence(self) -> float:
+        """0..1: the fraction of the landmarks found with confidence (not :meth:`low_confidence`);
+        a scan whose detection failed as a whole scores low (most points disagree with the model)."""
+        return 1.0 - len(self.low_confidence()) / max(len(self.confidence), 1)
+
     def face_with_landmarks(self, scan: Face) -> Face:
         """A copy of ``scan`` carrying the detected landmarks."""
         out = scan.with_vertices(scan.vertices)
