@@ -220,8 +220,8 @@ def test_disgust_raises_left_upper_lip_more_than_right(fresh):
 
 def test_kiss_moves_lips_forward_and_narrows_the_mouth(fresh):
     """Thesis C's kiss (orbicularis oris 8, Table 5.6) visibly purses the lips: forward by more than
-    half a centimetre, the mouth a centimetre narrower (it was 1-2 mm before the sphincter's gain was
-    calibrated: invisible from the front)."""
+    half a centimetre, the mouth a centimetre narrower (before the sphincter's gain was calibrated it
+    was hard to see from the front)."""
     fresh.apply(preset("kiss"))
     fresh.solve()
     for p in ("8.1", "8.2", "2.2", "2.3", "8.5", "8.7"):
