@@ -1,0 +1,166 @@
+"""``ControlPointLayer``: thesis B's RBF control points as a rig layer.
+
+Parameters ``cp:<feature point>:<x|y|z>``: each control point's displacement from its rest position, mm.
+The layer's offset is U = (R ∘ Ω) D: D (c, 3) the displacements, R (k, c) the RBF response of the active
+vertices (``RbfSystem.response``: every control point interpolated, the others held at 0) and Ω (k, c) the
+influence regions (``regions.influence``). R ∘ Ω is built once per kernel (cached per Kernel), so a drag
+is one (k, c) @ (c, 3) product. Kernel and control-point placement are layer settings, not animatable; they
+are part of the snapshot (undo).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from core import parameters as P
+from core.face import Face
+from core.layer import ValueLayer
+from core.layers.rbf import parameters as _kinds  # noqa: F401 - registers the cp kind
+from core.layers.rbf.kernels import Kernel, RbfSystem
+from core.layers.rbf.regions import ControlPoints, influence
+
+__all__ = ["ControlPointDeformer", "ControlPointLayer", "AXES"]
+
+AXES = ("x", "y", "z")
+
+
+class ControlPointDeformer:
+    """RBF deformation of one face by one set of control points (immutable but for its kernel cache).
+
+    points : ControlPoints on ``face``; reach_mm, blend_mm : see ``regions.influence``;
+    regions=False: no influence regions (every vertex is moved by every point, a plain RBF).
+    """
+
+    CACHE = 6
+
+    def __init__(self, face: Face, points: ControlPoints | None = None, *, reach_mm: float = 30.0,
+                 blend_mm: float = 10.0, regions: bool = True):
+        self.face = face
+        self.points = points if points is not None else ControlPoints.on_face(face)
+        if regions:
+            self.active, self.omega = influence(face, self.points, reach_mm=reach_mm, blend_mm=blend_mm)
+        else:
+            self.active, self.omega = np.arange(face.n_vertices), None
+        self.centres = face.vertices[self.points.vertices]
+        self._rest = face.vertices[self.active]
+        self._matrices: dict[Kernel, np.ndarray] = {}
+
+    def matrix(self, kernel: Kernel) -> np.ndarray:
+        """(k, c) R ∘ Ω for ``kernel`` (factorised and cached on first use; ParameterError if singular)."""
+        m = self._matrices.pop(kernel, None)
+        if m is None:
+            m = RbfSystem(self.centres, kernel).response(self._rest)
+            if self.omega is not None:
+                m *= self.omega
+            m = np.ascontiguousarray(m)
+            m.setflags(write=False)
+        self._matrices[kernel] = m   # most recent last
+        while len(self._matrices) > self.CACHE:
+            self._matrices.pop(next(iter(self._matrices)))
+        return m
+
+    def displacement(self, displacements: np.ndarray, kernel: Kernel) -> np.ndarray:
+        """(n, 3) mm for control-point displacements (c, 3) mm."""
+        out = np.zeros((self.face.n_vertices, 3))
+        out[self.active] = self.matrix(kernel) @ np.asarray(displacements, dtype=float).reshape(-1, 3)
+        return out
+
+
+class ControlPointLayer(ValueLayer):
+    """Thesis B's RBF control points (see the module docstring). ``deformer`` may be shared between layers."""
+
+    name = "control_points"
+
+    def __init__(self, face: Face, kernel: Kernel | None = None, *, deformer: ControlPointDeformer | None = None):
+        self.face = face
+        self.deformer = deformer if deformer is not None else ControlPointDeformer(face)
+        self._kernel = kernel if kernel is not None else Kernel()
+        self.deformer.matrix(self._kernel)   # factorise now: a singular setting fails here, not at a drag
+        fps = self.deformer.points.feature_points
+        self._keys = tuple(f"cp:{fp}:{a}" for fp in fps for a in AXES)
+        super().__init__(self._keys)
+        self._d: np.ndarray | None = None
+
+    # ------------------------------------------------------------ values
+    @property
+    def points(self) -> ControlPoints:
+        return self.deformer.points
+
+    def set_values(self, values) -> None:
+        self._d = None
+        super().set_values(values)
+
+    def displacements(self) -> np.ndarray:
+        """(c, 3) mm, the control points' displacements in point order (read-only)."""
+        if self._d is None:
+            d = np.array([self._values[k] for k in self._keys]).reshape(-1, 3)
+            d.setflags(write=False)
+            self._d = d
+        return self._d
+
+    def set_displacements(self, displacements) -> None:
+        """Set points by name or feature point: {name: (dx, dy, dz) mm}, or a (c, 3) array in point order."""
+        if isinstance(displacements, dict):
+            index = {n: i for i, n in enumerate(self.points.names)}
+            index.update({fp: i for i, fp in enumerate(self.points.feature_points)})
+            values = {}
+            for name, d in displacements.items():
+                if name not in index:
+                    raise P.ParameterError(f"{name!r} is not a control point of this layer "
+                                           f"({', '.join(self.points.names)})")
+                d = np.asarray(d, dtype=float).reshape(3)
+                values.update({self._keys[3 * index[name] + a]: float(d[a]) for a in range(3)})
+        else:
+            d = np.asarray(displacements, dtype=float)
+            if d.shape != (len(self.points), 3):
+                raise P.ParameterError(f"displacements must have shape ({len(self.points)}, 3), got {d.shape}")
+            values = dict(zip(self._keys, d.ravel().tolist()))
+        self.set_values(values)
+
+    def offset(self, x: np.ndarray) -> np.ndarray | None:
+        d = self.displacements()
+        if not d.any():
+            return None
+        return self.deformer.displacement(d, self._kernel)
+
+    # ------------------------------------------------------------ settings
+    @property
+    def kernel(self) -> Kernel:
+        return self._kernel
+
+    def set_kernel(self, kernel: Kernel) -> None:
+        """Switch kernel or its parameters (factorised once, then cached); ParameterError, and nothing
+        changes, when the new system is singular."""
+        if kernel == self._kernel:
+            return
+        self.deformer.matrix(kernel)
+        self._kernel = kernel
+        self.pose_changed.emit()
+
+    def snapshot(self):
+        return (super().snapshot(), self._kernel)
+
+    def restore(self, snapshot) -> None:
+        values, kernel = snapshot
+        self.set_kernel(kernel)
+        self.set_values(dict(values))
+
+    def copy(self) -> "ControlPointLayer":
+        twin = super().copy()
+        twin._d = None
+        return twin
+
+    # ------------------------------------------------------------ presets
+    def apply_emotion(self, emotion, intensity: float = 1.0) -> None:
+        """Set the control points to an emotion preset (a name of ``emotions.EMOTIONS`` or an ``EpcEmotion``)
+        scaled by ``intensity`` in [0, 1]; points the emotion does not move go back to 0."""
+        from core.layers.rbf.emotions import emotion_displacements
+
+        if isinstance(intensity, bool) or not isinstance(intensity, (int, float)) or not 0 <= intensity <= 1:
+            raise P.ParameterError(f"an emotion's intensity is a number from 0 to 1, got {intensity!r}")
+        moves = emotion_displacements(emotion)
+        d = np.zeros((len(self.points), 3))
+        for i, name in enumerate(self.points.names):
+            if name in moves:
+                d[i] = moves[name] * float(intensity)
+        self.set_displacements(d)
