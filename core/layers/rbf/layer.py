@@ -137,11 +137,44 @@ class ControlPointLayer(ValueLayer):
         self._kernel = kernel
         self.pose_changed.emit()
 
+    def place_points(self, positions, *, reach_mm: float = 30.0, blend_mm: float = 10.0) -> None:
+        """Put the control points at ``positions`` ({name: (3,) mm}, e.g. ``read_ppc(path).as_dict()``): names
+        from resources/rbf/influence.csv, a subset allowed (e.g. the 8 mouth points). Everything is checked
+        and factorised first; on any error (ParameterError) nothing changes. Displacements of points that
+        stay are kept."""
+        from core.layers.rbf.regions import control_point_specs
+
+        specs = {s.name: s for s in control_point_specs()}
+        unknown = [n for n in positions if n not in specs]
+        if unknown:
+            raise P.ParameterError(f"unknown control points {', '.join(unknown)}: the RBF layer's points are "
+                                   f"{', '.join(specs)}")
+        chosen = tuple(specs[n] for n in specs if n in positions)
+        points = ControlPoints.on_face(self.face, dict(positions), chosen)
+        deformer = ControlPointDeformer(self.face, points, reach_mm=reach_mm, blend_mm=blend_mm)
+        deformer.matrix(self._kernel)
+        self._swap(deformer)
+
+    def _swap(self, deformer: ControlPointDeformer) -> None:
+        if deformer is self.deformer:
+            return
+        old = self._values
+        self.deformer = deformer
+        self._keys = tuple(f"cp:{fp}:{a}" for fp in deformer.points.feature_points for a in AXES)
+        self._values = {k: old.get(k, 0.0) for k in self._keys}
+        self._d = None
+        self.pose_changed.emit()
+
+    def positions(self) -> dict[str, np.ndarray]:
+        """{name: (3,) mm} the control points' rest positions (what a PPC file stores)."""
+        return {n: self.deformer.centres[i].copy() for i, n in enumerate(self.points.names)}
+
     def snapshot(self):
-        return (super().snapshot(), self._kernel)
+        return (super().snapshot(), self._kernel, self.deformer)
 
     def restore(self, snapshot) -> None:
-        values, kernel = snapshot
+        values, kernel, deformer = snapshot
+        self._swap(deformer)
         self.set_kernel(kernel)
         self.set_values(dict(values))
 
