@@ -206,3 +206,17 @@ def test_the_rig_builds_the_layer_on_demand_and_composes_it(default_rig):
     finally:
         rig.remove_layer("control_points")
         rig.reset()
+
+
+def test_incremental_drags_equal_the_full_product(layer):
+    from core.layers.rbf.layer import Pose
+
+    pose = Pose(layer.deformer, layer.kernel)
+    rng = np.random.default_rng(5)
+    d = np.zeros((len(layer.points), 3))
+    for step in range(150):     # single-point drags, a few many-point changes, past the refresh count
+        if step % 37 == 0:
+            d = rng.uniform(-5, 5, d.shape)
+        else:
+            d[rng.integers(len(d)), rng.integers(3)] = rng.uniform(-5, 5)
+        np.testing.assert_allclose(pose(d), layer.deformer.displacement(d, layer.kernel), atol=1e-10)

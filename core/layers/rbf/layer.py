@@ -4,7 +4,7 @@ Parameters ``cp:<feature point>:<x|y|z>``: each control point's displacement fro
 The layer's offset is U = (R ∘ Ω) D: D (c, 3) the displacements, R (k, c) the RBF response of the active
 vertices (``RbfSystem.response``: every control point interpolated, the others held at 0) and Ω (k, c) the
 influence regions (``regions.influence``). R ∘ Ω is built once per kernel (cached per Kernel), so a drag
-is one (k, c) @ (c, 3) product. Kernel and control-point placement are layer settings, not animatable; they
+is one small product: (k, c) @ (c, 3), or only the moved points' columns (``Pose``). Kernel and control-point placement are layer settings, not animatable; they
 are part of the snapshot (undo).
 """
 
@@ -19,7 +19,7 @@ from core.layers.rbf import parameters as _kinds  # noqa: F401 - registers the c
 from core.layers.rbf.kernels import Kernel, RbfSystem
 from core.layers.rbf.regions import ControlPoints, influence
 
-__all__ = ["ControlPointDeformer", "ControlPointLayer", "AXES"]
+__all__ = ["ControlPointDeformer", "ControlPointLayer", "Pose", "AXES"]
 
 AXES = ("x", "y", "z")
 
@@ -52,7 +52,7 @@ class ControlPointDeformer:
             m = RbfSystem(self.centres, kernel).response(self._rest)
             if self.omega is not None:
                 m *= self.omega
-            m = np.ascontiguousarray(m)
+            m = np.asfortranarray(m)   # column j (one control point) contiguous for incremental drags
             m.setflags(write=False)
         self._matrices[kernel] = m   # most recent last
         while len(self._matrices) > self.CACHE:
@@ -66,6 +66,41 @@ class ControlPointDeformer:
         return out
 
 
+class Pose:
+    """The active vertices' displacement (k, 3) for the latest control-point displacements, updated by the
+    columns of the points that changed (a drag moves one point: one (k, 1) @ (1, 3) product) and recomputed
+    in full when many changed or every ``REFRESH`` updates (no drift)."""
+
+    REFRESH = 64
+
+    def __init__(self, deformer: ControlPointDeformer, kernel: Kernel):
+        self.deformer, self.matrix = deformer, deformer.matrix(kernel)
+        self._d: np.ndarray | None = None
+        self._u: np.ndarray | None = None
+        self._updates = 0
+
+    def __call__(self, displacements: np.ndarray) -> np.ndarray:
+        """(n, 3) mm for control-point displacements (c, 3) mm."""
+        d = np.array(displacements, dtype=float).reshape(-1, 3)
+        m = self.matrix
+        if self._u is not None and self._updates < self.REFRESH:
+            delta = d - self._d
+            rows = np.nonzero(delta.any(axis=1))[0]
+            if len(rows) <= max(1, m.shape[1] // 8):
+                if len(rows):
+                    self._u += m[:, rows] @ delta[rows]
+                    self._updates += 1
+                self._d = d
+                return self._scatter()
+        self._u, self._d, self._updates = m @ d, d, 0
+        return self._scatter()
+
+    def _scatter(self) -> np.ndarray:
+        out = np.zeros((self.deformer.face.n_vertices, 3))
+        out[self.deformer.active] = self._u
+        return out
+
+
 class ControlPointLayer(ValueLayer):
     """Thesis B's RBF control points (see the module docstring). ``deformer`` may be shared between layers."""
 
@@ -75,7 +110,7 @@ class ControlPointLayer(ValueLayer):
         self.face = face
         self.deformer = deformer if deformer is not None else ControlPointDeformer(face)
         self._kernel = kernel if kernel is not None else Kernel()
-        self.deformer.matrix(self._kernel)   # factorise now: a singular setting fails here, not at a drag
+        self._pose = Pose(self.deformer, self._kernel)   # factorise now: a singular setting fails here
         fps = self.deformer.points.feature_points
         self._keys = tuple(f"cp:{fp}:{a}" for fp in fps for a in AXES)
         super().__init__(self._keys)
@@ -121,7 +156,7 @@ class ControlPointLayer(ValueLayer):
         d = self.displacements()
         if not d.any():
             return None
-        return self.deformer.displacement(d, self._kernel)
+        return self._pose(d)
 
     # ------------------------------------------------------------ settings
     @property
@@ -133,8 +168,8 @@ class ControlPointLayer(ValueLayer):
         changes, when the new system is singular."""
         if kernel == self._kernel:
             return
-        self.deformer.matrix(kernel)
-        self._kernel = kernel
+        pose = Pose(self.deformer, kernel)
+        self._kernel, self._pose = kernel, pose
         self.pose_changed.emit()
 
     def place_points(self, positions, *, reach_mm: float = 30.0, blend_mm: float = 10.0) -> None:
@@ -152,7 +187,7 @@ class ControlPointLayer(ValueLayer):
         chosen = tuple(specs[n] for n in specs if n in positions)
         points = ControlPoints.on_face(self.face, dict(positions), chosen)
         deformer = ControlPointDeformer(self.face, points, reach_mm=reach_mm, blend_mm=blend_mm)
-        deformer.matrix(self._kernel)
+        Pose(deformer, self._kernel)   # factorise before anything changes
         self._swap(deformer)
 
     def _swap(self, deformer: ControlPointDeformer) -> None:
@@ -160,6 +195,7 @@ class ControlPointLayer(ValueLayer):
             return
         old = self._values
         self.deformer = deformer
+        self._pose = Pose(deformer, self._kernel)
         self._keys = tuple(f"cp:{fp}:{a}" for fp in deformer.points.feature_points for a in AXES)
         self._values = {k: old.get(k, 0.0) for k in self._keys}
         self._d = None
@@ -181,6 +217,7 @@ class ControlPointLayer(ValueLayer):
     def copy(self) -> "ControlPointLayer":
         twin = super().copy()
         twin._d = None
+        twin._pose = Pose(self.deformer, self._kernel)
         return twin
 
     # ------------------------------------------------------------ presets
