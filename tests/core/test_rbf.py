@@ -135,7 +135,7 @@ def test_influence_is_one_at_each_point_and_zero_in_regions_it_does_not_list(fac
     for c, v in enumerate(layer.points.vertices.tolist()):
         assert omega[row[v], c] == 1.0
     assert omega.min() >= 0 and omega.max() <= 1
-    a2, o2 = influence(face, layer.points, reach_mm=30, blend_mm=10)
+    a2, o2 = influence(face, layer.points)
     assert np.array_equal(a2, active) and np.array_equal(o2, omega)   # deterministic
     # the eyeballs and teeth never move
     parts = np.concatenate(list(face.parts.values()))

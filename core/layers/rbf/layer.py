@@ -33,8 +33,8 @@ class ControlPointDeformer:
 
     CACHE = 6
 
-    def __init__(self, face: Face, points: ControlPoints | None = None, *, reach_mm: float = 30.0,
-                 blend_mm: float = 10.0, regions: bool = True):
+    def __init__(self, face: Face, points: ControlPoints | None = None, *, reach_mm: float = 35.0,
+                 blend_mm: float = 20.0, regions: bool = True):
         self.face = face
         self.points = points if points is not None else ControlPoints.on_face(face)
         if regions:
@@ -172,7 +172,7 @@ class ControlPointLayer(ValueLayer):
         self._kernel, self._pose = kernel, pose
         self.pose_changed.emit()
 
-    def place_points(self, positions, *, reach_mm: float = 30.0, blend_mm: float = 10.0) -> None:
+    def place_points(self, positions, *, reach_mm: float = 35.0, blend_mm: float = 20.0) -> None:
         """Put the control points at ``positions`` ({name: (3,) mm}, e.g. ``read_ppc(path).as_dict()``): names
         from resources/rbf/influence.csv, a subset allowed (e.g. the 8 mouth points). Everything is checked
         and factorised first; on any error (ParameterError) nothing changes. Displacements of points that

@@ -144,7 +144,7 @@ def _allowed(side: str, sides: dict[str, np.ndarray], n: int) -> np.ndarray:
     return s >= 0 if where == "above" else s <= 0
 
 
-def influence(face: Face, points: ControlPoints, *, reach_mm: float = 30.0, blend_mm: float = 10.0
+def influence(face: Face, points: ControlPoints, *, reach_mm: float = 35.0, blend_mm: float = 20.0
               ) -> tuple[np.ndarray, np.ndarray]:
     """(active vertices (k,), Ω (k, c)): the vertices some control point moves and how much each point may
     move each of them, in [0, 1] (see the module docstring)."""
