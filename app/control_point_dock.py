@@ -1,0 +1,414 @@
+"""control_point_dock.py
+----
+Thesis B's interface (§5.4) as a dock: the RBF control points (``core.layers.rbf``) and Waters' vector
+muscles (``core.layers.waters``) of the document's rig.
+
+* Layers: the rig gets both layers the first time the dock is shown (or ``ensure_layers()``), about a
+  second on the default face; a face without the feature points they need shows why instead.
+* RBF: the kernel and its main parameter (δ for the multiquadrics, σ for the Gaussian, mm²), the linear
+  polynomial and the regulariser λ (B §5.4: "the RBF type and its main parameter"); a setting the
+  system refuses (singular) is a message and the previous one stays. A control point picked in the list
+  shows its x/y/z rows (the shared ``ParameterRow``). Emotion buttons apply the FACS presets (B Tables
+  3.2-3.3, EPC files) at the intensity chosen; "Open EPC…" applies an emotion file, "Open PPC…" / "Save
+  PPC…" place and save the control points.
+* Waters: one row per muscle and side, "Link left/right", and how muscles combine (displacement limit,
+  strongest of group, plain sum).
+
+House rules of the FAP dock: edits go through ``rig.set_values`` (one undo step each, from the
+document's ``UndoableRigEdits``), the widgets follow ``rig.parameters_changed`` with their signals
+blocked, and the dock never renders.
+"""
+
+from __future__ import annotations
+
+from PySide6.QtCore import QSignalBlocker, Qt
+from PySide6.QtWidgets import (
+    QCheckBox, QComboBox, QDockWidget, QDoubleSpinBox, QFileDialog, QFormLayout, QGridLayout, QGroupBox, QHBoxLayout,
+    QLabel, QPushButton, QScrollArea, QVBoxLayout, QWidget)
+
+from app.parameter_row import ParameterRow, align_rows
+from core import parameters as P
+
+KERNEL_TITLES = {"multiquadric": "Multiquadric", "inverse_multiquadric": "Inverse multiquadric",
+                 "gaussian": "Gaussian", "thin_plate_spline": "Thin plate spline", "linear": "Linear"}
+COMBINE_TITLES = {"limit": "Limit per vertex", "strongest": "Strongest of group", "sum": "Sum"}
+
+
+class ControlPointDock(QDockWidget):
+    """The control-point and Waters-muscle dock (see the module docstring)."""
+
+    def __init__(self, document=None, window=None):
+        super().__init__("Control points", window)
+        self.setObjectName("controlPointDock")
+        self.document, self.window_ = document, window
+        self.rig = None
+        self.rows: dict[str, ParameterRow] = {}
+        self._syncing = False
+        self._build()
+        if window is not None and document is not None:
+            window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self)
+            if getattr(window, "fap_dock", None) is not None:
+                window.tabifyDockWidget(window.fap_dock, self)
+                window.fap_dock.raise_()
+            toggle = self.toggleViewAction()
+            toggle.setText("&Control points")
+            toggle.setStatusTip("Show or hide the RBF control points and Waters muscles (thesis B)")
+            if getattr(window, "view_menu", None) is not None:
+                window.view_menu.addAction(toggle)
+            document.rig_changed.connect(lambda _rig: self._follow())
+            document.face_changed.connect(lambda _face: self._follow())
+            self.visibilityChanged.connect(lambda shown: self.ensure_layers() if shown else None)
+        self._follow()
+
+    # ------------------------------------------------------------ widgets
+    def _build(self) -> None:
+        root = QWidget(self)
+        outer = QVBoxLayout(root)
+        self.message_label = QLabel(root)
+        self.message_label.setWordWrap(True)
+        self.message_label.setObjectName("controlPointMessage")
+        outer.addWidget(self.message_label)
+
+        rbf = QGroupBox("RBF control points", root)
+        form = QFormLayout(rbf)
+        self.kernel_combo = QComboBox(rbf)
+        self.kernel_combo.setObjectName("rbfKernel")
+        for name, title in KERNEL_TITLES.items():
+            self.kernel_combo.addItem(title, name)
+        self.main_spin = QDoubleSpinBox(rbf)
+        self.main_spin.setObjectName("rbfMainParameter")
+        self.main_spin.setRange(1.0, 1e6)
+        self.main_spin.setDecimals(0)
+        self.main_spin.setSuffix(" mm²")
+        self.main_spin.setKeyboardTracking(False)
+        self.poly_check = QCheckBox("Linear polynomial", rbf)
+        self.poly_check.setObjectName("rbfPolynomial")
+        self.smoothing_spin = QDoubleSpinBox(rbf)
+        self.smoothing_spin.setObjectName("rbfSmoothing")
+        self.smoothing_spin.setRange(0.0, 1e3)
+        self.smoothing_spin.setDecimals(4)
+        self.smoothing_spin.setSingleStep(0.001)
+        self.smoothing_spin.setKeyboardTracking(False)
+        form.addRow("Kernel", self.kernel_combo)
+        self.main_label = QLabel("δ", rbf)
+        form.addRow(self.main_label, self.main_spin)
+        form.addRow("Regulariser λ", self.smoothing_spin)
+        form.addRow(self.poly_check)
+        self.point_combo = QComboBox(rbf)
+        self.point_combo.setObjectName("rbfPoint")
+        form.addRow("Point", self.point_combo)
+        self.point_rows = QWidget(rbf)
+        self.point_rows.setLayout(QVBoxLayout())
+        self.point_rows.layout().setContentsMargins(0, 0, 0, 0)
+        form.addRow(self.point_rows)
+        emotions = QGridLayout()
+        self.intensity_spin = QDoubleSpinBox(rbf)
+        self.intensity_spin.setObjectName("emotionIntensity")
+        self.intensity_spin.setRange(0.0, 1.0)
+        self.intensity_spin.setSingleStep(0.1)
+        self.intensity_spin.setValue(1.0)
+        self.emotion_buttons: dict[str, QPushButton] = {}
+        from core.layers.rbf.emotions import EMOTIONS
+
+        for i, name in enumerate(EMOTIONS + ("neutral",)):
+            button = QPushButton(name.capitalize(), rbf)
+            button.setObjectName(f"emotion_{name}")
+            button.setToolTip("FACS emotion preset (thesis B Tables 3.2-3.3)" if name != "neutral"
+                              else "Every control point back to rest")
+            button.clicked.connect(lambda _=False, n=name: self.apply_emotion(n))
+            self.emotion_buttons[name] = button
+            emotions.addWidget(button, i // 3, i % 3)
+        form.addRow(emotions)
+        form.addRow("Intensity", self.intensity_spin)
+        files = QHBoxLayout()
+        for text, slot, name in (("Open PPC…", self.open_ppc, "openPpc"), ("Save PPC…", self.save_ppc, "savePpc"),
+                                 ("Open EPC…", self.open_epc, "openEpc")):
+            button = QPushButton(text, rbf)
+            button.setObjectName(name)
+            button.clicked.connect(slot)
+            files.addWidget(button)
+        form.addRow(files)
+        outer.addWidget(rbf)
+
+        waters = QGroupBox("Waters muscles", root)
+        wl = QVBoxLayout(waters)
+        top = QHBoxLayout()
+        self.combine_combo = QComboBox(waters)
+        self.combine_combo.setObjectName("watersCombine")
+        for name, title in COMBINE_TITLES.items():
+            self.combine_combo.addItem(title, name)
+        self.limit_spin = QDoubleSpinBox(waters)
+        self.limit_spin.setObjectName("watersLimit")
+        self.limit_spin.setRange(0.5, 100.0)
+        self.limit_spin.setSuffix(" mm")
+        self.limit_spin.setKeyboardTracking(False)
+        self.link_check = QCheckBox("Link left/right", waters)
+        self.link_check.setChecked(True)
+        top.addWidget(self.combine_combo)
+        top.addWidget(self.limit_spin)
+        top.addWidget(self.link_check)
+        wl.addLayout(top)
+        self.waters_rows = QVBoxLayout()
+        wl.addLayout(self.waters_rows)
+        outer.addWidget(waters)
+        outer.addStretch(1)
+        self.groups = (rbf, waters)
+
+        scroll = QScrollArea(self)
+        scroll.setWidgetResizable(True)
+        scroll.setWidget(root)
+        self.setWidget(scroll)
+        self.kernel_combo.currentIndexChanged.connect(lambda _i: self._kernel_edited(switch=True))
+        self.main_spin.valueChanged.connect(lambda _v: self._kernel_edited())
+        self.smoothing_spin.valueChanged.connect(lambda _v: self._kernel_edited())
+        self.poly_check.toggled.connect(lambda _v: self._kernel_edited())
+        self.point_combo.currentIndexChanged.connect(lambda _i: self._show_point_rows())
+        self.combine_combo.currentIndexChanged.connect(lambda _i: self._combine_edited())
+        self.limit_spin.valueChanged.connect(lambda _v: self._combine_edited())
+
+    # ------------------------------------------------------------ layers
+    @property
+    def rbf(self):
+        return None if self.rig is None else self.rig.layer("control_points")
+
+    @property
+    def waters(self):
+        return None if self.rig is None else self.rig.layer("waters")
+
+    def _follow(self) -> None:
+        rig = None if self.document is None else self.document.rig
+        if rig is not self.rig:
+            if self.rig is not None:
+                try:
+                    self.rig.parameters_changed.disconnect(self._on_parameters_changed)
+                except (ValueError, RuntimeError):
+                    pass
+            self.rig = rig
+            if rig is not None:
+                rig.parameters_changed.connect(self._on_parameters_changed)
+            if rig is not None and self.isVisible():
+                self.ensure_layers()
+        self._rebuild()
+
+    def set_rig(self, rig) -> None:
+        """Drive ``rig`` without a document (tests, tools)."""
+        self.rig = rig
+        if rig is not None:
+            rig.parameters_changed.connect(self._on_parameters_changed)
+        self._rebuild()
+
+    def ensure_layers(self) -> bool:
+        """Give the rig its control-point and Waters layers (built here, about a second); False and a
+        message when this face cannot have them."""
+        if self.rig is None:
+            return False
+        try:
+            self.rig.ensure_layers(["cp:8.3:y", "waters:zygomatic_major:left"])
+        except (P.ParameterError, ValueError) as exc:
+            self.show_message(str(exc))
+            return False
+        self._rebuild()
+        return True
+
+    def _rebuild(self) -> None:
+        for row in list(self.rows.values()):
+            row.setParent(None)
+            row.deleteLater()
+        self.rows.clear()
+        rbf, waters = self.rbf, self.waters
+        for group in self.groups:
+            group.setEnabled(rbf is not None and waters is not None)
+        if rbf is None or waters is None:
+            self.show_message("No face with control points yet." if self.rig is None else
+                              "Show this dock to add the control points and Waters muscles to the face.")
+            return
+        self.show_message("")
+        with QSignalBlocker(self.point_combo):
+            self.point_combo.clear()
+            for name, fp in zip(rbf.points.names, rbf.points.feature_points):
+                self.point_combo.addItem(f"{name} ({fp})", fp)
+        for key in waters.parameters():
+            row = ParameterRow(key, self)
+            row.edited.connect(self._row_edited)
+            row.reset_requested.connect(lambda k: self._apply({k: 0.0}))
+            self.waters_rows.addWidget(row)
+            self.rows[key] = row
+        self._show_point_rows()
+        self._show_settings()
+        self._show_values()
+
+    def _show_point_rows(self) -> None:
+        for key in [k for k in self.rows if k.startswith("cp:")]:
+            row = self.rows.pop(key)
+            row.setParent(None)
+            row.deleteLater()
+        fp = self.point_combo.currentData()
+        if fp is None or self.rbf is None:
+            return
+        for axis in "xyz":
+            row = ParameterRow(f"cp:{fp}:{axis}", self.point_rows, text=axis)
+            row.edited.connect(self._row_edited)
+            row.reset_requested.connect(lambda k: self._apply({k: 0.0}))
+            self.point_rows.layout().addWidget(row)
+            self.rows[row.key] = row
+        align_rows(self.rows.values())
+        self._show_values()
+
+    # ------------------------------------------------------------ rig -> widgets
+    def show_message(self, message: str) -> None:
+        self.message_label.setText(message)
+        self.message_label.setVisible(bool(message))
+
+    def _show_settings(self) -> None:
+        rbf, waters = self.rbf, self.waters
+        if rbf is None or waters is None:
+            return
+        k = rbf.kernel
+        blockers = [QSignalBlocker(w) for w in (self.kernel_combo, self.main_spin, self.smoothing_spin,
+                                                self.poly_check, self.combine_combo, self.limit_spin)]
+        self.kernel_combo.setCurrentIndex(self.kernel_combo.findData(k.name))
+        main = k.main_parameter
+        self.main_label.setText({"delta": "δ", "sigma": "σ", None: "—"}[main])
+        self.main_spin.setEnabled(main is not None)
+        if main is not None:
+            self.main_spin.setValue(getattr(k, main))
+        self.smoothing_spin.setValue(k.smoothing)
+        self.poly_check.setChecked(k.polynomial)
+        self.combine_combo.setCurrentIndex(self.combine_combo.findData(waters.combine))
+        self.limit_spin.setValue(waters.limit_mm)
+        self.limit_spin.setEnabled(waters.combine == "limit")
+        del blockers
+
+    def _show_values(self) -> None:
+        if self.rig is None:
+            return
+        self._syncing = True
+        try:
+            for key, row in self.rows.items():
+                value = self.rig.value(key)
+                if row.value != value:
+                    row.show_value(value)
+        finally:
+            self._syncing = False
+
+    def _on_parameters_changed(self, change) -> None:
+        if any(k in self.rows for k in change.values):
+            self._show_values()
+
+    # ------------------------------------------------------------ widgets -> rig
+    def _apply(self, values: dict) -> bool:
+        try:
+            self.rig.set_values(values)
+        except (P.ParameterError, ValueError) as exc:
+            self.show_message(str(exc))
+            self._show_values()
+            return False
+        self.show_message("")
+        return True
+
+    def _row_edited(self, key: str, value: float) -> None:
+        if self.rig is None or self._syncing:
+            return
+        values = {key: value}
+        mirror = self.rows[key].mirror
+        if mirror is not None and self.link_check.isChecked() and key.startswith("waters:"):
+            values[mirror] = value
+        self._apply(values)
+
+    def _kernel_edited(self, switch: bool = False) -> None:
+        from core.layers.rbf.kernels import Kernel
+
+        rbf = self.rbf
+        if rbf is None:
+            return
+        name = self.kernel_combo.currentData()
+        settings = dict(name=name, polynomial=self.poly_check.isChecked() or name == "thin_plate_spline",
+                        smoothing=self.smoothing_spin.value(), delta=rbf.kernel.delta, sigma=rbf.kernel.sigma,
+                        mu=rbf.kernel.mu if name == rbf.kernel.name else None)
+        main = {"multiquadric": "delta", "inverse_multiquadric": "delta", "gaussian": "sigma"}.get(name)
+        if main is not None and not switch:
+            settings[main] = self.main_spin.value()
+        try:
+            rbf.set_kernel(Kernel(**settings))
+        except (P.ParameterError, ValueError) as exc:
+            self.show_message(str(exc))
+        else:
+            self.show_message("")
+        self._show_settings()
+
+    def _combine_edited(self) -> None:
+        waters = self.waters
+        if waters is None:
+            return
+        waters.set_combine(self.combine_combo.currentData(), self.limit_spin.value())
+        self._show_settings()
+
+    def apply_emotion(self, name: str, emotion=None) -> bool:
+        """Set the control points to an emotion preset (or ``emotion``, an EpcEmotion) at the intensity
+        box's value: one rig change, one undo step. 'neutral' puts every point back to rest."""
+        rbf = self.rbf
+        if rbf is None and not self.ensure_layers():
+            return False
+        rbf = self.rbf
+        keys = rbf.parameters()
+        if name == "neutral":
+            return self._apply({k: 0.0 for k in keys})
+        from core.layers.rbf.emotions import emotion_displacements
+
+        try:
+            moves = emotion_displacements(emotion if emotion is not None else name)
+        except (P.ParameterError, ValueError) as exc:
+            self.show_message(str(exc))
+            return False
+        scale = self.intensity_spin.value()
+        values = {k: 0.0 for k in keys}
+        for pname, fp in zip(rbf.points.names, rbf.points.feature_points):
+            if pname in moves:
+                values.update({f"cp:{fp}:{a}": float(moves[pname][i] * scale) for i, a in enumerate("xyz")})
+        return self._apply(values)
+
+    # ------------------------------------------------------------ files
+    def open_ppc(self, path: str | None = None) -> bool:
+        """Place the control points from a PPC file; a bad file is a message and nothing changes."""
+        from core.formats.ppc_file import PpcFileError, read_ppc
+
+        path = path or QFileDialog.getOpenFileName(self, "Open control-point positions", "",
+                                                   "PPC files (*.ppc);;All files (*)")[0]
+        if not path or (self.rbf is None and not self.ensure_layers()):
+            return False
+        try:
+            self.rbf.place_points(read_ppc(path).as_dict())
+        except (PpcFileError, P.ParameterError) as exc:
+            self.show_message(str(exc))
+            return False
+        self._rebuild()
+        return True
+
+    def save_ppc(self, path: str | None = None) -> bool:
+        from core.formats.ppc_file import PpcFileError, write_ppc
+        from core.layers.rbf.files import ppc_of
+
+        path = path or QFileDialog.getSaveFileName(self, "Save control-point positions", "face.ppc",
+                                                   "PPC files (*.ppc)")[0]
+        if not path or self.rbf is None:
+            return False
+        try:
+            write_ppc(path, ppc_of(self.rbf))
+        except PpcFileError as exc:
+            self.show_message(str(exc))
+            return False
+        return True
+
+    def open_epc(self, path: str | None = None) -> bool:
+        """Apply an emotion file (EPC) at the intensity box's value."""
+        from core.formats.epc_file import EpcFileError, read_epc
+
+        path = path or QFileDialog.getOpenFileName(self, "Open an emotion", "", "EPC files (*.epc);;All files (*)")[0]
+        if not path:
+            return False
+        try:
+            emotion = read_epc(path)
+        except EpcFileError as exc:
+            self.show_message(str(exc))
+            return False
+        return self.apply_emotion(emotion.name, emotion)

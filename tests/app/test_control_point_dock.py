@@ -1,0 +1,71 @@
+"""The control-point dock in the window: it adds the RBF and Waters layers, an emotion button is one undo
+step, a kernel the system refuses is a message and changes nothing, a Waters row moves its muscle and its
+mirror, a PPC file places the points and a bad one changes nothing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture
+def win(qtbot, settings, error_boxes, default_face, deformer):
+    from app.main_window import MainWindow
+    from core.rig import FaceRig
+
+    w = MainWindow(settings=settings, load_default=False)
+    qtbot.addWidget(w)
+    w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
+    w.show()
+    qtbot.waitExposed(w)
+    yield w
+    w.close()
+
+
+def test_the_dock_drives_control_points_and_waters_muscles(qtbot, win, tmp_path):
+    from app.undo import gestures
+    from core.layers.rbf.kernels import Kernel
+
+    dock = win.control_point_dock
+    assert dock.ensure_layers()
+    rig, stack = win.rig, win.undo_stack
+    assert rig.layer("control_points") is not None and rig.layer("waters") is not None
+    neutral = rig.vertices().copy()
+
+    # An emotion button: the FACS preset on the control points, one undo step.
+    gestures().new()
+    dock.emotion_buttons["joy"].click()
+    assert rig.value("cp:8.3:y") == pytest.approx(5.0)
+    corner = rig.layer("control_points").points.vertices[rig.layer("control_points").points.names.index("mouth_corner_l")]
+    assert rig.vertices()[corner, 1] - neutral[corner, 1] == pytest.approx(5.0)
+    stack.undo()
+    assert rig.value("cp:8.3:y") == 0.0
+
+    # The kernel box switches the kernel; a main parameter the system cannot take is a message.
+    dock.kernel_combo.setCurrentIndex(dock.kernel_combo.findData("gaussian"))
+    assert rig.layer("control_points").kernel.name == "gaussian"
+    before = rig.layer("control_points").kernel
+    dock.main_spin.setValue(900000.0)
+    assert rig.layer("control_points").kernel == before and "singular" in dock.message_label.text()
+    dock.kernel_combo.setCurrentIndex(dock.kernel_combo.findData("multiquadric"))
+    assert rig.layer("control_points").kernel == Kernel()
+
+    # A point's row moves it; Waters rows move the muscle and, linked, its mirror.
+    dock.point_combo.setCurrentIndex(dock.point_combo.findData("8.1"))
+    dock.rows["cp:8.1:y"].edited.emit("cp:8.1:y", 3.0)
+    assert rig.value("cp:8.1:y") == 3.0
+    gestures().new()
+    dock.rows["waters:zygomatic_major:left"].edited.emit("waters:zygomatic_major:left", 0.6)
+    assert rig.value("waters:zygomatic_major:right") == 0.6
+    assert dock.rows["waters:zygomatic_major:right"].value == pytest.approx(0.6)
+    stack.undo()
+    assert rig.value("waters:zygomatic_major:left") == 0.0
+
+    # PPC: save, a bad file changes nothing, a good one places the points.
+    assert dock.save_ppc(str(tmp_path / "face.ppc"))
+    (tmp_path / "bad.ppc").write_text("chin 2.10 0 zero 1\n")
+    layer_before = rig.layer("control_points").deformer
+    assert not dock.open_ppc(str(tmp_path / "bad.ppc"))
+    assert "line 1" in dock.message_label.text() and rig.layer("control_points").deformer is layer_before
+    assert dock.open_ppc(str(tmp_path / "face.ppc"))
+    np.testing.assert_array_equal(rig.layer("control_points").points.vertices, layer_before.points.vertices)
