@@ -10,7 +10,8 @@ muscles (``core.layers.waters``) of the document's rig.
   system refuses (singular) is a message and the previous one stays. A control point picked in the list
   shows its x/y/z rows (the shared ``ParameterRow``). Emotion buttons apply the FACS presets (B Tables
   3.2-3.3, EPC files) at the intensity chosen; "Open EPC…" applies an emotion file, "Open PPC…" / "Save
-  PPC…" place and save the control points.
+  PPC…" place and save the control points; "Import DPC…" keys a DPC file's frames on the timeline (one
+  undo step; the player's start/pause/speed are the timeline's) and "Export DPC…" writes its tracks.
 * Waters: one row per muscle and side, "Link left/right", and how muscles combine (displacement limit,
   strongest of group, plain sum).
 
@@ -128,6 +129,17 @@ class ControlPointDock(QDockWidget):
             button.clicked.connect(slot)
             files.addWidget(button)
         form.addRow(files)
+        dpc = QHBoxLayout()
+        for text, slot, name in (("Import DPC…", self.import_dpc, "importDpc"),
+                                 ("Export DPC…", self.export_dpc, "exportDpc")):
+            button = QPushButton(text, rbf)
+            button.setObjectName(name)
+            button.setToolTip("Control-point dynamics (thesis B §5.2) as timeline keys, one per frame"
+                              if name == "importDpc" else "The timeline's control-point tracks, one frame per "
+                                                          "timeline frame")
+            button.clicked.connect(slot)
+            dpc.addWidget(button)
+        form.addRow(dpc)
         outer.addWidget(rbf)
 
         waters = QGroupBox("Waters muscles", root)
@@ -412,3 +424,46 @@ class ControlPointDock(QDockWidget):
             self.show_message(str(exc))
             return False
         return self.apply_emotion(emotion.name, emotion)
+
+    def _timeline(self):
+        return None if self.document is None else self.document.timeline
+
+    def import_dpc(self, path: str | None = None) -> bool:
+        """Key a DPC file's frames on the timeline (its fps, else the timeline's), lengthening the timeline
+        when the file is longer; one undo step per timeline edit. A bad file is a message."""
+        from core.formats.dpc_file import DpcFileError, read_dpc
+        from core.layers.rbf.files import keys_from_dpc
+
+        controller = self._timeline()
+        path = path or QFileDialog.getOpenFileName(self, "Import control-point dynamics", "",
+                                                   "DPC files (*.dpc);;All files (*)")[0]
+        if not path or controller is None or (self.rbf is None and not self.ensure_layers()):
+            return False
+        timeline = controller.timeline
+        try:
+            seq = read_dpc(path)
+            keys = keys_from_dpc(seq, seq.fps or timeline.fps)
+        except (DpcFileError, P.ParameterError) as exc:
+            self.show_message(str(exc))
+            return False
+        end = max(t for rows in keys.values() for t, _, _ in rows)
+        if end > timeline.duration:
+            controller.push(lambda: timeline.set_settings(duration=end), "lengthen timeline for DPC")
+        return controller.push(lambda: timeline.add_keys(keys, "import DPC"), "import DPC") is not None
+
+    def export_dpc(self, path: str | None = None) -> bool:
+        """Write the timeline's control-point tracks as a DPC file (one frame per timeline frame)."""
+        from core.formats.dpc_file import DpcFileError, write_dpc
+        from core.layers.rbf.files import dpc_from_timeline
+
+        controller = self._timeline()
+        path = path or QFileDialog.getSaveFileName(self, "Export control-point dynamics", "animation.dpc",
+                                                   "DPC files (*.dpc)")[0]
+        if not path or controller is None or self.rbf is None:
+            return False
+        try:
+            write_dpc(path, dpc_from_timeline(controller.timeline, self.rbf))
+        except (DpcFileError, P.ParameterError) as exc:
+            self.show_message(str(exc))
+            return False
+        return True

@@ -69,3 +69,20 @@ def test_the_dock_drives_control_points_and_waters_muscles(qtbot, win, tmp_path)
     assert "line 1" in dock.message_label.text() and rig.layer("control_points").deformer is layer_before
     assert dock.open_ppc(str(tmp_path / "face.ppc"))
     np.testing.assert_array_equal(rig.layer("control_points").points.vertices, layer_before.points.vertices)
+
+
+def test_dpc_files_go_to_and_from_the_timeline(qtbot, win, tmp_path):
+    dock, c = win.control_point_dock, win.timeline
+    assert dock.ensure_layers()
+    c.push(lambda: c.timeline.add_keys({"cp:8.3:y": [(0.0, 0.0, "linear"), (1.0, 6.0, "linear")]}))
+    assert dock.export_dpc(str(tmp_path / "a.dpc"))
+    win.undo_stack.undo()
+    assert "cp:8.3:y" not in c.timeline.tracks or not len(c.timeline.track("cp:8.3:y"))
+    assert dock.import_dpc(str(tmp_path / "a.dpc"))
+    track = c.timeline.track("cp:8.3:y")
+    assert len(track) == c.timeline.n_frames and track.evaluate(0.5) == pytest.approx(3.0)
+    c.seek(0.5)
+    assert win.rig.value("cp:8.3:y") == pytest.approx(3.0)
+    (tmp_path / "bad.dpc").write_text("2\n0 0 0\n0 x 0\n")
+    assert not dock.import_dpc(str(tmp_path / "bad.dpc"))
+    assert "line 3" in dock.message_label.text()
