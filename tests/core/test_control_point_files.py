@@ -125,3 +125,26 @@ def test_dpc_export_of_control_point_tracks_round_trips(layer, tmp_path):
     assert layer.value("cp:8.3:y") == pytest.approx(2.5) and layer.value("cp:4.1:x") == pytest.approx(-1.0)
     with pytest.raises(ParameterError, match="frame rate"):
         keys_from_dpc(type(back)(back.displacements, back.names, back.feature_points, None))
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_TOKENS = st.sampled_from(["chin", "2.10", "8.3", "mouth_corner_l", "1", "-2.5", "1,5", "nan", "inf", "1e400", "x",
+                           "#", "# aus 1 x", "# emotion joy", "# points chin", ";", ",", "-", "\t", "\ufeff", "0"])
+_TEXTS = st.lists(st.lists(_TOKENS, max_size=6).map(" ".join), max_size=12).map("\n".join)
+
+
+@settings(max_examples=150, deadline=None, derandomize=True, database=None)
+@given(_TEXTS)
+def test_ppc_and_epc_readers_raise_only_their_own_errors(text):
+    try:
+        ppc = parse_ppc(text, source="f.ppc")
+        assert np.isfinite(ppc.positions).all() and len(ppc.names) == len(ppc.positions)
+    except PpcFileError as exc:
+        assert str(exc)
+    try:
+        emo = parse_epc(text, source="f.epc")
+        assert np.isfinite(emo.frames).all() and emo.frames.shape[1] == len(emo.names)
+    except EpcFileError as exc:
+        assert str(exc)
