@@ -10,7 +10,8 @@ Data: ``resources/rbf/influence.csv`` (which regions each control point may move
    farther than ``reach_mm`` from every such point is *static*; eyeballs, teeth and the mouth cavity are
    never moved;
 3. the labels are blended over ``blend_mm`` (smoothstep of the distance to each region's vertices), never
-   across a side seam, into weights W (n, R) that sum to 1 with the static share;
+   across a side seam (a seam fades out over ``SEAM_FADE_MM`` beyond its ends, e.g. past the eye corners,
+   so it leaves no crease where it stops), into weights W (n, R) that sum to 1 with the static share;
 4. the influence of control point c on vertex v is Ω(v, c) = Σ_{R ∈ regions(c)} W(v, R), divided by its value
    at c's own vertex and capped at 1 — so Ω = 1 at the point (exact interpolation) and 0 in every region it
    does not list (it never moves them).
@@ -115,33 +116,63 @@ def skin_vertices(face: Face) -> np.ndarray:
     return np.nonzero(~in_part)[0]
 
 
-def _sides(face: Face, skin: np.ndarray) -> dict[str, np.ndarray]:
-    """{seam: (len(skin),) +1 above / −1 below / 0 away from it} for 'mouth', 'eye_l', 'eye_r'."""
+#: Beyond its ends a side seam fades out over this distance (mm), so it leaves no crease where it stops.
+SEAM_FADE_MM = 10.0
+
+
+def _seam(v: np.ndarray, line: np.ndarray, lo: float, hi: float, band: float, exact=None
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """(side (k,) +1 above / −1 below the polyline ``line`` (p, 2) of x, y; strength (k,) in [0, 1]): 1
+    for x in [lo, hi] within ``band`` mm of the line, fading to 0 over SEAM_FADE_MM beyond the ends.
+    ``exact``: (k,) ±1 side to use where it is nonzero (the mouth's own rim test)."""
+    order = np.argsort(line[:, 0])
+    y_line = np.interp(v[:, 0], line[order, 0], line[order, 1])
+    side = np.where(v[:, 1] >= y_line, 1, -1)
+    if exact is not None:
+        side = np.where(exact != 0, exact, side)
+    outside = np.maximum(lo - v[:, 0], v[:, 0] - hi).clip(min=0.0)
+    t = np.clip(1.0 - outside / SEAM_FADE_MM, 0.0, 1.0)
+    strength = t * t * (3.0 - 2.0 * t) * (np.abs(v[:, 1] - y_line) < band)
+    return side, strength
+
+
+def _sides(face: Face, skin: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{seam: (side, strength)} (see :func:`_seam`) for 'mouth', 'eye_l', 'eye_r'; strength 0 without the
+    feature points that place the seam."""
     from core.layers.fap.template import mouth_side
 
-    out = {"mouth": mouth_side(face, skin)}
     v = face.vertices[skin]
+    none = (np.zeros(len(skin), np.int64), np.zeros(len(skin)))
+    out = {}
+    lips = ("2.5", "2.7", "2.2", "2.6", "2.4", "2.9", "2.3", "2.8", "8.3", "8.4")
+    if all(p in face.landmark_names for p in lips):
+        up = np.array([face.landmark_position(p) for p in ("2.5", "2.7", "2.2", "2.6", "2.4")])
+        lo = np.array([face.landmark_position(p) for p in ("2.5", "2.9", "2.3", "2.8", "2.4")])
+        corner_x = max(abs(face.landmark_position("8.3")[0]), abs(face.landmark_position("8.4")[0]))
+        out["mouth"] = _seam(v, ((up + lo) / 2)[:, :2], -corner_x - 2.0, corner_x + 2.0, 30.0,
+                             exact=mouth_side(face, skin))
+    else:
+        out["mouth"] = none
     for side, (outer, inner) in (("l", ("3.7", "3.11")), ("r", ("3.12", "3.8"))):
         if outer not in face.landmark_names or inner not in face.landmark_names:
-            out[f"eye_{side}"] = np.zeros(len(skin), np.int64)
+            out[f"eye_{side}"] = none
             continue
         a, b = face.landmark_position(outer), face.landmark_position(inner)
-        lo, hi = min(a[0], b[0]) - 3.0, max(a[0], b[0]) + 3.0
-        t = np.clip((v[:, 0] - a[0]) / (b[0] - a[0]), 0.0, 1.0)
-        y_line = a[1] + t * (b[1] - a[1])
-        near = (v[:, 0] >= lo) & (v[:, 0] <= hi) & (np.abs(v[:, 1] - y_line) < 20.0)
-        out[f"eye_{side}"] = np.where(near, np.where(v[:, 1] >= y_line, 1, -1), 0)
+        out[f"eye_{side}"] = _seam(v, np.array([a[:2], b[:2]]), min(a[0], b[0]) - 3.0, max(a[0], b[0]) + 3.0,
+                                   20.0)
     return out
 
 
-def _allowed(side: str, sides: dict[str, np.ndarray], n: int) -> np.ndarray:
+def _allowed(side: str, sides: dict, n: int) -> np.ndarray:
+    """(n,) in [0, 1]: how much a region with this side rule may weigh at each vertex (0 across its seam)."""
     if side in ("-", ""):
-        return np.ones(n, bool)
+        return np.ones(n)
     where, _, seam = side.partition("_")
     if seam not in sides or where not in ("above", "below"):
         raise ValueError(f"regions.csv: unknown side {side!r} (above_/below_ mouth, eye_l, eye_r, or -)")
-    s = sides[seam]
-    return s >= 0 if where == "above" else s <= 0
+    sign, strength = sides[seam]
+    wrong = sign < 0 if where == "above" else sign > 0
+    return np.where(wrong, 1.0 - strength, 1.0)
 
 
 def influence(face: Face, points: ControlPoints, *, reach_mm: float = 35.0, blend_mm: float = 20.0
@@ -158,7 +189,8 @@ def influence(face: Face, points: ControlPoints, *, reach_mm: float = 35.0, blen
     skin = skin_vertices(face)
     v = face.vertices[skin]
     sides = _sides(face, skin)
-    allowed = np.column_stack([_allowed(table[r], sides, len(skin)) for r in regions])     # (k, R)
+    soft = np.column_stack([_allowed(table[r], sides, len(skin)) for r in regions])        # (k, R) in [0, 1]
+    allowed = soft > 0.5
     member = np.zeros((len(points), len(regions)), bool)                                 # (c, R)
     for i, spec in enumerate(points.specs):
         member[i, [regions.index(r) for r in spec.regions]] = True
@@ -186,7 +218,7 @@ def influence(face: Face, points: ControlPoints, *, reach_mm: float = 35.0, blen
         s = np.clip(1.0 - d / blend_mm, 0.0, 1.0)
         w = s * s * (3.0 - 2.0 * s)
         if j < len(regions):
-            w *= allowed[:, j]
+            w *= soft[:, j]
         weights[:, j] = w
     weights /= weights.sum(axis=1, keepdims=True)
     # 3. each point's influence: the weights of its regions, 1 at its own vertex.
