@@ -9,7 +9,8 @@ without regions (the worst case). The same 80 × 10,000
 data against ``scipy.interpolate.RBFInterpolator`` (same kernel and settings): ratio = our drag / scipy's
 construct + evaluate, and / scipy's evaluate alone (< 1: we are faster). A Waters tick is one strength set
 and the 18-muscle offset at the default face ('limit' rule); the inverse is one bounded least-squares solve
-for one dragged skin vertex (its response rows included).
+for one dragged skin vertex (its response rows included), for the Waters muscles and for SABiom's (its
+linear response measured once, ``core.inverse``; the settling after it is the muscle solver's).
 
     rbf_drag_ms median=<x> vertices=<n>          goal 5 ms
     rbf_vs_scipy ratio=<x>                       goal < 1 (two lines: construct+evaluate, evaluate)
@@ -168,6 +169,24 @@ def main() -> None:
         solve_strengths(model.vertex_response([v]), target, waters.strengths())
         times[i] = time.perf_counter() - start
     print(f"inverse_solve_ms median={median_ms(times):.3f}  (18 Waters muscles, one skin vertex, goal 30 ms)")
+
+    # the inverse on SABiom's 20 controls, from their measured linear response (one solve, no settling)
+    from core.inverse import LinearResponse
+    from core.layers.muscles.layer import MuscleLayer
+
+    sabiom = MuscleLayer(default)
+    response = LinearResponse.measured(sabiom)
+    cols = np.abs(response.matrix).reshape(default.n_vertices, 3, -1).max(axis=(1, 2))
+    skin = np.nonzero(cols > 0.01)[0]
+    for i in range(args.repeats):
+        v = int(rng.choice(skin))
+        known = rng.uniform(0, 0.3, len(response.keys)) * response.upper
+        target = response.rows([v]) @ known
+        start = time.perf_counter()
+        response.solve([v], target, np.zeros(len(response.keys)))
+        times[i] = time.perf_counter() - start
+    print(f"inverse_solve_ms median={median_ms(times):.3f}  (20 SABiom controls, linear response, one skin vertex, "
+          "goal 30 ms)")
 
 
 if __name__ == "__main__":
