@@ -12,6 +12,7 @@ muscles (``core.layers.waters``) of the document's rig.
   3.2-3.3, EPC files) at the intensity chosen; "Open EPC…" applies an emotion file, "Open PPC…" / "Save
   PPC…" place and save the control points; "Import DPC…" keys a DPC file's frames on the timeline (one
   undo step; the player's start/pause/speed are the timeline's) and "Export DPC…" writes its tracks.
+* "Show control points" draws them on the face (yellow points that follow the pose).
 * Waters: one row per muscle and side, "Link left/right", and how muscles combine (displacement limit,
   strongest of group, plain sum).
 
@@ -45,6 +46,8 @@ class ControlPointDock(QDockWidget):
         self.rig = None
         self.rows: dict[str, ParameterRow] = {}
         self._syncing = False
+        self.points_actor = None      # the control points in the viewport ("Show control points")
+        self._points_mesh = None
         self._build()
         if window is not None and document is not None:
             window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self)
@@ -95,6 +98,11 @@ class ControlPointDock(QDockWidget):
         form.addRow(self.main_label, self.main_spin)
         form.addRow("Regulariser λ", self.smoothing_spin)
         form.addRow(self.poly_check)
+        self.show_check = QCheckBox("Show control points", rbf)
+        self.show_check.setObjectName("showControlPoints")
+        self.show_check.setToolTip("Draw the control points on the face (yellow), following the pose")
+        self.show_check.toggled.connect(self.set_points_visible)
+        form.addRow(self.show_check)
         self.point_combo = QComboBox(rbf)
         self.point_combo.setObjectName("rbfPoint")
         form.addRow("Point", self.point_combo)
@@ -198,6 +206,7 @@ class ControlPointDock(QDockWidget):
             self.rig = rig
             if rig is not None:
                 rig.parameters_changed.connect(self._on_parameters_changed)
+                rig.changed.connect(lambda _change, r=rig: self._update_points() if r is self.rig else None)
             if rig is not None and self.isVisible():
                 self.ensure_layers()
         self._rebuild()
@@ -248,6 +257,8 @@ class ControlPointDock(QDockWidget):
         self._show_point_rows()
         self._show_settings()
         self._show_values()
+        if self.show_check.isChecked():
+            self.set_points_visible(True)
 
     def _show_point_rows(self) -> None:
         for key in [k for k in self.rows if k.startswith("cp:")]:
@@ -265,6 +276,42 @@ class ControlPointDock(QDockWidget):
             self.rows[row.key] = row
         align_rows(self.rows.values())
         self._show_values()
+
+    # ------------------------------------------------------------ the viewport
+    def set_points_visible(self, visible: bool) -> None:
+        """Show or hide the control points on the face (one point actor, moved with the pose)."""
+        with QSignalBlocker(self.show_check):
+            self.show_check.setChecked(bool(visible))
+        plotter = getattr(self.window_, "plotter", None)
+        if plotter is None:
+            return
+        if self.points_actor is not None:
+            plotter.remove_actor(self.points_actor, render=False)
+            self.points_actor = self._points_mesh = None
+        if visible and self.rbf is not None:
+            import pyvista as pv
+
+            self._points_mesh = pv.PolyData(self._point_positions())
+            self.points_actor = plotter.add_mesh(self._points_mesh, color=(1.0, 0.85, 0.1), point_size=11,
+                                                 render_points_as_spheres=True, pickable=False, reset_camera=False,
+                                                 name="control_points")
+        self.window_.viewport.request("render")
+
+    def _point_positions(self):
+        rbf = self.rbf
+        v = rbf.points.vertices
+        x = self.rig.vertices()
+        return x[v] + 0.6 * rbf.face.vertex_normals[v]   # lifted off the skin so the face never hides them
+
+    def _update_points(self) -> None:
+        if self._points_mesh is None or self.rbf is None:
+            return
+        pos = self._point_positions()
+        if len(pos) != self._points_mesh.n_points:      # the points were placed anew (a PPC)
+            self.set_points_visible(True)
+            return
+        self._points_mesh.points = pos
+        self.window_.viewport.request("render")
 
     # ------------------------------------------------------------ rig -> widgets
     def show_message(self, message: str) -> None:

@@ -86,3 +86,17 @@ def test_dpc_files_go_to_and_from_the_timeline(qtbot, win, tmp_path):
     (tmp_path / "bad.dpc").write_text("2\n0 0 0\n0 x 0\n")
     assert not dock.import_dpc(str(tmp_path / "bad.dpc"))
     assert "line 3" in dock.message_label.text()
+
+
+def test_control_points_show_on_the_face_and_follow_the_pose(qtbot, win):
+    dock = win.control_point_dock
+    assert dock.ensure_layers()
+    dock.show_check.setChecked(True)
+    layer = win.rig.layer("control_points")
+    assert dock.points_actor is not None and dock._points_mesh.n_points == len(layer.points)
+    before = np.array(dock._points_mesh.points)
+    win.rig.set_values({"cp:8.3:y": 4.0})
+    corner = layer.points.names.index("mouth_corner_l")
+    assert np.array(dock._points_mesh.points)[corner, 1] - before[corner, 1] == pytest.approx(4.0, abs=1e-4)
+    dock.show_check.setChecked(False)
+    assert dock.points_actor is None
