@@ -17,7 +17,8 @@ muscles (``core.layers.waters``) of the document's rig.
   strongest of group, plain sum).
 
 House rules of the FAP dock: edits go through ``rig.set_values`` (one undo step each, from the
-document's ``UndoableRigEdits``), the widgets follow ``rig.parameters_changed`` with their signals
+document's ``UndoableRigEdits``; kernel, combine rule and PPC placement are layer settings, pushed as their
+own undo steps), the widgets follow ``rig.parameters_changed`` with their signals
 blocked, and the dock never renders.
 """
 
@@ -387,19 +388,38 @@ class ControlPointDock(QDockWidget):
         main = {"multiquadric": "delta", "inverse_multiquadric": "delta", "gaussian": "sigma"}.get(name)
         if main is not None and not switch:
             settings[main] = self.main_spin.value()
+        old = rbf.kernel
         try:
             rbf.set_kernel(Kernel(**settings))
         except (P.ParameterError, ValueError) as exc:
             self.show_message(str(exc))
         else:
             self.show_message("")
+            self._push("RBF kernel", lambda k, layer=rbf: self._set_setting(layer.set_kernel, k), old, rbf.kernel,
+                       "rbf-kernel")
         self._show_settings()
+
+    def _set_setting(self, setter, value) -> None:
+        setter(*value) if isinstance(value, tuple) else setter(value)
+        self._show_settings()
+
+    def _push(self, text: str, apply_fn, old, new, merge_id) -> None:
+        """One undo step for a layer setting already in effect (merged within one gesture)."""
+        stack = getattr(self.document, "undo_stack", None)
+        if stack is None or old == new:
+            return
+        from app.undo import SetValueCommand
+
+        stack.push(SetValueCommand(text, apply_fn, old, new, merge_id, applied=True))
 
     def _combine_edited(self) -> None:
         waters = self.waters
         if waters is None:
             return
+        old = (waters.combine, waters.limit_mm)
         waters.set_combine(self.combine_combo.currentData(), self.limit_spin.value())
+        self._push("Waters combine rule", lambda c, layer=waters: self._set_setting(layer.set_combine, c), old,
+                   (waters.combine, waters.limit_mm), "waters-combine")
         self._show_settings()
 
     def apply_emotion(self, name: str, emotion=None) -> bool:
@@ -435,11 +455,14 @@ class ControlPointDock(QDockWidget):
                                                    "PPC files (*.ppc);;All files (*)")[0]
         if not path or (self.rbf is None and not self.ensure_layers()):
             return False
+        layer, old = self.rbf, self.rbf.deformer
         try:
-            self.rbf.place_points(read_ppc(path).as_dict())
+            layer.place_points(read_ppc(path).as_dict())
         except (PpcFileError, P.ParameterError) as exc:
             self.show_message(str(exc))
             return False
+        self._push("place control points", lambda d: (layer.set_deformer(d), self._rebuild()), old, layer.deformer,
+                   None)
         self._rebuild()
         return True
 

@@ -42,12 +42,19 @@ def test_the_dock_drives_control_points_and_waters_muscles(qtbot, win, tmp_path)
     assert rig.value("cp:8.3:y") == 0.0
 
     # The kernel box switches the kernel; a main parameter the system cannot take is a message.
+    gestures().new()
     dock.kernel_combo.setCurrentIndex(dock.kernel_combo.findData("gaussian"))
     assert rig.layer("control_points").kernel.name == "gaussian"
     before = rig.layer("control_points").kernel
     dock.main_spin.setValue(900000.0)
     assert rig.layer("control_points").kernel == before and "singular" in dock.message_label.text()
+    gestures().new()
     dock.kernel_combo.setCurrentIndex(dock.kernel_combo.findData("multiquadric"))
+    assert rig.layer("control_points").kernel == Kernel()
+    stack.undo()                                                    # kernel changes are undo steps too
+    assert rig.layer("control_points").kernel.name == "gaussian"
+    assert dock.kernel_combo.currentData() == "gaussian"
+    stack.redo()
     assert rig.layer("control_points").kernel == Kernel()
 
     # A point's row moves it; Waters rows move the muscle and, linked, its mirror.
@@ -69,6 +76,9 @@ def test_the_dock_drives_control_points_and_waters_muscles(qtbot, win, tmp_path)
     assert "line 1" in dock.message_label.text() and rig.layer("control_points").deformer is layer_before
     assert dock.open_ppc(str(tmp_path / "face.ppc"))
     np.testing.assert_array_equal(rig.layer("control_points").points.vertices, layer_before.points.vertices)
+    assert rig.layer("control_points").deformer is not layer_before
+    stack.undo()
+    assert rig.layer("control_points").deformer is layer_before
 
 
 def test_dpc_files_go_to_and_from_the_timeline(qtbot, win, tmp_path):

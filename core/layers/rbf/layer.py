@@ -190,6 +190,14 @@ class ControlPointLayer(ValueLayer):
         Pose(deformer, self._kernel)   # factorise before anything changes
         self._swap(deformer)
 
+    def set_deformer(self, deformer: ControlPointDeformer) -> None:
+        """Use another placement of the control points on this face (e.g. back to one before
+        :meth:`place_points`, for undo); displacements of points that stay are kept."""
+        if deformer.face is not self.face:
+            raise P.ParameterError("that control-point placement belongs to another face")
+        Pose(deformer, self._kernel)
+        self._swap(deformer)
+
     def _swap(self, deformer: ControlPointDeformer) -> None:
         if deformer is self.deformer:
             return
