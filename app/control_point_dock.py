@@ -12,7 +12,10 @@ muscles (``core.layers.waters``) of the document's rig.
   3.2-3.3, EPC files) at the intensity chosen; "Open EPC…" applies an emotion file, "Open PPC…" / "Save
   PPC…" place and save the control points; "Import DPC…" keys a DPC file's frames on the timeline (one
   undo step; the player's start/pause/speed are the timeline's) and "Export DPC…" writes its tracks.
-* "Show control points" draws them on the face (yellow points that follow the pose).
+* "Show control points" draws them on the face (yellow points that follow the pose). "Clicks on the face"
+  (a drag still orbits): move the selected control point to the click (one undo step), or the inverse: a
+  first click picks a skin point, a second where it should go, and the Waters muscles move to bring it there
+  (``core.inverse``, one undo step).
 * Waters: one row per muscle and side, "Link left/right", and how muscles combine (displacement limit,
   strongest of group, plain sum).
 
@@ -49,6 +52,9 @@ class ControlPointDock(QDockWidget):
         self._syncing = False
         self.points_actor = None      # the control points in the viewport ("Show control points")
         self._points_mesh = None
+        self.mouse = None             # clicks on the face (picking.ViewportMouse), once a click mode is chosen
+        self._picker = (None, None)   # (face actor, its SurfacePicker)
+        self.inverse_vertex: int | None = None   # the skin vertex the inverse mode's next click moves
         self._build()
         if window is not None and document is not None:
             window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self)
@@ -104,6 +110,16 @@ class ControlPointDock(QDockWidget):
         self.show_check.setToolTip("Draw the control points on the face (yellow), following the pose")
         self.show_check.toggled.connect(self.set_points_visible)
         form.addRow(self.show_check)
+        self.click_combo = QComboBox(rbf)
+        self.click_combo.setObjectName("clickMode")
+        for title, mode in (("Orbit only", "off"), ("Move the point to the click", "move"),
+                            ("Inverse: skin point, then target", "inverse")):
+            self.click_combo.addItem(title, mode)
+        self.click_combo.setToolTip("What a click on the face does (a drag always orbits the camera). Inverse: "
+                                    "the first click picks a skin point, the second where it should go; the "
+                                    "Waters muscles move to bring it there as nearly as they can")
+        self.click_combo.currentIndexChanged.connect(lambda _i: self._click_mode_changed())
+        form.addRow("Clicks on the face", self.click_combo)
         self.point_combo = QComboBox(rbf)
         self.point_combo.setObjectName("rbfPoint")
         form.addRow("Point", self.point_combo)
@@ -297,6 +313,67 @@ class ControlPointDock(QDockWidget):
                                                  render_points_as_spheres=True, pickable=False, reset_camera=False,
                                                  name="control_points")
         self.window_.viewport.request("render")
+
+    def _click_mode_changed(self) -> None:
+        self.inverse_vertex = None
+        plotter = getattr(self.window_, "plotter", None)
+        if self.click_combo.currentData() != "off" and self.mouse is None and plotter is not None:
+            from app.picking import ViewportMouse
+
+            self.mouse = ViewportMouse(plotter, self.on_click)
+        if self.click_combo.currentData() == "inverse":
+            self.show_message("Inverse: click the skin point to move, then where it should go.")
+
+    def pick(self, x: float, y: float):
+        """The face under display pixel (x, y) (picking.SurfaceHit), or None."""
+        actor = getattr(self.window_, "face_actor", None)
+        if actor is None or self.rig is None:
+            return None
+        if self._picker[0] is not actor:
+            from app.picking import SurfacePicker
+
+            self._picker = (actor, SurfacePicker(actor.actor, actor.mesh, self.rig.face.triangles))
+        return self._picker[1].pick(self.window_.plotter.renderer, x, y)
+
+    def on_click(self, x: float, y: float, _shift: bool = False, _ctrl: bool = False) -> None:
+        """A click on the face in the chosen mode: move the selected control point there (one undo step), or
+        pick the inverse's skin point, then its target."""
+        mode = self.click_combo.currentData()
+        try:
+            if mode == "off" or self.rig is None or (self.rbf is None and not self.ensure_layers()):
+                return
+            hit = self.pick(x, y)
+            if hit is None:
+                self.show_message("Missed the face: click on the surface.")
+                return
+            import numpy as np
+
+            from app.undo import gestures
+
+            target = np.array(hit.position)
+            gestures().new()
+            if mode == "move":
+                rbf, fp = self.rbf, self.point_combo.currentData()
+                i = rbf.points.feature_points.index(fp)
+                now = self.rig.vertices()[rbf.points.vertices[i]]
+                keys = [f"cp:{fp}:{a}" for a in "xyz"]
+                values = np.array([self.rig.value(k) for k in keys]) + (target - now)
+                self._apply(dict(zip(keys, values.tolist())))
+            elif self.inverse_vertex is None:
+                corners = self.rig.face.triangles[hit.triangle]
+                self.inverse_vertex = int(corners[int(np.argmax(hit.barycentric))])
+                self.show_message("Now click where that skin point should go.")
+            else:
+                from core.inverse import LinearResponse, reach
+
+                v, self.inverse_vertex = self.inverse_vertex, None
+                waters = self.waters
+                reach(self.rig, waters, LinearResponse.of_waters(waters), [v], target[None])
+                miss = float(np.linalg.norm(self.rig.vertices()[v] - target))
+                self.show_message(f"The Waters muscles reach within {miss:.1f} mm of the target."
+                                  + (" It is beyond what they can do." if miss > 1.0 else ""))
+        except Exception as exc:  # noqa: BLE001 - a click must never raise into VTK
+            self.show_message(f"That click could not be applied: {exc}")
 
     def _point_positions(self):
         rbf = self.rbf

@@ -110,3 +110,39 @@ def test_control_points_show_on_the_face_and_follow_the_pose(qtbot, win):
     assert np.array(dock._points_mesh.points)[corner, 1] - before[corner, 1] == pytest.approx(4.0, abs=1e-4)
     dock.show_check.setChecked(False)
     assert dock.points_actor is None
+
+
+def test_clicks_move_a_control_point_and_drive_the_inverse(qtbot, win):
+    from app.picking import world_to_display
+
+    dock, rig = win.control_point_dock, win.rig
+    assert dock.ensure_layers()
+    renderer = win.plotter.renderer
+    layer = rig.layer("control_points")
+    dock.point_combo.setCurrentIndex(dock.point_combo.findData("8.3"))
+    dock.click_combo.setCurrentIndex(dock.click_combo.findData("move"))
+    corner = layer.points.vertices[layer.points.names.index("mouth_corner_l")]
+    # a surface point 4 mm above the corner (the vertex of the face nearest there)
+    goal = rig.face.vertices[corner] + [0.0, 4.0, 0.0]
+    near = int(np.argmin(np.linalg.norm(rig.face.vertices - goal, axis=1)))
+    x, y, _ = world_to_display(renderer, rig.face.vertices[near])[0]
+    dock.on_click(x, y)
+    assert np.linalg.norm(rig.vertices()[corner] - rig.face.vertices[near]) < 0.5
+    assert rig.value("cp:8.3:y") > 3.0
+    win.undo_stack.undo()
+    assert rig.value("cp:8.3:y") == 0.0
+    # inverse: pick a skin point on the left cheek near the zygomatic insertion, then a target up and out
+    dock.click_combo.setCurrentIndex(dock.click_combo.findData("inverse"))
+    waters = rig.layer("waters")
+    m = waters.model.muscles[waters.model.keys.index("waters:zygomatic_major:left")]
+    response = np.abs(waters.model.response[:, waters.model.keys.index("waters:zygomatic_major:left")].toarray())
+    moved = response.reshape(-1, 3).max(axis=1)
+    skin = int(np.argmin(np.linalg.norm(rig.face.vertices - m.insertion, axis=1) + 1e9 * (moved < 1.0)))
+    x, y, _ = world_to_display(renderer, rig.face.vertices[skin])[0]
+    dock.on_click(x, y)
+    assert dock.inverse_vertex is not None
+    target = rig.vertices()[dock.inverse_vertex] + 0.5 * (m.attachment - rig.face.vertices[dock.inverse_vertex]) * 0.1
+    tx, ty, _ = world_to_display(renderer, target)[0]
+    dock.on_click(tx, ty)
+    assert dock.inverse_vertex is None and "reach within" in dock.message_label.text()
+    assert rig.value("waters:zygomatic_major:left") > 0.0
