@@ -8,7 +8,8 @@ muscles (``core.layers.waters``) of the document's rig.
 * RBF: the kernel and its main parameter (δ for the multiquadrics, σ for the Gaussian, mm²), the linear
   polynomial and the regulariser λ (B §5.4: "the RBF type and its main parameter"); a setting the
   system refuses (singular) is a message and the previous one stays. A control point picked in the list
-  shows its x/y/z rows (the shared ``ParameterRow``). Emotion buttons apply the FACS presets (B Tables
+  shows its x/y/z rows (the shared ``ParameterRow``); the reference chart (a 2-D front diagram of the points)
+  selects one by a click. Emotion buttons apply the FACS presets (B Tables
   3.2-3.3, EPC files) at the intensity chosen; "Open EPC…" applies an emotion file, "Open PPC…" / "Save
   PPC…" place and save the control points; "Import DPC…" keys a DPC file's frames on the timeline (one
   undo step; the player's start/pause/speed are the timeline's) and "Export DPC…" writes its tracks.
@@ -27,7 +28,8 @@ blocked, and the dock never renders.
 
 from __future__ import annotations
 
-from PySide6.QtCore import QSignalBlocker, Qt
+from PySide6.QtCore import QPointF, QSignalBlocker, Qt, Signal
+from PySide6.QtGui import QColor, QPainter, QPen
 from PySide6.QtWidgets import (
     QCheckBox, QComboBox, QDockWidget, QDoubleSpinBox, QFileDialog, QFormLayout, QGridLayout, QGroupBox, QHBoxLayout,
     QLabel, QPushButton, QScrollArea, QVBoxLayout, QWidget)
@@ -38,6 +40,82 @@ from core import parameters as P
 KERNEL_TITLES = {"multiquadric": "Multiquadric", "inverse_multiquadric": "Inverse multiquadric",
                  "gaussian": "Gaussian", "thin_plate_spline": "Thin plate spline", "linear": "Linear"}
 COMBINE_TITLES = {"limit": "Limit per vertex", "strongest": "Strongest of group", "sum": "Sum"}
+
+
+class ReferenceChart(QWidget):
+    """Thesis B's reference chart (§5.4): a 2-D front diagram of the control points (the face's left on the
+    right, as in the front view). Clicking a point selects it (``point_selected(fp)``); the selected one is
+    drawn larger. Positions come from the built-in face's feature points."""
+
+    point_selected = Signal(str)
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setObjectName("referenceChart")
+        self.setMinimumSize(160, 200)
+        self.setToolTip("Click a control point to select it; with 'Place the point at the click' a click on the "
+                        "face puts it there")
+        self.points: dict[str, tuple[float, float]] = {}
+        self.names: dict[str, str] = {}
+        self.selected: str | None = None
+
+    def set_points(self, names, feature_points) -> None:
+        from core.default_face import load_default_face
+
+        face = load_default_face()
+        xy = {fp: face.landmark_position(fp)[:2] for fp in feature_points if fp in face.landmark_names}
+        if xy:
+            import numpy as np
+
+            arr = np.array(list(xy.values()))
+            lo, hi = arr.min(axis=0), arr.max(axis=0)
+            span = max(float((hi - lo).max()), 1e-6)
+            self.points = {fp: (float((p[0] - lo[0]) / span), float((p[1] - lo[1]) / span)) for fp, p in xy.items()}
+        self.names = dict(zip(feature_points, names))
+        self.update()
+
+    def set_selected(self, fp: str | None) -> None:
+        self.selected = fp
+        self.update()
+
+    def _to_widget(self, u: float, v: float) -> QPointF:
+        """Chart coordinates (u right, v up; the points span u in [0, umax], v in [0, 1]) to widget pixels."""
+        m = 18.0
+        umax = max((p[0] for p in self.points.values()), default=1.0) or 1.0
+        scale = max(1.0, min((self.width() - 2 * m) / umax, self.height() - 2 * m))
+        x0 = (self.width() - umax * scale) / 2
+        y0 = (self.height() - scale) / 2
+        return QPointF(x0 + u * scale, y0 + (1.0 - v) * scale)
+
+    def paintEvent(self, _event) -> None:  # noqa: N802 - Qt override
+        painter = QPainter(self)
+        painter.setRenderHint(QPainter.RenderHint.Antialiasing)
+        painter.fillRect(self.rect(), QColor(40, 42, 48))
+        if self.points:
+            umax = max(p[0] for p in self.points.values())
+            centre = self._to_widget(umax / 2, 0.5)
+            corner = self._to_widget(umax * 1.22, 1.12)   # a face outline around the points
+            painter.setPen(QPen(QColor(120, 124, 132), 1.5))
+            painter.drawEllipse(centre, corner.x() - centre.x(), centre.y() - corner.y())
+        for fp, (u, v) in self.points.items():
+            chosen = fp == self.selected
+            painter.setPen(QPen(QColor(20, 20, 20), 1))
+            painter.setBrush(QColor(255, 90, 40) if chosen else QColor(255, 217, 26))
+            r = 6.0 if chosen else 3.5
+            painter.drawEllipse(self._to_widget(u, v), r, r)
+        painter.end()
+
+    def mousePressEvent(self, event) -> None:  # noqa: N802 - Qt override
+        pos = event.position()
+        best, dist = None, 15.0
+        for fp, (u, v) in self.points.items():
+            p = self._to_widget(u, v)
+            d = ((p.x() - pos.x()) ** 2 + (p.y() - pos.y()) ** 2) ** 0.5
+            if d < dist:
+                best, dist = fp, d
+        if best is not None:
+            self.set_selected(best)
+            self.point_selected.emit(best)
 
 
 class ControlPointDock(QDockWidget):
@@ -113,16 +191,21 @@ class ControlPointDock(QDockWidget):
         self.click_combo = QComboBox(rbf)
         self.click_combo.setObjectName("clickMode")
         for title, mode in (("Orbit only", "off"), ("Move the point to the click", "move"),
-                            ("Inverse: skin point, then target", "inverse")):
+                            ("Place the point at the click", "place"), ("Inverse: skin point, then target", "inverse")):
             self.click_combo.addItem(title, mode)
-        self.click_combo.setToolTip("What a click on the face does (a drag always orbits the camera). Inverse: "
+        self.click_combo.setToolTip("What a click on the face does (a drag always orbits the camera). Move: the "
+                                    "selected point is displaced there; Place: its rest position is set there (a "
+                                    "new face: pick the point in the chart, click its spot). Inverse: "
                                     "the first click picks a skin point, the second where it should go; the "
                                     "Waters muscles move to bring it there as nearly as they can")
         self.click_combo.currentIndexChanged.connect(lambda _i: self._click_mode_changed())
         form.addRow("Clicks on the face", self.click_combo)
+        self.chart = ReferenceChart(rbf)
+        form.addRow(self.chart)
         self.point_combo = QComboBox(rbf)
         self.point_combo.setObjectName("rbfPoint")
         form.addRow("Point", self.point_combo)
+        self.chart.point_selected.connect(lambda fp: self.point_combo.setCurrentIndex(self.point_combo.findData(fp)))
         self.point_rows = QWidget(rbf)
         self.point_rows.setLayout(QVBoxLayout())
         self.point_rows.layout().setContentsMargins(0, 0, 0, 0)
@@ -261,10 +344,14 @@ class ControlPointDock(QDockWidget):
                               "Show this dock to add the control points and Waters muscles to the face.")
             return
         self.show_message("")
+        current = self.point_combo.currentData()
         with QSignalBlocker(self.point_combo):
             self.point_combo.clear()
             for name, fp in zip(rbf.points.names, rbf.points.feature_points):
                 self.point_combo.addItem(f"{name} ({fp})", fp)
+            if self.point_combo.findData(current) >= 0:
+                self.point_combo.setCurrentIndex(self.point_combo.findData(current))
+        self.chart.set_points(rbf.points.names, rbf.points.feature_points)
         for key in waters.parameters():
             row = ParameterRow(key, self)
             row.edited.connect(self._row_edited)
@@ -283,6 +370,7 @@ class ControlPointDock(QDockWidget):
             row.setParent(None)
             row.deleteLater()
         fp = self.point_combo.currentData()
+        self.chart.set_selected(fp)
         if fp is None or self.rbf is None:
             return
         for axis in "xyz":
@@ -359,6 +447,19 @@ class ControlPointDock(QDockWidget):
                 keys = [f"cp:{fp}:{a}" for a in "xyz"]
                 values = np.array([self.rig.value(k) for k in keys]) + (target - now)
                 self._apply(dict(zip(keys, values.tolist())))
+            elif mode == "place":
+                rbf, fp = self.rbf, self.point_combo.currentData()
+                name = rbf.points.names[rbf.points.feature_points.index(fp)]
+                corners = self.rig.face.vertices[self.rig.face.triangles[hit.triangle]]
+                positions = rbf.positions()
+                positions[name] = np.asarray(hit.barycentric) @ corners      # on the neutral face
+                old = rbf.deformer
+                rbf.place_points(positions)
+                self._push(f"place {name}", lambda d, layer=rbf: (layer.set_deformer(d), self._rebuild()), old,
+                           rbf.deformer, None)
+                self._rebuild()
+                self.point_combo.setCurrentIndex(self.point_combo.findData(fp))
+                self.show_message(f"{name} placed.")
             elif self.inverse_vertex is None:
                 corners = self.rig.face.triangles[hit.triangle]
                 self.inverse_vertex = int(corners[int(np.argmax(hit.barycentric))])

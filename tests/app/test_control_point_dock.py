@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from PySide6.QtCore import Qt
 
 
 @pytest.fixture
@@ -146,3 +147,29 @@ def test_clicks_move_a_control_point_and_drive_the_inverse(qtbot, win):
     dock.on_click(tx, ty)
     assert dock.inverse_vertex is None and "reach within" in dock.message_label.text()
     assert rig.value("waters:zygomatic_major:left") > 0.0
+
+
+def test_the_chart_selects_a_point_and_a_click_places_it(qtbot, win):
+    from PySide6.QtCore import QPoint
+
+    from app.picking import world_to_display
+
+    dock, rig = win.control_point_dock, win.rig
+    assert dock.ensure_layers()
+    chart = dock.chart
+    u, v = chart.points["8.3"]
+    p = chart._to_widget(u, v)
+    qtbot.mouseClick(chart, Qt.MouseButton.LeftButton, pos=QPoint(int(p.x()), int(p.y())))
+    assert dock.point_combo.currentData() == "8.3" and chart.selected == "8.3"
+    layer = rig.layer("control_points")
+    old_vertex = layer.points.vertices[layer.points.names.index("mouth_corner_l")]
+    dock.click_combo.setCurrentIndex(dock.click_combo.findData("place"))
+    spot = rig.face.vertices[old_vertex] + [3.0, 2.0, 0.0]
+    near = int(np.argmin(np.linalg.norm(rig.face.vertices - spot, axis=1)))
+    x, y, _ = world_to_display(win.plotter.renderer, rig.face.vertices[near])[0]
+    dock.on_click(x, y)
+    new_vertex = layer.points.vertices[layer.points.names.index("mouth_corner_l")]
+    assert new_vertex != old_vertex
+    assert np.linalg.norm(rig.face.vertices[new_vertex] - rig.face.vertices[near]) < 1.5
+    win.undo_stack.undo()
+    assert layer.points.vertices[layer.points.names.index("mouth_corner_l")] == old_vertex
