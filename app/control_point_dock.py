@@ -42,6 +42,22 @@ KERNEL_TITLES = {"multiquadric": "Multiquadric", "inverse_multiquadric": "Invers
 COMBINE_TITLES = {"limit": "Limit per vertex", "strongest": "Strongest of group", "sum": "Sum"}
 
 
+def mirrored(key: str, value: float, available) -> dict[str, float]:
+    """{partner key: value} that "Link left/right" sets with ``key``: the same strength for a Waters muscle's
+    other side, the same y/z and the opposite x for a control point's mirror partner (x points to the face's
+    left); empty when the partner is not among ``available``."""
+    k = P.parse(key)
+    if k.kind == "cp":
+        partner = P.describe(f"cp:{k.id}:y").mirror
+        if partner is None:
+            return {}
+        out = {f"{partner.rsplit(':', 1)[0]}:{k.side}": -value if k.side == "x" else value}
+    else:
+        mirror = P.describe(key).mirror
+        out = {mirror: value} if mirror else {}
+    return {m: v for m, v in out.items() if m in available}
+
+
 class ReferenceChart(QWidget):
     """Thesis B's reference chart (§5.4): a 2-D front diagram of the control points (the face's left on the
     right, as in the front view). Clicking a point selects it (``point_selected(fp)``); the selected one is
@@ -263,6 +279,8 @@ class ControlPointDock(QDockWidget):
         self.limit_spin.setSuffix(" mm")
         self.limit_spin.setKeyboardTracking(False)
         self.link_check = QCheckBox("Link left/right", waters)
+        self.link_check.setToolTip("Move a muscle's or a control point's mirror partner with it (a control "
+                                   "point's x mirrored)")
         self.link_check.setChecked(True)
         top.addWidget(self.combine_combo)
         top.addWidget(self.limit_spin)
@@ -548,9 +566,8 @@ class ControlPointDock(QDockWidget):
         if self.rig is None or self._syncing:
             return
         values = {key: value}
-        mirror = self.rows[key].mirror
-        if mirror is not None and self.link_check.isChecked() and key.startswith("waters:"):
-            values[mirror] = value
+        if self.link_check.isChecked():
+            values.update(mirrored(key, value, self.rig.parameters()))
         self._apply(values)
 
     def _kernel_edited(self, switch: bool = False) -> None:

@@ -173,3 +173,14 @@ def test_the_chart_selects_a_point_and_a_click_places_it(qtbot, win):
     assert np.linalg.norm(rig.face.vertices[new_vertex] - rig.face.vertices[near]) < 1.5
     win.undo_stack.undo()
     assert layer.points.vertices[layer.points.names.index("mouth_corner_l")] == old_vertex
+
+
+def test_link_left_right_mirrors_control_points_and_muscles():
+    from app.control_point_dock import mirrored
+
+    every = ("cp:8.3:x", "cp:8.4:x", "cp:8.4:y", "waters:zygomatic_major:right")
+    assert mirrored("cp:8.3:x", 2.0, every) == {"cp:8.4:x": -2.0}
+    assert mirrored("cp:8.3:y", 2.0, every) == {"cp:8.4:y": 2.0}
+    assert mirrored("cp:8.1:y", 2.0, every) == {}                       # on the midline: no partner
+    assert mirrored("waters:zygomatic_major:left", 0.5, every) == {"waters:zygomatic_major:right": 0.5}
+    assert mirrored("cp:8.3:z", 1.0, every) == {}                       # partner not animated here
