@@ -7,6 +7,8 @@ A parameter is named by a canonical key string ``kind:id[:side]``:
     ``viseme:<id>``                  a viseme preset (FAP 1) intensity 0..1, id 1..14
     ``muscle:<name>:<left|right>``   a SABiom muscle force per side; ``muscle:<name>`` if unpaired
     ``jaw``                          the muscle layer's jaw angle in degrees
+    ``cp:<feature point>:<x|y|z>``   an RBF control point's displacement in mm (thesis B)
+    ``waters:<muscle>:<left|right>`` a Waters vector muscle's contraction 0..1 (thesis B)
 
 :func:`key_of` turns every older spelling into it: a FAP number ``3``, a FAP name ``open_jaw``,
 ``fap:open_jaw``, a muscle pair ``("risorius", "left")`` or ``("orbicularis_oris", None)``,
@@ -86,7 +88,8 @@ _KINDS: dict[str, ParameterKind] = {}
 #: Where the built-in kinds are registered (imported on first use, so ``core.parameters`` itself
 #: depends on no layer).
 _BUILTIN = {"fap": "core.layers.fap.parameters", "expression": "core.layers.fap.parameters", "viseme": "core.layers.fap.parameters",
-            "muscle": "core.layers.muscles.parameters", "jaw": "core.layers.muscles.parameters"}
+            "muscle": "core.layers.muscles.parameters", "jaw": "core.layers.muscles.parameters",
+            "cp": "core.layers.rbf.parameters", "waters": "core.layers.waters.parameters"}
 
 
 def register_kind(kind: ParameterKind) -> None:
