@@ -1,7 +1,8 @@
 """FACS emotion presets for the RBF control points (thesis B §3.2, Tables 3.2-3.3).
 
-``resources/rbf/action_units.csv``: each action unit as control-point displacements (mm);
-``resources/rbf/emotions.csv``: each emotion's action units (B Table 3.3). An emotion is the sum of its
+``resources/facs/control_point_action_units.csv``: each action unit as control-point displacements (mm);
+``resources/facs/emotions.csv``: each emotion's action units with their intensities (B Table 3.3; the
+FAP expression presets use the same table). An emotion is the intensity-weighted sum of its
 action units, shipped as an EPC file ``resources/rbf/emotions/<emotion>.epc`` (what the layer applies, so a
 user can edit or replace it like any EPC). ``python -m core.layers.rbf.emotions`` rewrites those files from
 the two tables; a test checks they agree.
@@ -14,6 +15,7 @@ import functools
 import numpy as np
 
 from core.formats.epc_file import EpcEmotion, read_epc, write_epc
+from core.layers.fap.tables import expression_action_units
 from core.parameters import ParameterError
 
 __all__ = ["EMOTIONS", "action_units", "emotion_aus", "build_emotion", "preset", "emotion_displacements"]
@@ -27,18 +29,15 @@ def action_units() -> dict[int, dict[str, np.ndarray]]:
     import resources
 
     out: dict[int, dict[str, np.ndarray]] = {}
-    for r in resources.get_table("rbf/action_units.csv"):
+    for r in resources.get_table("facs/control_point_action_units.csv"):
         d = out.setdefault(int(r["au"]), {})
         d[r["point"]] = d.get(r["point"], np.zeros(3)) + np.array([float(r[k]) for k in ("dx", "dy", "dz")])
     return out
 
 
-@functools.cache
 def emotion_aus() -> dict[str, tuple[int, ...]]:
     """{emotion: its action units} (B Table 3.3)."""
-    import resources
-
-    return {r["emotion"]: tuple(int(a) for a in r["aus"].split()) for r in resources.get_table("rbf/emotions.csv")}
+    return {name: tuple(mix) for name, mix in expression_action_units().items()}
 
 
 def build_emotion(name: str) -> EpcEmotion:
@@ -50,9 +49,9 @@ def build_emotion(name: str) -> EpcEmotion:
     specs = control_point_specs()
     index = {s.name: i for i, s in enumerate(specs)}
     d = np.zeros((len(specs), 3))
-    for au in emotion_aus()[name]:
+    for au, intensity in expression_action_units()[name].items():
         for point, move in action_units()[au].items():
-            d[index[point]] += move
+            d[index[point]] += intensity * move
     return EpcEmotion(name, d[None], tuple(s.name for s in specs), tuple(s.fp for s in specs), emotion_aus()[name])
 
 
