@@ -492,6 +492,8 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self.landmark_dock = LandmarkDock(self.document, self)
         self.landmark_editor = self.landmark_dock.editor
         self.muscle_dock = MuscleDock(self.document, self)
+        from app.control_point_dock import ControlPointDock   # thesis B: RBF control points, Waters muscles
+        self.control_point_dock = ControlPointDock(self.document, self)
         self.timeline_dock = TimelineDock(self.document, self)   # registers document.timeline / .project
         from app.blend_dock import BlendDock
 

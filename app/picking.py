@@ -38,6 +38,8 @@ from vtkmodules.vtkCommonDataModel import vtkStaticCellLocator
 from vtkmodules.vtkRenderingCore import vtkCellPicker, vtkCoordinate, vtkTextActor
 from PySide6.QtCore import QEvent, QObject, QPointF, Qt
 
+from app.label_layout import LabelLayout
+from app.projection import world_to_display
 from core.face import SurfacePoint
 
 __all__ = [
@@ -57,25 +59,12 @@ HOVER_SIZE_PX = 15.0
 MARKER_OFFSET_MM = 0.8
 SELECTED_OFFSET_MM = 2.0
 LABEL_OFFSET_MM = 2.0
+#: Font sizes of the selected and hovered landmarks' own label boxes.
+SELECTED_LABEL_PT = 14
+HOVER_LABEL_PT = 13
 
 
 # ------------------------------------------------------------------ projections
-def world_to_display(renderer, points) -> np.ndarray:
-    """(k, 3): display x, y (VTK device pixels, origin bottom-left) and depth in [0, 1] of world points (k, 3)."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    camera = renderer.GetActiveCamera()
-    aspect = renderer.GetTiledAspectRatio()
-    m = camera.GetCompositeProjectionTransformMatrix(aspect, -1.0, 1.0)
-    mat = np.array([[m.GetElement(i, j) for j in range(4)] for i in range(4)])
-    homo = np.c_[pts, np.ones(len(pts))] @ mat.T
-    ndc = homo[:, :3] / homo[:, 3:4]
-    width, height = renderer.GetSize()
-    ox, oy = renderer.GetOrigin()
-    x = (ndc[:, 0] + 1.0) * 0.5 * width + ox
-    y = (ndc[:, 1] + 1.0) * 0.5 * height + oy
-    return np.c_[x, y, (ndc[:, 2] + 1.0) * 0.5]
-
-
 def qt_to_display(widget, x: float, y: float) -> tuple[float, float]:
     """Widget (logical, origin top-left) -> VTK display (device pixels, origin bottom-left), as pyvistaqt maps."""
     scale = widget.devicePixelRatioF()
@@ -286,9 +275,11 @@ class LandmarkMarkers:
             actor.prop.diffuse = 0.8
             actor.SetVisibility(False)
         self._anchors: dict[int, object] = {}
-        self._blanked: set[int] = set()  # name labels hidden while their landmark has a label box
-        self.selected_label = self._text_actor(bold=True, size=14)
-        self.hover_label = self._text_actor(bold=False, size=13)
+        scale = self.plotter.devicePixelRatioF() if hasattr(self.plotter, "devicePixelRatioF") else 1.0
+        self._box_dx = 16.0 * scale   # display pixels from a landmark to its own label box
+        self._layout: LabelLayout | None = None   # which name labels fit (and which have a box of their own)
+        self.selected_label = self._text_actor(bold=True, size=SELECTED_LABEL_PT)
+        self.hover_label = self._text_actor(bold=False, size=HOVER_LABEL_PT)
         self.selected_index: int | None = None
         self.hovered_index: int | None = None
 
@@ -310,8 +301,7 @@ class LandmarkMarkers:
         position = actor.GetPositionCoordinate()
         position.SetCoordinateSystemToDisplay()
         position.SetReferenceCoordinate(anchor)
-        scale = self.plotter.devicePixelRatioF() if hasattr(self.plotter, "devicePixelRatioF") else 1.0
-        position.SetValue(16.0 * scale, 0.0)
+        position.SetValue(self._box_dx, 0.0)
         actor.SetPickable(False)
         actor.SetVisibility(False)
         self.plotter.renderer.AddViewProp(actor)
@@ -346,6 +336,7 @@ class LandmarkMarkers:
             self.label_mesh, "landmark", font_size=11, text_color="white", shape_color=(0.07, 0.07, 0.09),
             shape_opacity=0.55, margin=2, show_points=False, name=f"{self.name}-labels",
             reset_camera=False, render=False, always_visible=True, bold=False, pickable=False)
+        self._layout = LabelLayout(self.plotter.renderer, self.label_mesh, "landmark", names, font_size=11)
         self._apply_visibility()
 
     def _remove_set(self) -> None:
@@ -353,9 +344,11 @@ class LandmarkMarkers:
             if actor is not None:
                 self.plotter.remove_actor(actor, reset_camera=False, render=False)
         self._markers = self._labels = None
+        if self._layout is not None:
+            self._layout.detach()
+            self._layout = None
         self.mesh = self.label_mesh = None
         self.names = []
-        self._blanked = set()
 
     # ------------------------------------------------------------ update
     def update(self, positions: np.ndarray, normals: np.ndarray, statuses: Sequence[str],
@@ -376,9 +369,14 @@ class LandmarkMarkers:
         self.mesh.Modified()
         lift = np.array([0.0, self._label_lift, 0.0])
         self.label_mesh.points[:] = markers + LABEL_OFFSET_MM * normals + lift
+        self._layout.set_points(normals)
         self.selected_index, self.hovered_index = selected, hovered
-        self._blank_labels({i for i, t in ((selected, selected_text), (hovered, hovered_text))
-                            if i is not None and t})
+        own_boxes = [(i, t, size, offset) for i, t, size, offset in (
+            (selected, selected_text, SELECTED_LABEL_PT, SELECTED_OFFSET_MM), (hovered, hovered_text, HOVER_LABEL_PT, MARKER_OFFSET_MM))
+            if i is not None and t]
+        self._blank_labels({i for i, *_ in own_boxes},
+                           [(positions[i] + offset * normals[i], f" {t} ", size, (self._box_dx, 0.0))
+                            for i, t, size, offset in own_boxes])
         if hovered == selected:
             hovered = None
         for index, actor, label, text, bright, offset in (
@@ -405,20 +403,11 @@ class LandmarkMarkers:
             self._anchors[id(label)].SetValue(*np.asarray(where, dtype=float))
             label.GetTextProperty().SetFrameColor(*(_rgb(status, 0.1) / 255.0))
 
-    def _blank_labels(self, indices: set[int]) -> None:
+    def _blank_labels(self, indices: set[int], boxes: Sequence[tuple] = ()) -> None:
         """Hide the small name labels of ``indices`` (the selected and hovered landmarks have their
-        own boxes); restore the ones hidden before."""
-        if indices == self._blanked or self.label_mesh is None:
-            return
-        labels = self.label_mesh.GetPointData().GetAbstractArray("landmark")
-        for i in self._blanked - indices:
-            if i < len(self.names):
-                labels.SetValue(i, self.names[i])
-        for i in indices - self._blanked:
-            labels.SetValue(i, "")
-        labels.Modified()
-        self.label_mesh.Modified()
-        self._blanked = set(indices)
+        own ``boxes``, see :meth:`app.label_layout.LabelLayout.set_reserved`, which the other labels keep clear of)."""
+        if self._layout is not None:
+            self._layout.set_reserved(indices, boxes)
 
     # ------------------------------------------------------------ visibility
     def set_visible(self, visible: bool) -> None:

@@ -12,6 +12,7 @@ from PySide6.QtCore import QTimer
 from PySide6.QtWidgets import QMessageBox
 
 from core.formats import project as cp
+from core.formats.atomic_files import sweep_stale_staging
 from core.processes import process_alive
 
 
@@ -198,6 +199,7 @@ class ProjectRecoveryMixin:
         return out
 
     def check_startup_recovery(self) -> bool:
+        sweep_stale_staging(self.state_dir)   # half-written autosaves of killed runs
         found = self.startup_candidates()
         if not found:
             return False

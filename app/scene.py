@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pyvista as pv
 
+from app.label_layout import LabelLayout
 from core.face import Face, VertexNormals
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -175,6 +176,7 @@ class FaceActor:
         self.label_mesh: pv.PolyData | None = None
         self._label_lift = 0.0
         self._landmark_actors: list = []
+        self._label_layout: LabelLayout | None = None   # shows only the labels that fit
         self._landmarks_visible = False
         self._normals = VertexNormals(face.triangles, face.n_vertices)
         self._overlay: dict | None = None  # cmap, title, fmt, clim of the scalars shown
@@ -195,6 +197,11 @@ class FaceActor:
     @property
     def has_vertex_colors(self) -> bool:
         return _RGB_ARRAY in self.mesh.point_data
+
+    @property
+    def label_layout(self) -> LabelLayout | None:
+        """Which feature-point labels the last render showed (None until landmarks are shown)."""
+        return self._label_layout
 
     @property
     def landmarks_visible(self) -> bool:
@@ -412,8 +419,8 @@ class FaceActor:
         return True
 
     # ----------------------------------------------------------- landmarks
-    def _landmark_points(self, vertices: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(marker positions, label anchor positions), each (k, 3)."""
+    def _landmark_points(self, vertices: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(marker positions, label anchor positions, unit surface normals at the points), each (k, 3)."""
         face = self.face
         pos = face.landmark_positions(self._landmark_names, vertices)
         tri = np.array([face.landmarks[n].triangle for n in self._landmark_names], dtype=np.int64)
@@ -425,14 +432,14 @@ class FaceActor:
         # Labels are centred on their anchor, so lift the anchor a little
         # (toward +y, the face's up) to keep the marker itself visible.
         lift = self._label_lift * np.array([0.0, 1.0, 0.0])
-        return markers, markers + _LABEL_OFFSET_MM * nrm + lift
+        return markers, markers + _LABEL_OFFSET_MM * nrm + lift, nrm
 
     def _build_landmarks(self) -> None:
         verts = np.asarray(self.mesh.points, dtype=np.float64)
         normals = np.asarray(self.mesh.point_data[_NORMALS_ARRAY], dtype=np.float64)
         height = float(np.ptp(verts[:, 1])) or 1.0
         self._label_lift = 0.028 * height
-        markers, anchors = self._landmark_points(verts, normals)
+        markers, anchors, point_normals = self._landmark_points(verts, normals)
         self.landmark_mesh = pv.PolyData(markers)
         self.label_mesh = pv.PolyData(anchors)
         self.label_mesh.point_data[_LABEL_ARRAY] = np.array(self._landmark_names, dtype=str)
@@ -451,6 +458,9 @@ class FaceActor:
             always_visible=True, bold=False,
         )
         self._landmark_actors = [spheres, labels]
+        self._label_layout = LabelLayout(self.plotter.renderer, self.label_mesh, _LABEL_ARRAY,
+                                         self._landmark_names, font_size=12)
+        self._label_layout.set_points(point_normals)
 
     def set_landmarks_visible(self, visible: bool) -> None:
         """Show/hide landmark spheres and their name labels (no-op without landmarks)."""
@@ -485,9 +495,10 @@ class FaceActor:
             self.preview_mesh.points[:] = vertices[self.preview.index]
             self.preview_mesh.point_data[_NORMALS_ARRAY][:] = np.asarray(normals)[self.preview.index]
         if self.landmark_mesh is not None:
-            markers, anchors = self._landmark_points(vertices, np.asarray(normals, float))
+            markers, anchors, point_normals = self._landmark_points(vertices, np.asarray(normals, float))
             self.landmark_mesh.points[:] = markers
             self.label_mesh.points[:] = anchors
+            self._label_layout.set_points(point_normals)
 
     def remove(self) -> None:
         """Take the face (and its landmarks and scalar bar) off the plotter."""
@@ -497,6 +508,9 @@ class FaceActor:
         for actor in [self.actor, *self._landmark_actors]:
             self.plotter.remove_actor(actor, reset_camera=False, render=False)
         self._landmark_actors = []
+        if self._label_layout is not None:
+            self._label_layout.detach()
+            self._label_layout = None
         self.landmark_mesh = None
         self.label_mesh = None
 

@@ -7,6 +7,8 @@ A parameter is named by a canonical key string ``kind:id[:side]``:
     ``viseme:<id>``                  a viseme preset (FAP 1) intensity 0..1, id 1..14
     ``muscle:<name>:<left|right>``   a SABiom muscle force per side; ``muscle:<name>`` if unpaired
     ``jaw``                          the muscle layer's jaw angle in degrees
+    ``cp:<feature point>:<x|y|z>``   an RBF control point's displacement in mm (thesis B)
+    ``waters:<muscle>:<left|right>`` a Waters vector muscle's contraction 0..1 (thesis B)
     ``blend:<pose>``                 an expression-library pose weight in %, e.g. ``blend:joy``
     ``caricature``                   exaggeration from the mean face in % (-100 = the mean face)
 
@@ -89,6 +91,7 @@ _KINDS: dict[str, ParameterKind] = {}
 #: depends on no layer).
 _BUILTIN = {"fap": "core.layers.fap.parameters", "expression": "core.layers.fap.parameters", "viseme": "core.layers.fap.parameters",
             "muscle": "core.layers.muscles.parameters", "jaw": "core.layers.muscles.parameters",
+            "cp": "core.layers.rbf.parameters", "waters": "core.layers.waters.parameters",
             "blend": "core.layers.blend.parameters", "caricature": "core.layers.blend.parameters"}
 
 

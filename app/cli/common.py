@@ -240,7 +240,7 @@ def output_for(scan: Path, out: Path, batch: bool, suffix: str) -> Path:
     return out / (scan.stem + suffix)
 
 
-def run_batch(files: list[Path], work, what: str) -> int:
+def run_batch(files: list[Path], work, what: str) -> int:   # (register only; landmarks uses app.cli.batch)
     """Run ``work(path) -> summary`` for each file, print progress; 1 if any failed."""
     failed = 0
     for k, path in enumerate(files, 1):

@@ -29,15 +29,15 @@ from __future__ import annotations
 import contextlib
 import io
 import os
-import tempfile
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
 from core.face import Face, FaceMetadata
+from core.formats.atomic_files import write_atomic, write_set_atomic  # noqa: F401 - the writers' one path
 from core.formats.mesh_formats import READERS, RawMesh, _image_to_rgb, plural, reason, weld
 from core.formats.text_files import check_file
 
@@ -341,26 +341,6 @@ def write_reporting_errors(path: Path, write, error_type: type[Exception]) -> No
         raise error_type(f"Could not save '{path}': {exc.strerror or exc}.") from None
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``.
-
-    Through a symbolic link the link's target is written (the link stays a link)."""
-    path = Path(path)
-    if path.is_symlink():
-        path = Path(os.path.realpath(path))
-    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
 def _rows(fmt: str, array: np.ndarray) -> str:
     """Format every row of a 2-D array with ``fmt`` (which ends in a newline) in one C-level call."""
     return (fmt * len(array)) % tuple(array.ravel().tolist())
@@ -377,10 +357,10 @@ def _png_bytes(texture: np.ndarray) -> bytes:
 def _write_obj(face: Face, path: Path) -> None:
     textured = face.texture is not None and face.uv is not None
     header = "# Written by Mimica; units: millimetres\n"
+    companions: dict[Path, bytes] = {}
     if textured:
         mtl = f"# Written by Mimica\nnewmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {path.stem}.png\n"
-        write_atomic(path.with_suffix(".png"), _png_bytes(face.texture))
-        write_atomic(path.with_suffix(".mtl"), mtl.encode())
+        companions = {path.with_suffix(".png"): _png_bytes(face.texture), path.with_suffix(".mtl"): mtl.encode()}
         header += f"mtllib {path.stem}.mtl\nusemtl face\n"
     if face.vertex_colors is not None:
         rows = np.hstack([face.vertices, face.vertex_colors / 255.0])
@@ -393,7 +373,7 @@ def _write_obj(face: Face, path: Path) -> None:
         body.append(_rows("f %d/%d %d/%d %d/%d\n", np.repeat(corners, 2, axis=1)))
     else:
         body.append(_rows("f %d %d %d\n", corners))
-    write_atomic(path, (header + "".join(body)).encode())
+    write_set_atomic({path: (header + "".join(body)).encode(), **companions})
 
 
 def _write_ply(face: Face, path: Path) -> None:
@@ -416,13 +396,15 @@ def _write_ply(face: Face, path: Path) -> None:
     tri["n"], tri["i"] = 3, face.triangles
     ply_type = {"<f8": "double", "u1": "uchar"}
     header = ["ply", "format binary_little_endian 1.0", "comment Written by Mimica; units: millimetres"]
+    companions: dict[Path, bytes] = {}
     if face.texture is not None and face.uv is not None:
-        write_atomic(path.with_suffix(".png"), _png_bytes(face.texture))
+        companions[path.with_suffix(".png")] = _png_bytes(face.texture)
         header.append(f"comment TextureFile {path.stem}.png")
     header.append(f"element vertex {face.n_vertices}")
     header += [f"property {ply_type[t]} {n}" for n, t in fields]
     header += [f"element face {face.n_triangles}", "property list uchar int vertex_indices", "end_header"]
-    write_atomic(path, ("\n".join(header) + "\n").encode("ascii") + vertex.tobytes() + tri.tobytes())
+    write_set_atomic({path: ("\n".join(header) + "\n").encode("ascii") + vertex.tobytes() + tri.tobytes(),
+                      **companions})
 
 
 def _sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:

@@ -36,6 +36,7 @@ Choices:
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -671,12 +672,13 @@ def untitled_autosaves(state_dir: str | os.PathLike | None = None) -> list[Path]
 
 def discard_autosave(project_path: str | os.PathLike | None = None, *, untitled_id: str = "untitled",
                      state_dir: str | os.PathLike | None = None) -> None:
-    """Delete the autosave after a clean save or close (no error if there is none)."""
+    """Delete the autosave after a clean save or close, with the face it embedded (a scan as derived
+    in memory: ``<autosave>.face.ply`` and its texture); no error if there is none."""
     target = autosave_path(project_path, untitled_id=untitled_id, state_dir=state_dir)
-    try:
-        target.unlink()
-    except FileNotFoundError:
-        pass
+    face = target.with_name(target.name + ".face.ply")
+    for path in (target, face, face.with_suffix(".png")):
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
 
 
 __all__ = [

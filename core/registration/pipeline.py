@@ -68,6 +68,12 @@ class Detection:
     def low_confidence(self, threshold: float = LOW_CONFIDENCE) -> list[str]:
         return [n for n, c in self.confidence.items() if c < threshold]
 
+    @property
+    def scan_confidence(self) -> float:
+        """0..1: the fraction of the landmarks found with confidence (not :meth:`low_confidence`);
+        a scan whose detection failed as a whole scores low (most points disagree with the model)."""
+        return 1.0 - len(self.low_confidence()) / max(len(self.confidence), 1)
+
     def face_with_landmarks(self, scan: Face) -> Face:
         """A copy of ``scan`` carrying the detected landmarks."""
         out = scan.with_vertices(scan.vertices)
@@ -193,7 +199,46 @@ def detect_landmarks(scan: Face, *, template: str = "mpeg4_80", model: Face | No
     t0 = time.perf_counter()
     model = model if model is not None else default_model()
     check_scan(scan, model)
-    _progress(progress, 0.0, "preparing the model")
+    _progress(progress, 0.0, "finding which way the scan faces")
+    from core.registration.alignment import find_orientation
+
+    orientation = None
+    if _face_sized(scan, model):   # a bust, or a scan in other units, is searched upright (see _locate)
+        orientation = find_orientation(scan, model)
+    if orientation is None or not orientation.turned:
+        return _detect(scan, model, template, params, fixed, progress, t0)
+    # Search on a turned copy (same triangles, so its surface points are the scan's own), then
+    # give positions and transform in the scan's frame.
+    R = orientation.rotation
+    turned_fixed = None if not fixed else {
+        n: p if isinstance(p, SurfacePoint) else np.asarray(p, float) @ R.T for n, p in fixed.items()}
+    det = _detect(scan.with_vertices(scan.vertices @ R.T), model, template, params, turned_fixed, progress, t0)
+    turn = np.eye(4)
+    turn[:3, :3] = R
+    det.positions = {n: p @ R for n, p in det.positions.items()}
+    det.transform = det.transform @ turn
+    det.rays = None
+    det.report.insert(0, f"The scan did not face forward (+z, upright): it was turned by {orientation.angle_deg:.0f}° "
+                         f"for the search (the face fits {orientation.median_mm:.1f} mm turned, "
+                         f"{orientation.unturned_mm:.1f} mm as it lies); the landmarks are on the scan as it is")
+    return det
+
+
+# The orientation search places the model's face on the scan's centre at the model's size: it is
+# tried on scans about a face's size (a face mask in mm), not on busts or scans in other units.
+FACE_SIZED = (0.6, 1.6)
+
+
+def _face_sized(scan: Face, model: Face) -> bool:
+    used = np.unique(scan.triangles)
+    ratio = np.linalg.norm(np.ptp(scan.vertices[used], axis=0)) / np.linalg.norm(np.ptp(model.vertices, axis=0))
+    return bool(FACE_SIZED[0] <= ratio <= FACE_SIZED[1])
+
+
+def _detect(scan: Face, model: Face, template: str, params: MatchParams, fixed: Mapping | None,
+            progress, t0: float) -> Detection:
+    """:func:`detect_landmarks` on a scan that faces +z, upright (or nearly)."""
+    _progress(progress, 0.05, "preparing the model")
     ctx = get_model_context(model, template, params)
     timings = {"model_s": time.perf_counter() - t0}
     report: list[str] = []

@@ -201,3 +201,64 @@ def test_scalar_overlay_in_place_and_back(plotter, synthetic_face):
     with pytest.raises(ValueError):
         actor.show_scalars(height[:10])
 
+
+
+# ------------------------------------------------------------------ labels that do not pile up
+def test_place_labels_shows_no_two_overlapping_boxes():
+    from app.label_layout import place_labels
+
+    centres = np.array([[0.0, 0.0], [10.0, 0.0], [100.0, 0.0], [100.0, 5.0], [50.0, 50.0]])
+    sizes = np.full((5, 2), 20.0)
+    # 1 overlaps 0, 3 overlaps 2: the earlier in the order wins; 4 is alone.
+    assert place_labels(centres, sizes, [0, 1, 2, 3, 4]).tolist() == [True, False, True, False, True]
+    assert place_labels(centres, sizes, [1, 0, 3, 2, 4]).tolist() == [False, True, False, True, True]
+    # A reserved label is not shown; a blocked box (the selected landmark's own label) keeps labels off it.
+    assert place_labels(centres, sizes, [0, 1, 2, 3, 4], reserved=[1]).tolist() == [True, False, True, False, True]
+    assert place_labels(centres, sizes, [0, 1, 2, 3, 4], blocked=[[8.0, 0.0, 20.0, 20.0]]).tolist() == [
+        False, False, True, False, True]
+    # Indices not in the order (points facing away) are never shown.
+    assert place_labels(centres, sizes, [4]).tolist() == [False, False, False, False, True]
+
+
+def _label_boxes(actor, renderer):
+    from app.projection import world_to_display
+
+    layout = actor.label_layout
+    screen = world_to_display(renderer, actor.label_mesh.points)[layout.shown, :2]
+    half = layout.sizes[layout.shown] / 2
+    return screen, half
+
+
+def test_feature_point_labels_fit_the_view_and_follow_the_zoom(default_face):
+    p = pv.Plotter(off_screen=True, window_size=(800, 600))
+    scene.setup_stage(p, anti_aliasing=None)
+    actor = scene.add_face_actor(p, default_face, "shaded", show_landmarks=True)
+    names = actor.label_layout.names
+    scene.set_camera_view(p, "front", default_face.vertices)
+    p.render_window.Render()   # (pyvista's render() waits for a first show)
+    shown = actor.label_layout.shown.copy()
+    texts = list(actor.label_mesh.point_data["landmark"])
+    assert [t for t in texts if t] == [n for n, s in zip(names, shown) if s], "hidden labels are blanked"
+    assert 15 <= shown.sum() < len(names), "labels that fit are shown, the rest are not piled on them"
+    centre, half = _label_boxes(actor, p.renderer)
+    gap = np.abs(centre[:, None] - centre[None]) - (half[:, None] + half[None])
+    overlapping = (gap[..., 0] < 0) & (gap[..., 1] < 0) & ~np.eye(len(centre), dtype=bool)
+    assert not overlapping.any()
+    # Zoomed in on the mouth, more of its labels fit.
+    mouth = [i for i, n in enumerate(names) if n.startswith(("2.", "8."))]
+    before = shown[mouth].sum()
+    target = default_face.landmark_positions(["2.2"], default_face.vertices)[0]
+    shift = target - np.asarray(p.camera.focal_point)
+    p.camera.position = np.asarray(p.camera.position) + shift
+    p.camera.focal_point = target
+    p.camera.zoom(3.0)
+    p.renderer.ResetCameraClippingRange()
+    p.render_window.Render()
+    assert actor.label_layout.shown[mouth].sum() > before
+    # In profile, the points on the far side of the face have no label.
+    scene.set_camera_view(p, "side", default_face.vertices)
+    p.render_window.Render()
+    far = np.einsum("kd,d->k", actor.label_layout.normals,
+                    np.asarray(p.camera.position) - np.asarray(p.camera.focal_point)) < -0.2
+    assert far.any() and not actor.label_layout.shown[far].any()
+    p.close()

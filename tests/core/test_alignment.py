@@ -106,3 +106,34 @@ def test_something_that_is_no_face_is_reported(model):
     ball = trimesh.creation.icosphere(subdivisions=4, radius=90.0)
     with pytest.raises(FaceNotFoundError, match="upright"):
         locate_face(Face(ball.vertices, ball.faces), model)
+
+
+@pytest.mark.parametrize("axis, degrees, label", [((1, 0, 0), -90, "z-up, facing -y"), ((0, 1, 0), 90, "facing +x"),
+                                                  ((0, 0, 1), 180, "upside down")])
+def test_a_scan_facing_another_way_is_turned_and_landmarked_as_it_lies(model, face_scan, axis, degrees, label):
+    from core.registration.alignment import find_orientation
+
+    upright = detect_landmarks(face_scan)
+    R = rotation_about_axis(axis, degrees)
+    turned_scan = face_scan.with_vertices(face_scan.vertices @ R.T)
+    orientation = find_orientation(turned_scan, model)
+    assert orientation.turned and abs(orientation.angle_deg - abs(degrees)) < 15, label
+    assert np.degrees(np.arccos(np.clip((np.trace(orientation.rotation @ R) - 1) / 2, -1, 1))) < 15, \
+        "the turn undoes the rotation"
+    found = detect_landmarks(turned_scan)
+    assert "did not face forward" in found.report[0]
+    # The same landmarks, on the scan as it lies: positions rotated with it, surface points identical.
+    errors = [np.linalg.norm(found.positions[n] - R @ upright.positions[n]) for n in upright.positions]
+    assert np.median(errors) < 1.0 and np.max(errors) < 5.0
+    for n in list(upright.landmarks)[:5]:
+        point = found.landmarks[n]
+        corners = turned_scan.vertices[turned_scan.triangles[point.triangle]]
+        np.testing.assert_allclose(np.asarray(point.barycentric) @ corners, found.positions[n], atol=1e-6)
+
+
+def test_an_upright_scan_is_not_turned(model, face_scan):
+    from core.registration.alignment import find_orientation
+
+    orientation = find_orientation(face_scan, model)
+    assert not orientation.turned and orientation.median_mm < 2.0
+    assert not any("did not face forward" in line for line in detect_landmarks(face_scan).report)

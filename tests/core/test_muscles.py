@@ -219,13 +219,16 @@ def test_disgust_raises_left_upper_lip_more_than_right(fresh):
 
 
 def test_kiss_moves_lips_forward_and_narrows_the_mouth(fresh):
+    """Thesis C's kiss (orbicularis oris 8, Table 5.6) visibly purses the lips: forward by more than
+    half a centimetre, the mouth a centimetre narrower (before the sphincter's gain was calibrated it
+    was hard to see from the front)."""
     fresh.apply(preset("kiss"))
     fresh.solve()
     for p in ("8.1", "8.2", "2.2", "2.3", "8.5", "8.7"):
-        assert skin_disp(fresh, p)[2] > 1.0, p
+        assert skin_disp(fresh, p)[2] > 6.0, p
     width0 = fresh.model.skin_mm[fresh.model.template.index("8.3"), 0] * 2
     width = skin_disp(fresh, "8.3")[0] - skin_disp(fresh, "8.4")[0] + width0
-    assert width < width0 - 2.0
+    assert width < width0 - 10.0
 
 
 def test_jaw_rotation_opens_the_lips(fresh, face):

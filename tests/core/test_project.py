@@ -11,6 +11,7 @@ import pytest
 from core.formats import project as P
 from core.formats.project import FaceRef, Project, ProjectError, ProjectVersionError, RigSettings, SpeechClip
 from core.timeline import Timeline
+from tests.core.conftest import make_grid_face
 
 
 def _timeline() -> Timeline:
@@ -230,6 +231,14 @@ def test_autosave_recovery_cycle(tmp_path):
     assert P.untitled_autosaves(state) == [untitled]
     P.discard_autosave(untitled_id="untitled-42", state_dir=state)
     assert P.untitled_autosaves(state) == []
+    # A scan derived in memory is embedded beside its autosave; discarding the autosave removes it too.
+    face = make_grid_face(5)
+    project = _project(face_ref=P.embed_face(face, P.autosave_path(untitled_id="untitled-43", state_dir=state)))
+    P.write_autosave(project, untitled_id="untitled-43", state_dir=state)
+    assert {p.name for p in state.iterdir()} == {
+        "untitled-43.mimica.autosave", "untitled-43.mimica.autosave.face.ply", "untitled-43.mimica.autosave.face.png"}
+    P.discard_autosave(untitled_id="untitled-43", state_dir=state)
+    assert list(state.iterdir()) == []
     with pytest.raises(ProjectError, match="bad autosave name"):
         P.autosave_path(untitled_id="../escape")
 

@@ -355,3 +355,37 @@ def test_format_1_repeated_muscles_cannot_add_up_past_the_range(tmp_path):
         P.load_project(_write(tmp_path, "p.mimica", doc))
     doc = _project_doc(version=1, rig={"muscles": [{"name": "risorius", "side": "left", "force": 20}] * 2})
     assert P.load_project(_write(tmp_path, "p.mimica", doc)).rig.values == {"muscle:risorius:left": 40.0}
+
+
+@pytest.mark.parametrize("suffix, companions", [(".obj", (".mtl", ".png")), (".ply", (".png",))])
+def test_a_mesh_and_its_texture_are_saved_as_one_set(tmp_path, monkeypatch, suffix, companions):
+    """OBJ + MTL + PNG (PLY + PNG) are committed together: a failure while moving them into place
+    leaves the previous set exactly as it was and no staging or backup file behind."""
+    import core.formats.mesh_io as mesh_io
+
+    face = make_grid_face(6)
+    face = Face(face.vertices, face.triangles, uv=face.vertices[:, :2] / 10.0,
+                texture=np.full((8, 8, 3), 40, np.uint8))
+    path = tmp_path / f"head{suffix}"
+    save_face(face, path)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert set(before) == {path.name, *(path.with_suffix(c).name for c in companions)}
+
+    changed = Face(face.vertices + 1.0, face.triangles, uv=face.uv, texture=np.full((8, 8, 3), 200, np.uint8))
+    real_replace = os.replace
+
+    def fail_on_the_mesh(src, dst):
+        if str(dst) == str(path) and str(src).endswith(".tmp"):
+            raise OSError(28, "No space left on device")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(mesh_io.os, "replace", fail_on_the_mesh)
+    with pytest.raises(mesh_io.MeshSaveError, match="No space left"):
+        save_face(changed, path)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before, "the old set, nothing else"
+    monkeypatch.setattr(mesh_io.os, "replace", real_replace)
+    save_face(changed, path)
+    assert {p.name for p in tmp_path.iterdir()} == set(before)
+    reloaded = load_face(path)
+    np.testing.assert_allclose(reloaded.vertices, changed.vertices, atol=1e-6)
+    assert reloaded.texture is not None and int(reloaded.texture.mean()) == 200

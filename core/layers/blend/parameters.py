@@ -59,8 +59,8 @@ def _layer_for(rig):
     return BlendLayer.for_rig(rig)
 
 
-register_kind(ParameterKind("blend", "blend:<pose>", _blend_key, _blend_describe, order=5))
-register_kind(ParameterKind("caricature", "caricature", _caricature_key, _caricature_describe, order=6))
+register_kind(ParameterKind("blend", "blend:<pose>", _blend_key, _blend_describe, order=7))
+register_kind(ParameterKind("caricature", "caricature", _caricature_key, _caricature_describe, order=8))
 register_layer("blend", ("blend", "caricature"), _layer_for)
 
 __all__ = ["WEIGHT_RANGE", "CARICATURE_RANGE"]

@@ -118,10 +118,49 @@ def _preset_table(name: str, key: str, ids: dict[str, int]) -> np.ndarray:
 
 
 @functools.cache
-def expression_table() -> np.ndarray:
-    """(7, 68) FAP values of each expression at 100 % (row 0 neutral = zeros); thesis A Table B.1."""
+def thesis_expression_table() -> np.ndarray:
+    """(7, 68) FAP values of each expression at 100 % as printed in thesis A Table B.1 (row 0 = zeros)."""
     return _preset_table("mpeg4/expression_presets.csv", "expression",
                          {n: i for i, n in enumerate(expression_names())})
+
+
+@functools.cache
+def action_unit_table() -> dict[int, np.ndarray]:
+    """{FACS action unit: (68,) FAP values at full intensity} (resources/facs/action_units.csv)."""
+    units: dict[int, np.ndarray] = {}
+    for row in resources.get_table("facs/action_units.csv"):
+        units.setdefault(int(row["au"]), np.zeros(N_FAPS))[int(row["fap"]) - 1] += float(row["value"])
+    return units
+
+
+@functools.cache
+def expression_action_units() -> dict[str, dict[int, float]]:
+    """{expression: {action unit: intensity}} of thesis B Table 3.3 (resources/facs/emotions.csv)."""
+    out: dict[str, dict[int, float]] = {}
+    for row in resources.get_table("facs/emotions.csv"):
+        out.setdefault(row["expression"], {})[int(row["au"])] = float(row["intensity"])
+    return out
+
+
+@functools.cache
+def expression_table() -> np.ndarray:
+    """(7, 68) FAP values of each expression preset at 100 % (row 0 neutral = zeros).
+
+    Thesis A's Table B.1 with thesis B's FACS description on top: for an emotion of thesis B's
+    Table 3.3, the FAPs that FACS action units move (brows, lids, cheeks, nose, lips, jaw) take the
+    sum of the emotion's own units (zero where none of them acts: joy has no jaw drop in FACS, so
+    its Table B.1 mouth opening goes); the FAPs no action unit moves keep Table B.1's values.
+    Disgust, absent from Table 3.3, keeps Table B.1.
+    """
+    table = thesis_expression_table().copy()
+    units = action_unit_table()
+    facs_faps = np.any([values != 0 for values in units.values()], axis=0)
+    names = expression_names()
+    for name, mix in expression_action_units().items():
+        facs = sum((units[au] * weight for au, weight in mix.items()), np.zeros(N_FAPS))
+        table[names.index(name), facs_faps] = facs[facs_faps]
+    table.setflags(write=False)
+    return table
 
 
 @functools.cache
