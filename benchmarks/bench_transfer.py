@@ -43,6 +43,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -79,14 +80,14 @@ def transfer(method: str, base_rest, disp, model_rest, triangles) -> np.ndarray:
 class Person:
     """A synthetic person: registered neutral and poses (canonical mpeg4_80), and the truth."""
 
-    def __init__(self, person: int, poses):
+    def __init__(self, person: int, poses, cache_dir=None):
         from core.registration.pipeline import register_scan
         from core.registration.synthetic import synthetic_scan
 
         self.person = person
         self.faces = {}
         for pose in ("neutral",) + tuple(poses):
-            scan = synthetic_scan(person, pose)
+            scan = synthetic_scan(person, pose, cache_dir=cache_dir)
             self.faces[pose] = register_scan(scan, scan.landmarks, template="mpeg4_80").face
         self.neutral = self.faces["neutral"]
         self.library = build_library(self.neutral, {p: self.faces[p] for p in poses}, template="mpeg4_80",
@@ -190,6 +191,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sfm", type=Path, default=SFM_DEFAULT, help="folder of the Surrey Face Model .npy files")
     parser.add_argument("--quick", action="store_true", help="one synthetic pair, two poses")
+    parser.add_argument("--cache-dir", default=None, help="reuse synthetic scans from this folder (default: fresh ones)")
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}")
     from core.registration.synthetic import poses as all_poses
@@ -200,8 +202,12 @@ def main() -> None:
         PAIRS = ((1, 2),)
         poses = poses[:2]
     t0 = time.perf_counter()
-    people = {p: Person(p, poses) for p in sorted({x for pair in PAIRS for x in pair})}
-    print(f"registered {len(people)} synthetic people x {len(poses) + 1} poses in {time.perf_counter() - t0:.1f} s")
+    # Fresh scans in a private cache: the database's shared cache is keyed by its VERSION only, so
+    # scans made before a change of the expression presets would otherwise be mixed with new ones.
+    cache = tempfile.TemporaryDirectory(prefix="mimica_bench_transfer_") if args.cache_dir is None else None
+    cache_dir = args.cache_dir or cache.name
+    people = {p: Person(p, poses, cache_dir) for p in sorted({x for pair in PAIRS for x in pair})}
+    print(f"scanned and registered {len(people)} synthetic people x {len(poses) + 1} poses in {time.perf_counter() - t0:.1f} s")
     syn = synthetic_transfer(people, poses)
     for m, v in syn.items():
         print(f"transfer_rms_mm method={m} data=synthetic value={v:.3f}")
@@ -231,6 +237,8 @@ def main() -> None:
               f"({syn[better]:.3f} vs {syn['bbox']:.3f} mm, {100 * (syn[better] / syn['bbox'] - 1):+.1f} %); no worse on sfm "
               + ("skipped" if sfm is None else f"{'met' if ok_sfm else 'NOT met'} ({sfm[better]:.3f} vs {sfm['bbox']:.3f} mm)"))
     print(f"total {time.perf_counter() - t0:.1f} s")
+    if cache is not None:
+        cache.cleanup()
 
 
 if __name__ == "__main__":
