@@ -20,7 +20,8 @@ hand-marked landmarks) is not public; this module makes an equivalent one with g
 - **Cache.** One compressed NPZ per scan (no pickle; ``np.load(allow_pickle=False)``) under
   ``cache_dir`` or ``~/.cache/mimica/synthetic/<VERSION>/``. Vertices are stored as float32
   (1e-5 mm steps); a freshly generated scan goes through the same rounding, so cached and fresh
-  results are identical. ``VERSION`` changes whenever the recipe does.
+  results are identical. ``VERSION`` changes whenever the recipe does; the file name also carries a
+  hash of the pose's FAP values, so a change of the expression presets makes new scans.
 - **Cost.** Building a person's rig (generate_face ~2 s + FAP deformer ~1-2 s) dominates; the rig
   of the last two people is kept in memory so the 7 poses of a person share it. A scan is ~1.2 s;
   loading a cached scan ~50 ms.
@@ -83,9 +84,21 @@ def _rig(person: int, seed: int):
     return FaceRig(identity_face(person, seed))
 
 
+@functools.cache
+def _pose_recipe(pose: str) -> str:
+    """A short hash of the FAP values that make ``pose`` (the expression presets change with the FACS
+    tables, and a scan cached with older ones must not be read as this pose)."""
+    import hashlib
+
+    from core.layers.fap import tables
+
+    row = tables.expression_table()[tables.expression_id(pose)] if pose != "neutral" else np.zeros(1)
+    return hashlib.sha1(np.ascontiguousarray(row, dtype=np.float64).tobytes()).hexdigest()[:8]
+
+
 def _cache_path(cache_dir, person: int, pose: str, seed: int) -> Path:
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    return root / f"p{person:03d}_{pose}_s{seed}.npz"
+    return root / f"p{person:03d}_{pose}_s{seed}_{_pose_recipe(pose)}.npz"
 
 
 @dataclass(frozen=True)
