@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -238,24 +237,6 @@ def output_for(scan: Path, out: Path, batch: bool, suffix: str) -> Path:
         return out
     out.mkdir(parents=True, exist_ok=True)
     return out / (scan.stem + suffix)
-
-
-def run_batch(files: list[Path], work, what: str) -> int:   # (register only; landmarks uses app.cli.batch)
-    """Run ``work(path) -> summary`` for each file, print progress; 1 if any failed."""
-    failed = 0
-    for k, path in enumerate(files, 1):
-        start = time.perf_counter()
-        prefix = f"[{k}/{len(files)}] {path.name}" if len(files) > 1 else path.name
-        try:
-            summary = work(path)
-        except CliError as exc:
-            failed += 1
-            print(f"{prefix}: failed: {exc}", file=sys.stderr)
-            continue
-        print(f"{prefix}: {summary} ({time.perf_counter() - start:.1f} s)", flush=True)
-    if failed:
-        print(f"{failed} of {len(files)} scan(s) could not be {what}", file=sys.stderr)
-    return 1 if failed else 0
 
 
 def with_texture(scan, args: argparse.Namespace):

@@ -69,3 +69,16 @@ def test_an_unreachable_scheduler_is_a_clear_error(scan_folder, tmp_path, capsys
     code = cli.main(["landmarks", str(scan_folder), "-o", str(tmp_path / "l"), "--scheduler", "tcp://127.0.0.1:9"])
     err = capsys.readouterr().err
     assert code != 0 and "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in err and "Traceback" not in err
+
+
+def test_register_a_folder_in_two_workers(scan_folder, tmp_path, capsys):
+    landmarks, canonical = tmp_path / "landmarks", tmp_path / "canonical"
+    cli.main(["landmarks", str(scan_folder), "-o", str(landmarks), "--workers", "2"])
+    capsys.readouterr()
+    assert cli.main(["register", str(scan_folder), "-l", str(landmarks), "-o", str(canonical), "--workers", "2"]) == 1
+    rows = _summary(canonical)
+    assert [rows[n]["status"] for n in ("broken.ply", "p1.ply", "p2.ply")] == ["failed", "ok", "ok"]
+    assert "4560 vertices" in rows["p1.ply"]["message"]
+    assert sorted(p.name for p in canonical.glob("*.canonical.obj")) == ["p1.canonical.obj", "p2.canonical.obj"]
+    assert cli.main(["register", str(scan_folder), "-l", str(landmarks), "-o", str(canonical), "--resume"]) == 1
+    assert [_summary(canonical)[n]["status"] for n in ("p1.ply", "p2.ply")] == ["skipped", "skipped"]
