@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import contextlib
 
+import numpy as np
+
 from PySide6.QtCore import QSignalBlocker, Qt
 from PySide6.QtWidgets import (QCheckBox, QDockWidget, QFileDialog, QHBoxLayout, QLabel, QMessageBox, QPushButton, QScrollArea,
                                QVBoxLayout, QWidget)
@@ -57,9 +59,13 @@ class BlendDock(QDockWidget):
         self.transfer_button = QPushButton("Transfer…", body)
         self.transfer_button.setToolTip("Move the library's poses onto this face: the thesis's bounding-box scaling "
                                         "or deformation transfer (adapts to the face's local shape)")
+        self.add_button = QPushButton("Add pose…", body)
+        self.add_button.setToolTip("Add the face as it is now (FAPs, muscles, control points, blends) to the library "
+                                   "as a new pose, or replace a pose of the same name")
         self.reset_button = QPushButton("Reset", body)
         self.reset_button.setToolTip("Put every blend weight (and the caricature) back to 0 %")
-        for b in (self.builtin_button, self.open_button, self.save_button, self.transfer_button, self.reset_button):
+        for b in (self.builtin_button, self.open_button, self.save_button, self.transfer_button, self.add_button,
+                  self.reset_button):
             buttons.addWidget(b)
         outer.addLayout(buttons)
         self.heat_check = QCheckBox("Displacement heat map", body)
@@ -78,6 +84,7 @@ class BlendDock(QDockWidget):
         self.open_button.clicked.connect(lambda: self.open_library())
         self.save_button.clicked.connect(lambda: self.save_library())
         self.reset_button.clicked.connect(self.reset)
+        self.add_button.clicked.connect(lambda: self.add_current_pose())
         self.transfer_button.clicked.connect(lambda: self.transfer())
         if document is not None:
             document.rig_changed.connect(lambda _rig: self.follow_document())
@@ -211,15 +218,56 @@ class BlendDock(QDockWidget):
             return self._message(str(exc))
         return True
 
+    def add_current_pose(self, name: str | None = None) -> bool:
+        """Add the face as shown now to the library as pose ``name`` (asked when None; a pose of that
+        name is replaced). The other poses keep their weights; the new one starts at 0 %."""
+        from core.layers.blend.library import ExpressionLibrary, LibraryError, check_pose_name
+
+        if self.rig is None:
+            return self._message("No face is loaded yet.")
+        layer = self.layer
+        if name is None:
+            from PySide6.QtWidgets import QInputDialog
+
+            name, ok = QInputDialog.getText(self, "Add pose", "Name of the new pose (letters, digits, _ or -):")
+            if not ok:
+                return False
+        try:
+            name = check_pose_name(name.strip())
+            if layer is None:   # no library yet: start one on this face, with the face as its neutral
+                from core.layers.blend.layer import BlendLayer
+
+                library = ExpressionLibrary(self.rig.face.vertices, (), np.zeros((0, self.rig.face.n_vertices, 3)),
+                                            base=self.rig.face.metadata.name or "")
+                layer = BlendLayer(self.rig.face, library)
+            pose = layer.pose_from_face(self.rig.vertices())
+            weights = {k: self.rig.value(k) for k in layer.parameters() if self.rig.layer("blend") is layer}
+            self.set_library(layer.library.with_pose(name, pose), source=self._source)
+            kept = {k: v for k, v in weights.items() if k in self.layer.parameters() and v}
+            if kept:   # the weights the user had, back on the new layer (not a step of its own)
+                edits = getattr(self.document, "rig_edits", None)
+                with edits.suspended() if edits is not None else contextlib.nullcontext():
+                    self.rig.set_values(kept)
+        except (LibraryError, ValueError) as exc:
+            return self._message(str(exc))
+        self._message_info(f"Added pose {name!r}: its row is at the bottom, at 0 %.")
+        return True
+
+    def _message_info(self, text: str) -> None:
+        if self.window_ is not None:
+            self.window_.statusBar().showMessage(text, 8000)
+
     def reset(self) -> None:
         if self.layer is not None and self.layer.parameters():
             self.rig.reset(self.layer.parameters())
 
     # ------------------------------------------------------------ rows
     def _rebuild(self) -> None:
-        for row in self.rows.values():
-            row.setParent(None)
-            row.deleteLater()
+        while self.rows_layout.count():   # the rows and the stretch below them (else stretches pile up above)
+            item = self.rows_layout.takeAt(0)
+            if item.widget() is not None:
+                item.widget().setParent(None)
+                item.widget().deleteLater()
         self.rows = {}
         layer = self.layer
         keys = () if layer is None else layer.parameters()

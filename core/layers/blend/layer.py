@@ -61,6 +61,7 @@ class BlendLayer(ValueLayer):
         n_face = face.n_vertices if hasattr(face, "n_vertices") else len(face)
         self.library = library
         self._map = None
+        self._face_rest = np.asarray(getattr(face, "vertices", face), float)   # (n_face, 3) mm
         if library.names or library.mean is not None:
             if n_face != library.n_vertices:
                 if correspondence is None:
@@ -120,6 +121,25 @@ class BlendLayer(ValueLayer):
             return None
         d = self.library_offset()
         return d if self._map is None else self._map @ d
+
+    def pose_from_face(self, vertices: np.ndarray, *, smoothing: float = 1e-6) -> np.ndarray:
+        """(n_lib, 3) mm: the face posed as ``vertices`` (n_face, 3) mm, on the library's vertices
+        (what "add the current face as a pose" stores). Through a correspondence M the library's
+        displacement d is the least-squares solution of M d = vertices − rest (normal equations with a
+        tiny ``smoothing`` × trace-scaled identity, so canonical vertices no face vertex follows stay put)."""
+        vertices = np.asarray(vertices, float)
+        if vertices.shape != self._face_rest.shape:
+            raise LibraryError(f"expected the face's {len(self._face_rest)} vertices, got an array of shape {vertices.shape}")
+        moved = vertices - self._face_rest
+        if self._map is None:
+            return self.library.rest + moved
+        import scipy.sparse.linalg
+
+        normal = (self._map.T @ self._map).tocsc()
+        ridge = smoothing * max(normal.diagonal().mean(), 1e-12)
+        solve = scipy.sparse.linalg.factorized(normal + ridge * scipy.sparse.identity(normal.shape[0], format="csc"))
+        rhs = self._map.T @ moved
+        return self.library.rest + np.column_stack([solve(np.ascontiguousarray(rhs[:, a])) for a in range(3)])
 
     def copy(self) -> "BlendLayer":
         twin = super().copy()
