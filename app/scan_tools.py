@@ -11,6 +11,7 @@ model), loader and status bar.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -97,13 +98,23 @@ class ScanToolsMixin:
             return
         face = self.face
         landmarks = dict(face.landmarks)
+        model = self.document.landmarks
+        # The points the user edited or confirmed keep their status on the canonical face (its
+        # landmarks are those points), and their confidence.
+        status = {n: model.status(n).value for n in model.names} if model is not None else {}
+        confidence = {n: c for n in model.names if (c := model.confidence(n)) is not None} if model is not None else {}
 
         def loader(progress):
             from core.registration.pipeline import register_scan
 
             progress(0.1, "Building the dense correspondence…")
             registration = register_scan(face, landmarks)
-            return registration.face
+            canonical = registration.face
+            kept = set(canonical.landmarks)
+            canonical.metadata = dataclasses.replace(   # a copy: the scan's own metadata stays as it is
+                canonical.metadata, landmark_status={n: s for n, s in status.items() if n in kept},
+                landmark_confidence={n: c for n, c in confidence.items() if n in kept})
+            return canonical
 
         self._fallback_to_default = False
         self._start_load("", loader, "Building the canonical face from the landmarks…")
@@ -152,8 +163,6 @@ class ScanToolsMixin:
             self.show_error("Cannot load the texture", str(exc))
             return
         if texture_runs_down(face):   # decided from the face itself: never upside down, never asked
-            import dataclasses
-
             face = face.with_flipped_texture()
             note = (f"{Path(path).name} was turned upside down to match this face's texture coordinates "
                     "(they count rows from the top). Tools ▸ Flip texture vertically undoes it.")

@@ -58,13 +58,17 @@ class FaceMetadata:
     """Where a face came from and what was done to it on the way in.
 
     ``notes`` are human-readable messages (unit conversion, repairs) that the
-    GUI shows after loading.
+    GUI shows after loading. ``landmark_status`` / ``landmark_confidence`` ({name: "auto" |
+    "edited" | "confirmed"} / {name: 0..1}) say who vouches for landmarks a face inherited from
+    the face it was derived from (a canonical face built from points the user corrected).
     """
 
     source: str | None = None
     units: str = "mm"
     notes: list[str] = field(default_factory=list)
     name: str = "face"
+    landmark_status: dict[str, str] = field(default_factory=dict)
+    landmark_confidence: dict[str, float] = field(default_factory=dict)
 
 
 class _TopologyCache:

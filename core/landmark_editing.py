@@ -170,8 +170,9 @@ class LandmarkEditModel:
         self._face = face
         self._pairs = mirror_pairs()
         self._states: dict[str, LandmarkState] = {}
-        status = dict(status or {})
-        confidence = dict(confidence or {})
+        # Statuses the face inherited (e.g. a canonical face built from corrected points), then the given ones.
+        status = {**getattr(face.metadata, "landmark_status", {}), **dict(status or {})}
+        confidence = {**getattr(face.metadata, "landmark_confidence", {}), **dict(confidence or {})}
         for name, point in face.landmarks.items():
             self._states[name] = LandmarkState(
                 point, _status(status.get(name, LandmarkStatus.AUTO), f"landmark {name!r}"),

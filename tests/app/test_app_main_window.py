@@ -568,3 +568,28 @@ def test_a_loaded_face_shows_before_its_rig_is_built(qtbot, window, tmp_path, mo
     # the synthetic face has too few feature points: now the docks say why, and its landmarks come first
     assert "feature points" in window.fap_dock.message_label.text()
     qtbot.waitUntil(lambda: window.landmark_editor.active, timeout=LOAD_TIMEOUT_MS)
+
+
+def test_build_correspondence_keeps_the_points_the_user_edited_and_confirmed(qtbot, window):
+    """Issue 15: after Build correspondence, points the user moved or confirmed are still 'edited' /
+    'confirmed' on the canonical face (its landmarks are those points), the others 'auto'."""
+    from core.landmark_editing import LandmarkStatus
+    from core.registration.pipeline import default_model
+    from core.registration.virtual_scanner import scan_face
+
+    scan = scan_face(default_model(), n_target=12_000, rng=np.random.default_rng(4)).face
+    window.set_face(scan, rig=None, rig_message="not needed here")
+    model = window.document.landmarks
+    nudged = scan.surface_point(scan.landmark_positions(["8.3"], scan.vertices)[0] + np.array([0.5, 0.0, 0.0]))
+    model.move("8.3", nudged)
+    model.confirm("9.3")
+    assert model.status("8.3") == LandmarkStatus.EDITED and model.status("9.3") == LandmarkStatus.CONFIRMED
+    with qtbot.waitSignal(window.load_finished, timeout=60000):
+        window.build_correspondence()
+    qtbot.waitUntil(lambda: window.face is not scan and window.document.landmarks is not model, timeout=60000)
+    canonical = window.document.landmarks
+    assert window.face.n_vertices == 4560
+    assert canonical.status("8.3") == LandmarkStatus.EDITED and canonical.status("9.3") == LandmarkStatus.CONFIRMED
+    others = [n for n in canonical.names if n not in ("8.3", "9.3")]
+    assert others and all(canonical.status(n) == LandmarkStatus.AUTO for n in others)
+    assert not scan.metadata.landmark_status, "the scan's own metadata is left as it was"
