@@ -46,6 +46,7 @@ class BlendDock(QDockWidget):
         self.rig = None
         self.rows: dict[str, ParameterRow] = {}
         self._source = None   # the library the current one was transferred from (or itself)
+        self.last_import: list = []   # the reports (core.layers.blend.scans.ScanReport) of the last scan import
         body = QWidget(self)
         outer = QVBoxLayout(body)
         self.info_label = QLabel(NO_LIBRARY, body)
@@ -62,12 +63,19 @@ class BlendDock(QDockWidget):
         self.add_button = QPushButton("Add pose…", body)
         self.add_button.setToolTip("Add the face as it is now (FAPs, muscles, control points, blends) to the library "
                                    "as a new pose, or replace a pose of the same name")
+        self.import_button = QPushButton("Import scans…", body)
+        self.import_button.setToolTip("Build a library from one person's scans: one named 'neutral', the others named "
+                                      "after their pose (joy.ply, surprise.obj, ...); a scan with a <name>.landmarks.json "
+                                      "beside it uses those (corrected) landmarks, the others are detected")
         self.reset_button = QPushButton("Reset", body)
         self.reset_button.setToolTip("Put every blend weight (and the caricature) back to 0 %")
-        for b in (self.builtin_button, self.open_button, self.save_button, self.transfer_button, self.add_button,
-                  self.reset_button):
+        for b in (self.builtin_button, self.open_button, self.save_button, self.transfer_button):
             buttons.addWidget(b)
         outer.addLayout(buttons)
+        more = QHBoxLayout()
+        for b in (self.import_button, self.add_button, self.reset_button):
+            more.addWidget(b)
+        outer.addLayout(more)
         self.heat_check = QCheckBox("Displacement heat map", body)
         self.heat_check.setToolTip("Colour the face by how far each point moved from the neutral face, in mm "
                                    "(a pose at 100 % alone shows that pose's displacement, thesis A Fig. 4.2)")
@@ -85,6 +93,7 @@ class BlendDock(QDockWidget):
         self.save_button.clicked.connect(lambda: self.save_library())
         self.reset_button.clicked.connect(self.reset)
         self.add_button.clicked.connect(lambda: self.add_current_pose())
+        self.import_button.clicked.connect(lambda: self.import_scans())
         self.transfer_button.clicked.connect(lambda: self.transfer())
         if document is not None:
             document.rig_changed.connect(lambda _rig: self.follow_document())
@@ -229,7 +238,7 @@ class BlendDock(QDockWidget):
         if name is None:
             from PySide6.QtWidgets import QInputDialog
 
-            name, ok = QInputDialog.getText(self, "Add pose", "Name of the new pose (letters, digits, _ or -):")
+            name, ok = QInputDialog.getText(self, "Add pose", "Name of the new pose (lower-case letters, digits and _, starting with a letter):")
             if not ok:
                 return False
         try:
@@ -252,6 +261,54 @@ class BlendDock(QDockWidget):
             return self._message(str(exc))
         self._message_info(f"Added pose {name!r}: its row is at the bottom, at 0 %.")
         return True
+
+    def import_scans(self, paths=None, *, wait: bool = False) -> bool:
+        """Build a library from one person's scans (``paths``; asked when None) in the background and
+        use it on this face; a summary says which scans' landmarks are worth correcting. ``wait``:
+        run here and return when done (scripts, tests)."""
+        from pathlib import Path
+
+        from core.layers.blend.library import LibraryError
+
+        if self.rig is None:
+            return self._message("No face is loaded yet.")
+        if paths is None:
+            paths, _ = QFileDialog.getOpenFileNames(self, "Import one person's expression scans", "",
+                                                    "Meshes (*.obj *.ply *.stl *.off *.glb *.gltf)")
+            if not paths:
+                return False
+        try:
+            plan = scan_import_plan([Path(p) for p in paths])
+        except LibraryError as exc:
+            return self._message(str(exc))
+
+        def work():
+            return import_library(plan)
+
+        if wait or self.window_ is None:
+            try:
+                self._imported(work())
+            except (LibraryError, ValueError) as exc:
+                return self._message(str(exc))
+            return True
+        self.window_.run_job(work, self._imported, "Cannot import the scans",
+                             f"Landmarking and registering {len(plan)} scans…")
+        return True
+
+    def _imported(self, result) -> None:
+        library, reports = result
+        self.set_library(library)
+        self.last_import = reports
+        lines = [r.line() for r in reports]
+        needs = [r.pose for r in reports if r.needs_correction]
+        heading = (f"Expression library built from {len(reports)} scans. "
+                   + (f"Worth correcting in the landmark picker (then save their .landmarks.json beside the scan "
+                      f"and import again): {', '.join(needs)}." if needs else "Every scan's landmarks were confident."))
+        show = getattr(self.window_, "_show_notes", None)
+        if show is not None and self.isVisible():
+            show(lines, "the expression scans", heading=heading)
+        else:
+            self.info_label.setText(heading)
 
     def _message_info(self, text: str) -> None:
         if self.window_ is not None:
@@ -316,3 +373,48 @@ class BlendDock(QDockWidget):
         else:
             self.info_label.setText(text)
         return False
+
+
+# ------------------------------------------------------------------ importing scans
+def scan_import_plan(paths) -> dict[str, tuple]:
+    """{pose name: (scan path, its .landmarks.json or None)} for one person's scans: the pose is the
+    file name made a pose name (``Joy 2.ply`` -> ``joy_2``); exactly one must be ``neutral``.
+    LibraryError saying what to rename otherwise."""
+    import re
+
+    from core.layers.blend.library import LibraryError, check_pose_name
+
+    plan: dict[str, tuple] = {}
+    for path in paths:
+        name = re.sub(r"[^a-z0-9_]+", "_", path.stem.lower()).strip("_")
+        name = re.sub(r"^[^a-z]+", "", name)
+        if "neutral" in name:
+            name = "neutral"
+        try:
+            if name != "neutral":   # the rest face, not a pose
+                check_pose_name(name)
+        except LibraryError:
+            raise LibraryError(f"{path.name}: its name cannot be a pose name; rename it after its pose "
+                               "(e.g. joy.ply)") from None
+        if name in plan:
+            raise LibraryError(f"{path.name} and {plan[name][0].name} are both pose {name!r}: rename one of them")
+        landmarks = path.with_name(path.stem + ".landmarks.json")
+        plan[name] = (path, landmarks if landmarks.is_file() else None)
+    if "neutral" not in plan:
+        raise LibraryError("none of the scans is the neutral face: name it neutral.ply (or .obj, ...)")
+    if len(plan) < 2:
+        raise LibraryError("only the neutral scan was given: add the scans of the poses (joy.ply, ...)")
+    return plan
+
+
+def import_library(plan):
+    """(library, reports) of :func:`core.layers.blend.scans.library_from_scans` for a
+    :func:`scan_import_plan` (loads the meshes and the landmark files found beside them)."""
+    from core.formats.landmarks_io import load_landmarks
+    from core.formats.mesh_io import load_face
+    from core.layers.blend.scans import library_from_scans
+
+    faces = {name: load_face(path) for name, (path, _) in plan.items()}
+    given = {name: load_landmarks(lm, faces[name]) for name, (_, lm) in plan.items() if lm is not None}
+    neutral = faces.pop("neutral")
+    return library_from_scans(neutral, faces, landmarks=given, base=plan["neutral"][0].parent.name)

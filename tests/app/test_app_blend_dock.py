@@ -103,3 +103,41 @@ def test_add_the_current_face_as_a_pose(qtbot, win, error_boxes):
     assert moved.sum() > 500 and np.median(error[moved]) < 0.1 and np.percentile(error[moved], 95) < 1.0
     assert not dock.add_current_pose("not a name!")
     assert error_boxes and "pose" in error_boxes[-1][1].lower()
+
+
+def test_import_a_persons_scans_into_a_library(qtbot, win, tmp_path, monkeypatch):
+    """Scans named after their poses become a library on this face; a scan with a .landmarks.json
+    beside it uses those landmarks; the summary names the scans worth correcting."""
+    from app.blend_dock import scan_import_plan
+    from core.formats.landmarks_io import save_landmarks
+    from core.formats.mesh_io import save_face
+    from core.layers.blend.library import LibraryError
+    from core.registration.synthetic import synthetic_scan
+
+    paths = []
+    for pose, file in (("neutral", "Neutral.ply"), ("joy", "joy.ply"), ("surprise", "Surprise Face.ply")):
+        scan = synthetic_scan(2, pose)
+        save_face(scan, tmp_path / file)
+        paths.append(tmp_path / file)
+    save_landmarks(synthetic_scan(2, "joy"), tmp_path / "joy.landmarks.json")   # the user's corrected points
+    plan = scan_import_plan(paths)
+    assert set(plan) == {"neutral", "joy", "surprise_face"} and plan["joy"][1] is not None
+    assert plan["neutral"][1] is None
+    with pytest.raises(LibraryError, match="name it neutral"):
+        scan_import_plan(paths[1:])
+    with pytest.raises(LibraryError, match="both pose 'joy'"):
+        scan_import_plan([paths[0], paths[1], tmp_path / "JOY.obj"])
+
+    dock, rig = win.blend_dock, win.rig
+    dock.raise_()
+    shown = []
+    monkeypatch.setattr(win, "_show_notes", lambda lines, what, heading=None: shown.append((heading, lines)))
+    assert dock.import_scans(paths, wait=True)
+    assert set(dock.layer.poses) == {"joy", "surprise_face"}
+    heading, lines = shown[-1]
+    assert heading.startswith("Expression library built from 3 scans") and len(lines) == 3
+    sources = {r.pose: r.landmarks for r in dock.last_import}
+    assert sources == {"neutral": "detected", "joy": "given", "surprise_face": "detected"}
+    neutral = np.array(rig.vertices())
+    rig.set_values({"blend:surprise_face": 100.0})
+    assert np.abs(np.array(rig.vertices()) - neutral).max() > 3.0, "the imported surprise moves the face"
