@@ -325,7 +325,9 @@ class ControlPointDock(QDockWidget):
             if rig is not None:
                 rig.parameters_changed.connect(self._on_parameters_changed)
                 rig.changed.connect(lambda _change, r=rig: self._update_points() if r is self.rig else None)
-            if rig is not None and self.isVisible():
+            # Built when the dock is really on screen (a tab behind another reports isVisible() but has
+            # no visible region): at start-up the build would freeze the window for a second.
+            if rig is not None and self.isVisible() and not self.visibleRegion().isEmpty():
                 self.ensure_layers()
         self._rebuild()
 

@@ -184,3 +184,19 @@ def test_link_left_right_mirrors_control_points_and_muscles():
     assert mirrored("cp:8.1:y", 2.0, every) == {}                       # on the midline: no partner
     assert mirrored("waters:zygomatic_major:left", 0.5, every) == {"waters:zygomatic_major:right": 0.5}
     assert mirrored("cp:8.3:z", 1.0, every) == {}                       # partner not animated here
+
+
+def test_the_layers_are_built_when_the_tab_is_shown_not_at_start_up(qtbot, win):
+    """Building the control-point layer takes about a second: not while the dock is a tab behind the
+    FAP dock (start-up stays fast), but as soon as the user brings the tab forward."""
+    from core.rig import FaceRig
+
+    dock = win.control_point_dock
+    win.fap_dock.raise_()
+    qtbot.wait(50)
+    rig = FaceRig(win.face, deformer=win.rig.deformer)
+    win.document.set_rig(rig)          # the rig arrives after the window is shown, as at start-up
+    assert dock.rig is rig and rig.layer("control_points") is None
+    dock.raise_()
+    qtbot.waitUntil(lambda: win.rig.layer("control_points") is not None, timeout=20000)
+    assert dock.rows
