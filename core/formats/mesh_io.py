@@ -218,6 +218,7 @@ def _repair(mesh: RawMesh, name: str, max_triangles: int) -> RawMesh:
             "Repair the mesh (e.g. MeshLab: Filters > Cleaning and Repairing) or export it again."
         )
     notes = mesh.notes
+    canonical = _canonical_template_of(len(v), tri)
     repeated = (tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2]) | (tri[:, 2] == tri[:, 0])
     corners = v[tri]
     twice_area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
@@ -226,6 +227,14 @@ def _repair(mesh: RawMesh, name: str, max_triangles: int) -> RawMesh:
     counts = ((mesh.n_short, "with fewer than 3 corners"), (int(repeated.sum()), "with a repeated vertex"),
               (int(flat.sum()), "with zero area"))
     parts = [f"{n} {what}" for n, what in counts if n]
+    if canonical is not None:
+        # Its vertex order and triangles are what makes it animatable: never alter them.
+        if parts:
+            notes.append(f"Kept {', '.join(parts).replace('with ', 'triangles with ')}: this is a canonical face of "
+                         f"template {canonical}, whose triangles must stay as they are (its surface folds there; "
+                         "correct the landmarks nearby and register again to smooth it).")
+        repeated = flat = np.zeros(len(tri), dtype=bool)
+        parts = []
     if parts:
         notes.append(f"Removed degenerate faces: {', '.join(parts)}.")
     keep = ~(repeated | flat)
@@ -325,6 +334,27 @@ def save_face(face: Face, path) -> None:
             "Choose one of these extensions."
         )
     write_reporting_errors(path, lambda: _WRITERS[fmt](face, path), MeshSaveError)
+
+
+def _canonical_template_of(n_vertices: int, triangles: np.ndarray) -> str | None:
+    """The template whose canonical faces (``core.registration``) have exactly this vertex count and
+    these triangles, else None (checked by size first: cheap for every other mesh)."""
+    from core.registration.templates import TEMPLATE_NAMES
+
+    for name in TEMPLATE_NAMES:
+        size = _CANONICAL_SIZES.get(name)
+        if size is not None and size != (n_vertices, len(triangles)):
+            continue
+        from core.registration.correspondence import canonical_triangles
+
+        expected = canonical_triangles(name)
+        _CANONICAL_SIZES[name] = (int(expected.max()) + 1, len(expected))
+        if _CANONICAL_SIZES[name] == (n_vertices, len(triangles)) and np.array_equal(triangles, expected):
+            return name
+    return None
+
+
+_CANONICAL_SIZES: dict[str, tuple[int, int]] = {}   # template -> (vertices, triangles) of its canonical faces
 
 
 def write_reporting_errors(path: Path, write, error_type: type[Exception]) -> None:

@@ -96,3 +96,28 @@ def test_a_saved_canonical_face_gets_its_landmarks_back(registration, tmp_path):
     other = type(bare)(bare.vertices, bare.triangles[::-1].copy())
     assert not with_canonical_landmarks(other).landmarks
     assert with_canonical_landmarks(registration.face) is registration.face
+
+
+def test_a_canonical_face_with_folds_reloads_whole_and_animatable(tmp_path):
+    """Issue 15: a registered face whose projection made some triangles zero-area (coincident
+    vertices) keeps every triangle when reloaded, so its topology is recognised and it animates."""
+    from core.formats.mesh_io import load_face, save_face
+    from core.registration.correspondence import canonical_triangles, with_canonical_landmarks
+    from core.registration.pipeline import default_model, register_scan
+    from core.registration.virtual_scanner import scan_face
+    from core.rig import FaceRig
+
+    scan = scan_face(default_model(), n_target=12_000, rng=np.random.default_rng(2)).face
+    canonical = register_scan(scan, dict(scan.landmarks)).face
+    v = canonical.vertices.copy()
+    a, b, c = canonical.triangles[100]
+    v[b] = v[a]                                  # two coincident vertices: zero-area triangles around them
+    folded = canonical.with_vertices(v)
+    path = tmp_path / "folded.obj"
+    save_face(folded, path)
+    back = load_face(path)
+    np.testing.assert_array_equal(back.triangles, canonical_triangles("mpeg4_80"))
+    assert any("Kept" in n and "canonical face of template mpeg4_80" in n for n in back.metadata.notes)
+    rig = FaceRig(with_canonical_landmarks(back))
+    rig.set_expression("joy", 0.8)
+    assert np.abs(rig.vertices() - back.vertices).max() > 1.0
