@@ -33,6 +33,7 @@ Choices the thesis leaves open (written down here):
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -272,6 +273,67 @@ class Registration:
         return self._carry
 
 
+#: A canonical triangle is taken as collapsed when its area is below this fraction of the median.
+COLLAPSED_AREA_RATIO = 1e-3
+UNTANGLE_ROUNDS = 8
+
+
+def untangle(scan: Face, projection: Projection, template_name: str) -> tuple[Projection, int, int]:
+    """(projection, vertices moved, triangles still collapsed): vertices that the projection put onto
+    (nearly) the same spot as a neighbour — zero-area canonical triangles, e.g. in the mouth corners
+    or a scan's folds — are moved to the mean of their neighbours and snapped back onto the scan,
+    a few rounds (the base vertices, which are the landmarks, stay)."""
+    v = np.array(projection.dense.vertices, float)
+    t = projection.dense.triangles
+    n_base = len(get_template(template_name).base.points)
+
+    def collapsed() -> np.ndarray:
+        c = v[t]
+        area = np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
+        return area < COLLAPSED_AREA_RATIO * np.median(area)
+
+    bad = collapsed()
+    if not bad.any():
+        return projection, 0, 0
+    n = len(v)
+    rows = np.concatenate([t[:, 0], t[:, 1], t[:, 2], t[:, 1], t[:, 2], t[:, 0]])
+    cols = np.concatenate([t[:, 1], t[:, 2], t[:, 0], t[:, 0], t[:, 1], t[:, 2]])
+    adjacency = scipy.sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    adjacency.data[:] = 1.0
+    degree = np.asarray(adjacency.sum(axis=1)).ravel()
+    surface = TriangleSet(scan.vertices, scan.triangles)
+    scan_triangle = np.array(projection.scan_triangle)
+    scan_bary = np.array(projection.scan_bary, float)
+    moved: set[int] = set()
+    for _ in range(UNTANGLE_ROUNDS):
+        idx = np.unique(t[bad])
+        idx = idx[idx >= n_base]
+        if not len(idx):
+            break
+        mean = (adjacency[idx] @ v) / degree[idx, None]
+        pos, tri, bary = surface.closest(mean)
+        v[idx], scan_triangle[idx], scan_bary[idx] = pos, tri, bary
+        moved.update(idx.tolist())
+        bad = collapsed()
+        if not bad.any():
+            break
+    for _ in range(UNTANGLE_ROUNDS if bad.any() else 0):
+        # Where the scan itself folds, snapping brings neighbours back together: leave these few
+        # vertices at their neighbours' mean, just off the surface (their uv stays the closest point's).
+        idx = np.unique(t[bad])
+        idx = idx[idx >= n_base]
+        if not len(idx):
+            break
+        v[idx] = (adjacency[idx] @ v) / degree[idx, None]
+        moved.update(idx.tolist())
+        bad = collapsed()
+        if not bad.any():
+            break
+    dense = dataclasses.replace(projection.dense, vertices=v, face_triangle=scan_triangle)
+    return (dataclasses.replace(projection, dense=dense, scan_triangle=scan_triangle, scan_bary=scan_bary),
+            len(moved), int(bad.sum()))
+
+
 def canonical_face(scan: Face, projection: Projection, template_name: str) -> Face:
     """The canonical Face of a projection (see :class:`Registration`)."""
     dense = projection.dense
@@ -352,11 +414,15 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
     if scan.n_triangles == 0:
         raise CorrespondenceError("the scan has no triangles")
     proj = project_template(scan, template, positions, rays=rays)
+    proj, untangled, left = untangle(scan, proj, template)
     face = canonical_face(scan, proj, template)
     total = int(sum(proj.fallbacks))
     report = [f"dense correspondence ({template}): {face.n_vertices} vertices, {face.n_triangles} triangles; "
               f"rays by {proj.engine}; {total} vertices took the closest point because their normal ray missed "
               f"(per step {proj.fallbacks})"]
+    if untangled or left:
+        report.append(f"{untangled} vertices projected onto the same spot as a neighbour were moved apart"
+                      + (f"; {left} triangles still have (almost) no area: check the landmarks near them" if left else ""))
     if proj.engine != "embree":
         report.append("embreex is not available: projection used the slower numpy ray test")
     return Registration(face, total, proj, scan, template, report)

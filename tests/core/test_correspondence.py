@@ -121,3 +121,34 @@ def test_a_canonical_face_with_folds_reloads_whole_and_animatable(tmp_path):
     rig = FaceRig(with_canonical_landmarks(back))
     rig.set_expression("joy", 0.8)
     assert np.abs(rig.vertices() - back.vertices).max() > 1.0
+
+
+def test_untangle_moves_coincident_vertices_apart_and_keeps_the_landmarks():
+    """Vertices projected onto the same spot (zero-area triangles) are moved to their neighbours'
+    mean and snapped back onto the scan; the base vertices (landmarks) never move."""
+    import dataclasses
+
+    from core.registration.correspondence import COLLAPSED_AREA_RATIO, project_template, untangle
+    from core.registration.pipeline import default_model
+    from core.registration.templates import get_template
+    from core.registration.virtual_scanner import scan_face
+
+    scan = scan_face(default_model(), n_target=12_000, rng=np.random.default_rng(6)).face
+    positions = {n: scan.landmark_positions([n], scan.vertices)[0] for n in scan.landmark_names}
+    proj = project_template(scan, "mpeg4_80", positions)
+    n_base = len(get_template("mpeg4_80").base.points)
+    v = np.array(proj.dense.vertices)
+    tri = proj.dense.triangles
+    victims = [int(k) for k in tri[200:260:20, 1] if k >= n_base]
+    for k in victims:                      # each onto a neighbour: collapsed triangles around it
+        neighbour = tri[np.any(tri == k, axis=1)][0]
+        v[k] = v[[j for j in neighbour if j != k][0]]
+    broken = dataclasses.replace(proj, dense=dataclasses.replace(proj.dense, vertices=v))
+    fixed, moved, left = untangle(scan, broken, "mpeg4_80")
+    assert moved >= len(victims) and left == 0
+    c = fixed.dense.vertices[tri]
+    area = np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
+    assert area.min() >= COLLAPSED_AREA_RATIO * np.median(area)
+    np.testing.assert_array_equal(fixed.dense.vertices[:n_base], proj.dense.vertices[:n_base])
+    untouched, moved_none, _ = untangle(scan, proj, "mpeg4_80")
+    assert moved_none == 0 and untouched is proj
