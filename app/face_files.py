@@ -186,11 +186,11 @@ class FaceFilesMixin:
         path = str(path)
 
         def loader(progress):
-            from core.formats.mesh_io import load_face
-            from core.registration.correspondence import with_canonical_landmarks
+            from core.registration.correspondence import load_face_or_canonical
 
-            # A canonical face saved by Build correspondence or 'mimica register' gets its landmarks back.
-            return with_canonical_landmarks(load_face(path, progress=progress))
+            # A canonical face saved by Build correspondence or 'mimica register' is kept whole and gets
+            # its landmarks back.
+            return load_face_or_canonical(path, progress=progress)
 
         self._fallback_to_default = fallback_to_default
         self._start_load(path, loader, f"Loading {Path(path).name}…")

@@ -43,8 +43,8 @@ def reference_normals() -> np.ndarray:
 
 def measure(scan, landmarks, folder: Path, label: str, reference: np.ndarray):
     """(folds, centroid distances (T,), animatable, seconds) of one scan's registration."""
-    from core.formats.mesh_io import load_face, save_face
-    from core.registration.correspondence import with_canonical_landmarks
+    from core.formats.mesh_io import save_face
+    from core.registration.correspondence import load_face_or_canonical
     from core.registration.pipeline import register_scan
     from core.rig import FaceRig
     from core.surface_query import TriangleSet
@@ -64,7 +64,7 @@ def measure(scan, landmarks, folder: Path, label: str, reference: np.ndarray):
     path = folder / f"{label}.obj"
     save_face(face, path)
     try:
-        rig = FaceRig(with_canonical_landmarks(load_face(path)))
+        rig = FaceRig(load_face_or_canonical(path))
         rig.set_expression("joy", 0.8)
         animatable = bool(np.abs(rig.vertices() - rig.face.vertices).max() > 1.0)
     except ValueError:

@@ -62,7 +62,7 @@ from core.face import Face, SurfacePoint
 from core.formats.landmarks_io import (FORMAT_NAME, FORMAT_VERSION, MAX_LANDMARKS, MAX_NAME_CHARS, POSITION_MISMATCH_MM,
                                       LandmarkFileError, load_landmarks, read_landmark_text)
 from core.formats.text_files import parse_json, reading
-from core.formats.mesh_io import write_atomic, write_reporting_errors
+from core.formats.atomic_files import write_atomic, write_reporting_errors
 
 __all__ = [
     "LandmarkStatus", "LandmarkState", "LandmarkEditModel", "LandmarkEditError", "LandmarkFileError",

@@ -81,16 +81,15 @@ def load_face_or_default(path: str | None):
     if p.is_dir():
         raise CliError(f"{path} is a directory, not a face file")
     try:
-        from core.formats.mesh_io import MeshLoadError, load_face
+        from core.formats.mesh_io import MeshLoadError
     except ImportError as exc:
         raise CliError(f"mesh loading is not available ({exc})") from None
+    from core.registration.correspondence import load_face_or_canonical
+
     try:
-        face = load_face(p)
+        return load_face_or_canonical(p)   # a saved canonical face is kept whole and animates again
     except MeshLoadError as exc:
         raise CliError(f"cannot load {path}: {exc}") from None
-    from core.registration.correspondence import with_canonical_landmarks
-
-    return with_canonical_landmarks(face)  # a saved canonical face animates again
 
 
 def _named_value(text: str, what: str) -> tuple[str, str | None]:

@@ -19,7 +19,7 @@ from typing import Mapping
 
 from core.processes import process_alive
 
-__all__ = ["write_atomic", "write_set_atomic", "sweep_stale_staging"]
+__all__ = ["write_atomic", "write_set_atomic", "write_reporting_errors", "sweep_stale_staging"]
 
 _STAGING = re.compile(r"^\..+\.(\d+)\.[0-9a-f]{8}\.(tmp|bak)$")
 
@@ -95,3 +95,17 @@ def sweep_stale_staging(folder) -> list[Path]:
                     entry.unlink()
                     removed.append(entry)
     return removed
+
+
+def write_reporting_errors(path: Path, write, error_type: type[Exception]) -> None:
+    """Run ``write()`` for ``path``, turning file-system failures into ``error_type`` with a user-facing message."""
+    if not path.parent.is_dir():
+        raise error_type(f"Cannot save '{path.name}': the folder '{path.parent}' does not exist.")
+    try:
+        write()
+    except PermissionError:
+        raise error_type(
+            f"Mimica is not allowed to write in '{path.parent}'. Choose another folder or check its permissions."
+        ) from None
+    except OSError as exc:
+        raise error_type(f"Could not save '{path}': {exc.strerror or exc}.") from None

@@ -53,7 +53,7 @@ def arrays_path(path) -> Path:
 def write_library(library: ExpressionLibrary, path) -> Path:
     """Write ``library`` to ``path`` (.json) and its arrays beside it (.npz); returns the JSON path.
     Each file is written atomically (temporary file, then rename)."""
-    from core.formats.mesh_io import write_atomic
+    from core.formats.atomic_files import write_atomic
 
     path = Path(path)
     if path.suffix.lower() != ".json":

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from core.formats.dpc_file import DpcFileError, DpcSequence, format_dpc, parse_dpc
-from core.formats.mesh_io import write_atomic, write_reporting_errors
+from core.formats.atomic_files import write_atomic, write_reporting_errors
 from core.formats.text_files import read_text_file
 
 __all__ = ["EpcFileError", "EpcEmotion", "parse_epc", "read_epc", "format_epc", "write_epc"]

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.formats.mesh_io import write_atomic, write_reporting_errors
+from core.formats.atomic_files import write_atomic, write_reporting_errors
 
 from core.formats.text_files import integer as _integer
 from core.formats.text_files import number as _number

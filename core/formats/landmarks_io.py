@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from core.face import Face, SurfacePoint
-from core.formats.mesh_io import write_atomic, write_reporting_errors
+from core.formats.atomic_files import write_atomic, write_reporting_errors
 from core.formats.text_files import read_file_bytes, read_json_file, reading
 
 __all__ = ["LandmarkFileError", "save_landmarks", "load_landmarks", "read_landmark_text", "FORMAT_NAME",

@@ -37,7 +37,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from core.face import Face, FaceMetadata
-from core.formats.atomic_files import write_atomic, write_set_atomic  # noqa: F401 - the writers' one path
+from core.formats.atomic_files import write_atomic, write_reporting_errors, write_set_atomic  # noqa: F401
 from core.formats.mesh_formats import READERS, RawMesh, _image_to_rgb, plural, reason, weld
 from core.formats.text_files import check_file
 
@@ -95,7 +95,8 @@ def load_texture_image(path) -> np.ndarray:
         raise MeshLoadError(f"'{path.name}' is not an image Mimica can read ({reason(exc)})") from None
 
 
-def load_face(path, *, progress: ProgressCallback | None = None, max_triangles: int = 5_000_000) -> Face:
+def load_face(path, *, progress: ProgressCallback | None = None, max_triangles: int = 5_000_000,
+              keep_topology: Callable[[int, np.ndarray], str | None] | None = None) -> Face:
     """Load a face mesh, repair what can be repaired and convert it to millimetres.
 
     Parameters
@@ -111,6 +112,10 @@ def load_face(path, *, progress: ProgressCallback | None = None, max_triangles: 
         propagate unchanged (the GUI may use that to cancel).
     max_triangles : int
         Larger meshes are refused with a hint on how to decimate them.
+    keep_topology : callable(n_vertices, triangles) -> name or None, optional
+        Says whether the mesh is a known topology whose triangles must stay as they are (a canonical
+        face: ``core.registration.correspondence.canonical_template_of``); its zero-area triangles
+        are then kept, with a note, instead of removed.
 
     Returns
     -------
@@ -139,7 +144,7 @@ def load_face(path, *, progress: ProgressCallback | None = None, max_triangles: 
             f"not really {fmt}; try exporting it again from the program that made it."
         ) from exc
     report(0.7, "Checking and repairing the mesh")
-    mesh = _repair(mesh, path.name, max_triangles)
+    mesh = _repair(mesh, path.name, max_triangles, keep_topology)
     report(0.9, "Converting units")
     vertices, units_note = _to_millimetres(mesh.vertices)
     if units_note:
@@ -189,7 +194,8 @@ def _check_readable(path: Path) -> str:
 
 
 # ------------------------------------------------------------- repairs
-def _repair(mesh: RawMesh, name: str, max_triangles: int) -> RawMesh:
+def _repair(mesh: RawMesh, name: str, max_triangles: int,
+            keep_topology: Callable[[int, np.ndarray], str | None] | None = None) -> RawMesh:
     """Validate and clean raw arrays; raise MeshLoadError or append one note per repair."""
     v, tri = mesh.vertices, mesh.triangles
     if len(tri) == 0:
@@ -218,7 +224,7 @@ def _repair(mesh: RawMesh, name: str, max_triangles: int) -> RawMesh:
             "Repair the mesh (e.g. MeshLab: Filters > Cleaning and Repairing) or export it again."
         )
     notes = mesh.notes
-    canonical = _canonical_template_of(len(v), tri)
+    canonical = keep_topology(len(v), tri) if keep_topology is not None else None
     repeated = (tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2]) | (tri[:, 2] == tri[:, 0])
     corners = v[tri]
     twice_area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
@@ -334,41 +340,6 @@ def save_face(face: Face, path) -> None:
             "Choose one of these extensions."
         )
     write_reporting_errors(path, lambda: _WRITERS[fmt](face, path), MeshSaveError)
-
-
-def _canonical_template_of(n_vertices: int, triangles: np.ndarray) -> str | None:
-    """The template whose canonical faces (``core.registration``) have exactly this vertex count and
-    these triangles, else None (checked by size first: cheap for every other mesh)."""
-    from core.registration.templates import TEMPLATE_NAMES
-
-    for name in TEMPLATE_NAMES:
-        size = _CANONICAL_SIZES.get(name)
-        if size is not None and size != (n_vertices, len(triangles)):
-            continue
-        from core.registration.correspondence import canonical_triangles
-
-        expected = canonical_triangles(name)
-        _CANONICAL_SIZES[name] = (int(expected.max()) + 1, len(expected))
-        if _CANONICAL_SIZES[name] == (n_vertices, len(triangles)) and np.array_equal(triangles, expected):
-            return name
-    return None
-
-
-_CANONICAL_SIZES: dict[str, tuple[int, int]] = {}   # template -> (vertices, triangles) of its canonical faces
-
-
-def write_reporting_errors(path: Path, write, error_type: type[Exception]) -> None:
-    """Run ``write()`` for ``path``, turning file-system failures into ``error_type`` with a user-facing message."""
-    if not path.parent.is_dir():
-        raise error_type(f"Cannot save '{path.name}': the folder '{path.parent}' does not exist.")
-    try:
-        write()
-    except PermissionError:
-        raise error_type(
-            f"Mimica is not allowed to write in '{path.parent}'. Choose another folder or check its permissions."
-        ) from None
-    except OSError as exc:
-        raise error_type(f"Could not save '{path}': {exc.strerror or exc}.") from None
 
 
 def _rows(fmt: str, array: np.ndarray) -> str:

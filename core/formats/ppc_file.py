@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from core.formats.dpc_file import control_points
-from core.formats.mesh_io import write_atomic, write_reporting_errors
+from core.formats.atomic_files import write_atomic, write_reporting_errors
 from core.formats.text_files import integer, number, read_text_file, reading
 
 __all__ = ["PpcFileError", "ControlPointPositions", "parse_ppc", "read_ppc", "format_ppc", "write_ppc"]

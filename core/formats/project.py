@@ -48,7 +48,8 @@ from typing import Any
 import numpy as np
 
 from core.face import Face, SurfacePoint
-from core.formats.mesh_io import save_face, write_atomic, write_reporting_errors
+from core.formats.atomic_files import write_atomic, write_reporting_errors
+from core.formats.mesh_io import save_face
 from core.formats.text_files import MAX_BYTES, parse_json, read_file_bytes, reading
 from core.parameters import ParameterError, check_value, key_of, sort_key
 from core.timeline import Key, Timeline, TimelineError, Track, canonical_key

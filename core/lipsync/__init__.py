@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.formats.mesh_io import write_atomic
+from core.formats.atomic_files import write_atomic
 from core.timeline import Track
 from core.lipsync.coarticulation import blink_tracks, viseme_curves, viseme_tracks
 from core.lipsync.espeak import (MAX_TEXT_CHARS, LanguageError, Phoneme, SpeechError, Synthesis, VOICES,

@@ -389,6 +389,31 @@ def canonical_triangles(template_name: str) -> np.ndarray:
     return t
 
 
+def canonical_template_of(n_vertices: int, triangles: np.ndarray) -> str | None:
+    """The template whose canonical faces have exactly this vertex count and these triangles, else
+    None (compared by size first: cheap for every other mesh). For ``load_face(keep_topology=)``."""
+    for name in TEMPLATE_NAMES:
+        size = _CANONICAL_SIZES.get(name)
+        if size is not None and size != (n_vertices, len(triangles)):
+            continue
+        expected = canonical_triangles(name)
+        _CANONICAL_SIZES[name] = (int(expected.max()) + 1, len(expected))
+        if _CANONICAL_SIZES[name] == (n_vertices, len(triangles)) and np.array_equal(triangles, expected):
+            return name
+    return None
+
+
+_CANONICAL_SIZES: dict[str, tuple[int, int]] = {}   # template -> (vertices, triangles) of its canonical faces
+
+
+def load_face_or_canonical(path, **kwargs) -> Face:
+    """``core.formats.mesh_io.load_face`` for a file that may be a saved canonical face: its
+    triangles are kept as they are and its landmarks restored (:func:`with_canonical_landmarks`)."""
+    from core.formats.mesh_io import load_face
+
+    return with_canonical_landmarks(load_face(path, keep_topology=canonical_template_of, **kwargs))
+
+
 def with_canonical_landmarks(face: Face) -> Face:
     """``face`` with its template landmarks restored when it is a canonical face saved without them
     (mesh files carry no landmarks; same vertex count and triangles as a template's canonical

@@ -151,7 +151,7 @@ def synthetic_case(person: int, pose: str, *, cache_dir=None, seed: int = 0) -> 
         except (OSError, ValueError, KeyError):
             pass  # a damaged cache file is regenerated below
     payload = _generate(person, pose, seed)
-    from core.formats.mesh_io import write_atomic
+    from core.formats.atomic_files import write_atomic
 
     path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()

@@ -141,7 +141,7 @@ def _check_jaw(value, error, where: str = "force set") -> float:
 # ------------------------------------------------------------------ files
 def save_force_set(path, force_set: ForceSet) -> None:
     """Write ``force_set`` as JSON to ``path`` atomically (ForceFileError with a message on failure)."""
-    from core.formats.mesh_io import write_atomic, write_reporting_errors
+    from core.formats.atomic_files import write_atomic, write_reporting_errors
 
     path = Path(path)
     try:
