@@ -592,8 +592,10 @@ def open_face(project: Project, notes: list[str] | None = None) -> Face:
             changed = True
             notes.append(f"The face file '{path.name}' changed since the project was saved; landmarks were placed "
                          "at the surface points closest to their saved positions.")
+        from core.registration.correspondence import canonical_template_of
+
         try:
-            face = load_face(path)
+            face = load_face(path, keep_topology=canonical_template_of)   # a canonical face stays whole
         except MeshLoadError as exc:
             raise ProjectError(str(exc)) from None
     if project.landmarks is not None:
