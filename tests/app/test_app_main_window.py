@@ -131,7 +131,7 @@ def test_load_notes_are_shown(qtbot, window, tmp_path, monkeypatch):
     noted = make_synthetic_face(n_u=20, n_v=20)
     noted.metadata = FaceMetadata(source="x.obj", units="mm", name="noted",
                                   notes=["Converted metres to millimetres.", "Removed 3 duplicate vertices."])
-    monkeypatch.setattr(core.formats.mesh_io, "load_face", lambda path, progress=None: noted)
+    monkeypatch.setattr(core.formats.mesh_io, "load_face", lambda path, progress=None, **_: noted)
     path = tmp_path / "x.obj"
     path.write_text("v 0 0 0\n")
     assert _load(qtbot, window, path) is True
@@ -148,7 +148,7 @@ def test_progress_is_reported(qtbot, window, tmp_path, monkeypatch):
     shown = window._on_load_progress
     monkeypatch.setattr(window, "_on_load_progress", lambda frac, msg: (seen.append((frac, msg)), shown(frac, msg)))
 
-    def slow_load(path, progress=None):
+    def slow_load(path, progress=None, **_):
         for i in range(5):
             progress(i / 4, f"step {i}")
         return make_synthetic_face(n_u=12, n_v=12)
