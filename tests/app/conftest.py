@@ -112,3 +112,18 @@ def deformer(default_face):
     from core.layers.fap.fat import FapDeformer
 
     return FapDeformer(default_face)
+
+
+@pytest.fixture
+def default_face_window(qtbot, settings, error_boxes, default_face, deformer):
+    """A shown MainWindow on the default face with its rig (the module's prebuilt FAP deformer)."""
+    from app.main_window import MainWindow
+    from core.rig import FaceRig
+
+    w = MainWindow(settings=settings, load_default=False)
+    qtbot.addWidget(w)
+    w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
+    w.show()
+    qtbot.waitExposed(w)
+    yield w
+    w.close()

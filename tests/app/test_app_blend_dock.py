@@ -10,17 +10,8 @@ import pytest
 
 
 @pytest.fixture
-def win(qtbot, settings, error_boxes, default_face, deformer):
-    from app.main_window import MainWindow
-    from core.rig import FaceRig
-
-    w = MainWindow(settings=settings, load_default=False)
-    qtbot.addWidget(w)
-    w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
-    w.show()
-    qtbot.waitExposed(w)
-    yield w
-    w.close()
+def win(default_face_window):
+    return default_face_window
 
 
 def test_blend_dock_drives_the_rig_keys_undoes_and_refuses_bad_files(qtbot, win, tmp_path, error_boxes):

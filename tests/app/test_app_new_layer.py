@@ -15,17 +15,8 @@ import offset_layer  # noqa: E402,F401 - registers the offset:z kind and its lay
 
 
 @pytest.fixture
-def win(qtbot, settings, error_boxes, default_face, deformer, tmp_path):
-    from app.main_window import MainWindow
-    from core.rig import FaceRig
-
-    w = MainWindow(settings=settings, load_default=False)
-    qtbot.addWidget(w)
-    w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
-    w.show()
-    qtbot.waitExposed(w)
-    yield w
-    w.close()
+def win(default_face_window):
+    return default_face_window
 
 
 def test_a_new_layer_keys_undoes_saves_reopens_and_exports(qtbot, win, tmp_path):

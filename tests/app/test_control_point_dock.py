@@ -10,17 +10,8 @@ from PySide6.QtCore import Qt
 
 
 @pytest.fixture
-def win(qtbot, settings, error_boxes, default_face, deformer):
-    from app.main_window import MainWindow
-    from core.rig import FaceRig
-
-    w = MainWindow(settings=settings, load_default=False)
-    qtbot.addWidget(w)
-    w.set_face(default_face, rig=FaceRig(default_face, deformer=deformer))
-    w.show()
-    qtbot.waitExposed(w)
-    yield w
-    w.close()
+def win(default_face_window):
+    return default_face_window
 
 
 def test_the_dock_drives_control_points_and_waters_muscles(qtbot, win, tmp_path):
