@@ -157,6 +157,7 @@ def read_library(path, *, template: str | None = None, n_vertices: int | None = 
         shapes["mean"] = (n, 3)
     try:
         arrays = _read_arrays(npz_path, raw, shapes)
+    # zipfile raises NotImplementedError for a compression method it cannot read (a foreign archive)
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError) as exc:
         raise LibraryFileError(f"'{npz_path.name}' is not an expression library's array file: it is not a readable "
                                f"NumPy .npz archive ({exc}). Save the library again, or open a backup.") from None
