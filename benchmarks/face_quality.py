@@ -1,0 +1,177 @@
+"""Does the face hold up at every slider value? (issue 18 item 4)
+
+Sweeps, per identity, every animated FAP to both ends of its slider range, every expression and
+viseme preset at 100 %, every expression mixed with every viseme (speech with emotion) at 100 %, and
+thesis C's muscle presets, and measures each pose with :class:`core.mesh_quality.FaceQualityProbe`:
+lip / lid / teeth intersections, folded triangles, the largest texture stretch and smallest squeeze,
+and for lid-closing FAPs at their maximum whether the eye is closed. Prints per pose
+
+    <identity> <pose>: lip=<n> lid=<n> teeth=<n> folds=<n> stretch=<x> squeeze=<x> [eye=<%>] OK|FAIL <why>
+
+then per identity ``<identity>: failures=<k>/<poses> (<s> s)`` and at the end
+
+    quality_failures=<n>
+
+(the failing poses over all identities; goal 0). Identities: the default face; a generated identity
+of other proportions (Mimica's generator, seed 7); and, when ``../shared/data/sfm`` is present, a
+Surrey Face Model identity (a face made by others) registered onto the canonical topology.
+
+Contact sheets (front + three-quarter, by ``app.render``) go to ``--sheets DIR`` (default
+``/tmp/mimica-face-quality``), one PNG per identity and pose family; ``--no-sheets`` skips them.
+
+Usage: python benchmarks/face_quality.py [--identities default generated sfm] [--no-mixes]
+       [--no-muscles] [--sheets DIR | --no-sheets]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "scripts"))
+
+SFM_DIR = ROOT.parent / "shared" / "data" / "sfm"
+# Lid-closing FAPs and the eye each one must close at its maximum (close_t_l/r_eyelid).
+CLOSING_LIDS = {19: "left", 20: "right"}
+
+
+def identity_face(name: str):
+    """The Face of an identity name (see the module docstring)."""
+    from core.default_face import generate_face, load_default_face
+    from core.default_face.params import FaceParameters
+
+    if name == "default":
+        return load_default_face()
+    if name == "generated":
+        return generate_face(FaceParameters.random(np.random.default_rng(7), spread=0.8))
+    if name == "sfm":
+        import evaluate_landmarks_sfm as sfm
+        from core.registration.pipeline import register_scan
+        from core.registration.synthetic import poses
+
+        model = sfm.load_sfm(SFM_DIR)
+        surface = sfm.refine_topology(model)
+        case = next(iter(sfm.make_scans(model, surface, 1, 0, [0.0], [list(poses())[0]], textured=False)))
+        return register_scan(case.face, dict(case.face.landmarks)).face
+    raise SystemExit(f"unknown identity {name!r}: choose default, generated or sfm")
+
+
+Pose = tuple[str, str, Callable, tuple[str, ...]]   # family, label, apply(rig), eyes that must close
+
+
+def fap_poses(rig) -> Iterator[Pose]:
+    from core.layers.fap import tables
+
+    for number in rig.animated_faps:
+        if number <= 2:
+            continue
+        spec = tables.fap_spec(number)
+        lo, hi = spec.minimum, spec.maximum
+        if not np.isfinite(lo) or not np.isfinite(hi):
+            continue
+        for value in sorted({lo, hi} - {0.0}):
+            closes = (CLOSING_LIDS[number],) if number in CLOSING_LIDS and value == hi else ()
+            yield ("faps", f"fap {number} {spec.name}={value:g}",
+                   lambda r, n=number, x=value: r.set_fap(n, x), closes)
+
+
+def preset_poses(rig, mixes: bool) -> Iterator[Pose]:
+    from core.layers.fap import tables
+
+    expressions = tables.expression_names()[1:]
+    visemes = tables.viseme_names()[1:]
+    for e in expressions:
+        yield "expressions", e, lambda r, e=e: r.set_expression(e, 1.0), ()
+    for v in visemes:
+        yield "visemes", f"viseme {v}", lambda r, v=v: r.set_viseme(v, 1.0), ()
+    if mixes:
+        for e in expressions:
+            for v in visemes:
+                yield ("mixes", f"{e} + viseme {v}",
+                       lambda r, e=e, v=v: (r.set_expression(e, 1.0), r.set_viseme(v, 1.0)), ())
+
+
+def muscle_poses(rig) -> Iterator[Pose]:
+    from core.layers.muscles import preset, preset_names
+
+    rig.ensure_layers(["muscle:risorius:left"])
+    layer = rig.layer("muscles")
+    for name in preset_names():
+        def apply(r, p=preset(name)):
+            layer.apply(p)
+            layer.solve()
+            r.touch()
+        yield "muscles", f"muscles {preset(name).name}", apply, ()
+
+
+def run_identity(name: str, args) -> tuple[int, int]:
+    from core.mesh_quality import FaceQualityProbe
+    from core.rig import FaceRig
+
+    t0 = time.perf_counter()
+    face = identity_face(name)
+    rig = FaceRig(face)
+    probe = FaceQualityProbe(face)
+    poses: list[Pose] = [("expressions", "neutral", lambda r: None, ())]
+    poses += list(fap_poses(rig)) + list(preset_poses(rig, args.mixes))
+    if args.muscles:
+        poses += list(muscle_poses(rig))
+    failures = 0
+    sheets: dict[str, list] = {}
+    for family, label, apply, closes in poses:
+        rig.reset()
+        apply(rig)
+        vertices = rig.vertices()
+        q = probe.measure(vertices, eyes=bool(closes))
+        why = q.failures(eyes_closed=closes)
+        failures += bool(why)
+        eye = "".join(f" eye_{s}={100 * q.eye_openness[s]:.0f}%" for s in closes if s in q.eye_openness)
+        counts = " ".join(f"{k}={'-' if v is None else v}" for k, v in (
+            ("lip", q.lip_intersections), ("lid", q.lid_intersections), ("teeth", q.teeth_intersections)))
+        print(f"{name} {label}: {counts} folds={q.folded_triangles} stretch={q.max_stretch:.2f} "
+              f"squeeze={q.min_stretch:.2f}{eye} {'FAIL ' + '; '.join(why) if why else 'OK'}", flush=True)
+        if args.sheets:
+            from app.render import render_face_image
+
+            views = [render_face_image(face.with_vertices(vertices), view=v, size=(480, 480))
+                     for v in ("front", "three-quarter")]
+            sheets.setdefault(family, []).append((("FAIL " if why else "") + label, views))
+    if args.sheets:
+        from readme_figures import sheet
+
+        args.sheets.mkdir(parents=True, exist_ok=True)
+        for family, rows in sheets.items():
+            path = args.sheets / f"{name}_{family}.png"
+            sheet(rows, columns=4).save(path)
+        print(f"{name}: contact sheets in {args.sheets}", flush=True)
+    print(f"{name}: failures={failures}/{len(poses)} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    return failures, len(poses)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--identities", nargs="+", default=["default", "generated", "sfm"])
+    parser.add_argument("--no-mixes", dest="mixes", action="store_false")
+    parser.add_argument("--no-muscles", dest="muscles", action="store_false")
+    parser.add_argument("--sheets", type=Path, default=Path("/tmp/mimica-face-quality"))
+    parser.add_argument("--no-sheets", dest="sheets", action="store_const", const=None)
+    args = parser.parse_args()
+    if "sfm" in args.identities and not SFM_DIR.is_dir():
+        print(f"sfm: skipped ({SFM_DIR} not found)")
+        args.identities.remove("sfm")
+    total = 0
+    for name in args.identities:
+        total += run_identity(name, args)[0]
+    print(f"quality_failures={total}")
+
+
+if __name__ == "__main__":
+    main()
