@@ -214,6 +214,22 @@ def test_lids_close_without_crossing(rig):
     assert f.landmark_position("3.1", v)[1] == pytest.approx(f.landmark_position("3.3")[1], abs=0.3)
     rig.reset_faps()
 
+def test_a_blink_hides_the_whole_eyeball_and_never_cuts_it(rig):
+    """Upper lids at their maximum (1024 IRISD) close the eyes completely: no part of the eyeball is
+    seen from the front, and no lid triangle passes through the eyeball or its cornea."""
+    from core.mesh_quality import FaceQualityProbe, count_intersections
+
+    probe = FaceQualityProbe(rig.face)
+    rig.reset_faps()
+    rig.set_faps({19: 1024, 20: 1024})
+    v = rig.vertices()
+    assert probe.eye_openness(v) == {"left": 0.0, "right": 0.0}
+    for side in ("left", "right"):
+        assert count_intersections(v, probe.lid_tris[side], probe.eyeball_tris[side]) == 0
+    rig.reset_faps()
+    assert min(probe.eye_openness(rig.vertices()).values()) > 0.5   # open at rest: the check can fail
+
+
 
 def test_jaw_moves_the_mouth_corners_part_way_and_the_upper_lip_stays(rig):
     f = rig.face

@@ -47,7 +47,8 @@ from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError,
 N_FAPS = tables.N_FAPS
 LID_PAIRS = ((19, 21), (20, 22))  # (upper, lower) per eye
 OUTSIDE_FADE_MM = 6.0
-LID_CLEARANCE_MM = 0.4  # a closing lid slides this far outside the eyeball  # skin beyond the template's outline follows it, fading over this distance
+LID_CLEARANCE_MM = 0.4      # a closing lid slides this far outside the eyeball
+MIN_LID_CLEARANCE_MM = 0.1  # ... or at least this far (a 2 mm lid triangle sags 0.03 mm into a 15 mm ball)
 
 
 def lid_contact(values: np.ndarray) -> np.ndarray:
@@ -292,25 +293,32 @@ class FapDeformer:
             out[name] = (idx, sol[:3])
         return out if len(out) == 2 else {}
 
-    def _lid_guards_over_eyeballs(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """Per eye: (lid vertex indices, eyeball centre (3,), smallest allowed distance (k,) mm).
+    def _lid_guards_over_eyeballs(self) -> list[tuple]:
+        """Per eye: (lid vertex indices, eyeball centre (3,), clearance over the eyeball (k,) mm, the
+        eyeball's radius profile: angles from +z (b,) rad and radii (b,) mm).
 
-        The FAT moves a lid in a straight line, but the eyeball bulges forward: a closing lid would
-        pass behind the cornea. Lid vertices are kept at least ``LID_CLEARANCE_MM`` outside the
-        eyeball (a least-squares sphere), or at their rest distance when that is smaller, so the
-        neutral face is unchanged.
+        The FAT moves a lid in a straight line, but the eyeball bulges forward, and its cornea
+        more: a closing lid would pass behind the cornea (the eye then shows through the closed
+        lid). Lid vertices are kept at least ``LID_CLEARANCE_MM`` outside the eyeball's own surface
+        in their direction from the centre (its radius as a function of the angle from the gaze
+        axis, which covers the cornea), or by their rest clearance when that is smaller (at least
+        ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball), so the neutral face
+        is unchanged.
         """
         guards = []
         for name, faps in (("eyeball_l", (19, 21)), ("eyeball_r", (20, 22))):
             if name not in self._eyes:
                 continue
             idx, centre = self._eyes[name]
-            p = self.face.vertices[idx]
-            radius = float(np.percentile(np.linalg.norm(p - centre, axis=1), 95))  # the cap is not quite a sphere
+            angles, radii = _radius_profile(self.face.vertices[idx] - centre)
             moved = sum(self.binding @ self.template_weights[f] for f in faps if f in self.template_weights)
             lid = np.nonzero(np.asarray(moved) > 1e-6)[0]
-            rest = np.linalg.norm(self.face.vertices[lid] - centre, axis=1)
-            guards.append((lid, centre, np.minimum(rest, radius + LID_CLEARANCE_MM)))
+            r = self.face.vertices[lid] - centre
+            length = np.linalg.norm(r, axis=1)
+            angle = np.arccos(np.clip(r[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0))
+            rest_gap = length - np.interp(angle, angles, radii)
+            clearance = np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM)
+            guards.append((lid, centre, clearance, angles, radii))
         return guards
 
     def _eye_rims_of_skin(self) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -423,15 +431,21 @@ class FapDeformer:
             for upper, lower in self._eye_rims:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
-            for lid, centre, min_dist in self._lid_guards:
-                r = x[lid] - centre
-                inside = (r * r).sum(axis=1) < min_dist * min_dist
-                if inside.any():
-                    # Push forward (not radially) onto the guard sphere: the lid keeps its height, so
-                    # closing lids still meet where the FAT puts them.
+            for lid, centre, clearance, angles, radii in self._lid_guards:
+                # Two passes: pushing a vertex forward turns it toward the cornea, which is higher.
+                for _ in range(2):
+                    r = x[lid] - centre
+                    length = np.sqrt((r * r).sum(axis=1))
+                    angle = np.arccos(np.clip(r[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0))
+                    need = np.interp(angle, angles, radii) + clearance
+                    inside = length < need
+                    if not inside.any():
+                        break
+                    # Push forward (not radially) onto the guard surface: the lid keeps its height,
+                    # so closing lids still meet where the FAT puts them.
                     sel = lid[inside]
                     planar = (r[inside, :2] ** 2).sum(axis=1)
-                    x[sel, 2] = centre[2] + np.sqrt(min_dist[inside] ** 2 - planar)
+                    x[sel, 2] = centre[2] + np.sqrt(np.maximum(need[inside] ** 2 - planar, 0.0))
         if self._eyes:
             for name, (yaw, pitch) in (("eyeball_l", (23, 25)), ("eyeball_r", (24, 26))):
                 a, b = values[yaw - 1] * tables.ANGLE_UNIT, values[pitch - 1] * tables.ANGLE_UNIT
@@ -462,6 +476,25 @@ def deformer_key(face: Face) -> str:
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]
     return fingerprint(code, data, face.vertices, face.triangles, landmarks, parts)
+
+
+def _radius_profile(offsets: np.ndarray, step_deg: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """An eyeball's outer radius by angle from +z: (angles (b,) rad, radii (b,) mm) from its
+    vertices' offsets (k, 3) from the centre; each bin holds the largest radius within one bin of it
+    (so interpolation never dips below the surface), empty bins the largest radius of all."""
+    length = np.linalg.norm(offsets, axis=1)
+    angle = np.degrees(np.arccos(np.clip(offsets[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0)))
+    bins = np.arange(0.0, 180.0 + step_deg, step_deg)
+    which = np.minimum((angle / step_deg).astype(int), len(bins) - 1)
+    radii = np.full(len(bins), length.max())
+    found = np.zeros(len(bins), dtype=bool)
+    best = np.zeros(len(bins))
+    np.maximum.at(best, which, length)
+    found[which] = True
+    radii[found] = best[found]
+    widened = np.maximum(radii, np.maximum(np.roll(radii, 1), np.roll(radii, -1)))
+    widened[0], widened[-1] = max(radii[0], radii[1]), max(radii[-1], radii[-2])
+    return np.radians(bins), widened
 
 
 def _rotation(axis, angle: float) -> np.ndarray:
