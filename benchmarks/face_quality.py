@@ -16,11 +16,17 @@ then per identity ``<identity>: failures=<k>/<poses> (<s> s)`` and at the end
 of other proportions (Mimica's generator, seed 7); and, when ``../shared/data/sfm`` is present, a
 Surrey Face Model identity (a face made by others) registered onto the canonical topology.
 
+``--clean-ranges`` also prints, per FAP and identity, how much of each end of its slider range the
+surface survives alone (no fold, stretch within limits; intersections not counted), by bisection on
+the FAP's linear displacement field:
+
+    <identity> clean fap <n> <name>: min=<%> max=<%>
+
 Contact sheets (front + three-quarter, by ``app.render``) go to ``--sheets DIR`` (default
 ``/tmp/mimica-face-quality``), one PNG per identity and pose family; ``--no-sheets`` skips them.
 
 Usage: python benchmarks/face_quality.py [--identities default generated sfm] [--no-mixes]
-       [--no-muscles] [--sheets DIR | --no-sheets]
+       [--no-muscles] [--clean-ranges] [--sheets DIR | --no-sheets]
 """
 
 from __future__ import annotations
@@ -112,6 +118,33 @@ def muscle_poses(rig) -> Iterator[Pose]:
         yield "muscles", f"muscles {preset(name).name}", apply, ()
 
 
+def clean_ranges(name: str, rig, probe) -> None:
+    """Print the share of each FAP's slider ends the surface survives (see the module docstring)."""
+    from core.layers.fap import tables
+
+    deformer = rig.deformer
+    rest = rig.face.vertices
+    columns = deformer.matrix.tocsc()
+    for number in rig.animated_faps:
+        spec = tables.fap_spec(number)
+        if number <= 2 or spec.is_rotation:
+            continue
+        field = columns[:, number - 1].toarray().reshape(-1, 3) * deformer.fapu_vector[number - 1]
+        shares = []
+        for end in (spec.minimum, spec.maximum):
+            if end == 0:
+                shares.append("-")
+                continue
+            lo, hi = 0.0, 1.0
+            if probe.surface_holds(rest + field * end):
+                lo = 1.0
+            for _ in range(10 if lo < 1.0 else 0):
+                mid = (lo + hi) / 2
+                lo, hi = (mid, hi) if probe.surface_holds(rest + field * end * mid) else (lo, mid)
+            shares.append(f"{100 * lo:.0f}%")
+        print(f"{name} clean fap {number} {spec.name}: min={shares[0]} max={shares[1]}", flush=True)
+
+
 def run_identity(name: str, args) -> tuple[int, int]:
     from core.mesh_quality import FaceQualityProbe
     from core.rig import FaceRig
@@ -120,6 +153,8 @@ def run_identity(name: str, args) -> tuple[int, int]:
     face = identity_face(name)
     rig = FaceRig(face)
     probe = FaceQualityProbe(face)
+    if args.clean_ranges:
+        clean_ranges(name, rig, probe)
     poses: list[Pose] = [("expressions", "neutral", lambda r: None, ())]
     poses += list(fap_poses(rig)) + list(preset_poses(rig, args.mixes))
     if args.muscles:
@@ -161,6 +196,7 @@ def main() -> None:
     parser.add_argument("--identities", nargs="+", default=["default", "generated", "sfm"])
     parser.add_argument("--no-mixes", dest="mixes", action="store_false")
     parser.add_argument("--no-muscles", dest="muscles", action="store_false")
+    parser.add_argument("--clean-ranges", action="store_true")
     parser.add_argument("--sheets", type=Path, default=Path("/tmp/mimica-face-quality"))
     parser.add_argument("--no-sheets", dest="sheets", action="store_const", const=None)
     args = parser.parse_args()

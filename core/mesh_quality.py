@@ -240,12 +240,7 @@ class FaceQualityProbe:
         """Quality of the pose ``vertices`` ((n, 3) mm, the face's topology).
 
         ``eyes``: also measure eye openness (ray casts; ~50 ms per eye)."""
-        corners = vertices[self.skin_tris]
-        normals = _normals(corners)
-        turned = np.einsum("ij,ij->i", normals, self._rest_normals) < 0
-        folded = int((turned & self._measurable).sum())
-        big, small = principal_stretches(self._rest_frames, corners)
-        big, small = big[self._measurable], small[self._measurable]
+        folded, max_stretch, min_stretch = self.surface(vertices)
 
         lip = teeth = None
         if self.lip_tris is not None:
@@ -260,8 +255,22 @@ class FaceQualityProbe:
                 if self.eyeball_tris[side] is not None:
                     lid += count_intersections(vertices, lid_tris, self.eyeball_tris[side])
         openness = self.eye_openness(vertices) if eyes else {}
-        return PoseQuality(lip, lid, teeth, folded, float(big.max(initial=1.0)),
-                           float(small.min(initial=1.0)), openness)
+        return PoseQuality(lip, lid, teeth, folded, max_stretch, min_stretch, openness)
+
+    def surface(self, vertices: np.ndarray) -> tuple[int, float, float]:
+        """(folded skin triangles, largest stretch, smallest stretch) of a pose: the cheap part of
+        :meth:`measure` (a few ms at 54k vertices)."""
+        corners = vertices[self.skin_tris]
+        turned = np.einsum("ij,ij->i", _normals(corners), self._rest_normals) < 0
+        big, small = principal_stretches(self._rest_frames, corners)
+        big, small = big[self._measurable], small[self._measurable]
+        return (int((turned & self._measurable).sum()), float(big.max(initial=1.0)),
+                float(small.min(initial=1.0)))
+
+    def surface_holds(self, vertices: np.ndarray) -> bool:
+        """No folded skin triangle and every stretch within [MIN_STRETCH, MAX_STRETCH]."""
+        folded, big, small = self.surface(vertices)
+        return not folded and big <= MAX_STRETCH and small >= MIN_STRETCH
 
     def eye_openness(self, vertices: np.ndarray) -> dict[str, float]:
         """Per eye, the share of its front-facing eyeball vertices that a ray toward the viewer

@@ -46,7 +46,7 @@ from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError,
 
 N_FAPS = tables.N_FAPS
 LID_PAIRS = ((19, 21), (20, 22))  # (upper, lower) per eye
-OUTSIDE_FADE_MM = 6.0
+OUTSIDE_FADE_MM = 20.0
 LID_CLEARANCE_MM = 0.4      # a closing lid slides this far outside the eyeball
 MIN_LID_CLEARANCE_MM = 0.1  # ... or at least this far (a 2 mm lid triangle sags 0.03 mm into a 15 mm ball)
 
