@@ -8,7 +8,11 @@ and for lid-closing FAPs at their maximum whether the eye is closed. Prints per 
 
     <identity> <pose>: lip=<n> lid=<n> teeth=<n> folds=<n> stretch=<x> squeeze=<x> [eye=<%>] OK|FAIL <why>
 
-then per identity ``<identity>: failures=<k>/<poses> (<s> s)`` and at the end
+then per identity the totals over its poses (which failures dominate)
+
+    <identity> totals: lip=<n> lid=<n> teeth=<n> folds=<n> stretched_poses=<k> squeezed_poses=<k> open_eyes=<k>
+
+and ``<identity>: failures=<k>/<poses> (<s> s)``, and at the end
 
     quality_failures=<n>
 
@@ -146,7 +150,7 @@ def clean_ranges(name: str, rig, probe) -> None:
 
 
 def run_identity(name: str, args) -> tuple[int, int]:
-    from core.mesh_quality import FaceQualityProbe
+    from core.mesh_quality import MAX_STRETCH, MIN_STRETCH, FaceQualityProbe
     from core.rig import FaceRig
 
     t0 = time.perf_counter()
@@ -160,6 +164,7 @@ def run_identity(name: str, args) -> tuple[int, int]:
     if args.muscles:
         poses += list(muscle_poses(rig))
     failures = 0
+    totals = dict.fromkeys(("lip", "lid", "teeth", "folds", "stretched_poses", "squeezed_poses", "open_eyes"), 0)
     sheets: dict[str, list] = {}
     for family, label, apply, closes in poses:
         rig.reset()
@@ -168,6 +173,12 @@ def run_identity(name: str, args) -> tuple[int, int]:
         q = probe.measure(vertices, eyes=bool(closes))
         why = q.failures(eyes_closed=closes)
         failures += bool(why)
+        for key, value in (("lip", q.lip_intersections), ("lid", q.lid_intersections),
+                           ("teeth", q.teeth_intersections), ("folds", q.folded_triangles),
+                           ("stretched_poses", q.max_stretch > MAX_STRETCH),
+                           ("squeezed_poses", q.min_stretch < MIN_STRETCH),
+                           ("open_eyes", any("open, should be closed" in w for w in why))):
+            totals[key] += int(value or 0)
         eye = "".join(f" eye_{s}={100 * q.eye_openness[s]:.0f}%" for s in closes if s in q.eye_openness)
         counts = " ".join(f"{k}={'-' if v is None else v}" for k, v in (
             ("lip", q.lip_intersections), ("lid", q.lid_intersections), ("teeth", q.teeth_intersections)))
@@ -187,6 +198,7 @@ def run_identity(name: str, args) -> tuple[int, int]:
             path = args.sheets / f"{name}_{family}.png"
             sheet(rows, columns=4).save(path)
         print(f"{name}: contact sheets in {args.sheets}", flush=True)
+    print(f"{name} totals: " + " ".join(f"{k}={v}" for k, v in totals.items()), flush=True)
     print(f"{name}: failures={failures}/{len(poses)} ({time.perf_counter() - t0:.0f} s)", flush=True)
     return failures, len(poses)
 

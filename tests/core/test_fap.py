@@ -388,3 +388,21 @@ def test_preset_mix_adds_several_visemes_and_keeps_the_strongest_first(rig):
     assert rig.viseme == (10, 0.7)   # unchanged after a refused mix
     rig.set_viseme_mix({})
     assert rig.viseme == (0, 0.0) and not rig.preset_values().any()
+
+
+def test_relaxation_keeps_fixed_weights_and_straightens_a_ramp():
+    """On a path graph with both ends fixed (core 1, border 0) relaxation tends to the straight
+    ramp, the gentlest one possible; a steep step in between spreads out, the ends do not move."""
+    import scipy.sparse
+
+    from core.layers.fap.fat import _relax
+
+    n = 9
+    graph = scipy.sparse.diags([np.ones(n - 1), np.ones(n - 1)], [-1, 1], format="csr")
+    step = np.array([1.0, 1, 1, 1, 1, 0, 0, 0, 0])
+    fixed = np.zeros(n, bool)
+    fixed[[0, -1]] = True
+    relaxed = _relax(step, graph, fixed, 2000)
+    assert relaxed[0] == 1.0 and relaxed[-1] == 0.0
+    assert np.allclose(relaxed, np.linspace(1, 0, n), atol=1e-6)
+    assert np.abs(np.diff(_relax(step, graph, fixed, 30))).max() < np.abs(np.diff(step)).max()
