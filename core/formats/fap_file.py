@@ -27,21 +27,22 @@ FAP 2 as 6) without comment lines, because Greta's reader does not skip them.
 
 from __future__ import annotations
 
+import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
 from core.formats.atomic_files import write_atomic, write_reporting_errors
-
 from core.formats.text_files import integer as _integer
 from core.formats.text_files import number as _number
-from core.formats.text_files import read_text_file
+from core.formats.text_files import NotUtf8, is_utf16, reading, text_lines
 
 __all__ = [
     "N_FAPS", "VISEME_FIELDS", "EXPRESSION_FIELDS", "FapFileError", "FapSequence",
-    "parse_fap", "read_fap", "format_fap", "write_fap", "check_fap_size",
+    "parse_fap", "parse_fap_lines", "read_fap", "format_fap", "write_fap", "check_fap_size",
 ]
 
 N_FAPS = 68
@@ -159,7 +160,13 @@ class FapSequence:
 
 # ------------------------------------------------------------------ reading
 def parse_fap(text: str, *, source: str = "<text>") -> FapSequence:
-    """Parse the text of a .fap file.
+    """Parse the text of a .fap file (see :func:`parse_fap_lines`)."""
+    return parse_fap_lines(io.StringIO(text.removeprefix("\ufeff"), newline=None), source=source)
+
+
+def parse_fap_lines(lines: Iterable[str], *, source: str = "<text>") -> FapSequence:
+    """Parse a .fap file from its lines (an iterable of strings, line ends optional), one at a time:
+    what is held is the frames read so far, never the whole text.
 
     ``source`` names the file in error messages ("'joy.fap', line 5: ...").
 
@@ -171,13 +178,15 @@ def parse_fap(text: str, *, source: str = "<text>") -> FapSequence:
         out of range, a mask line without its value line; the message names the line.
     """
     parser = _Parser(source)
-    lines = _content_lines(text)
+    lines = _content_lines(lines)
     first = next(lines, None)
     if first is None:
         raise FapFileError(f"{parser.prefix()}the file is empty; expected the header line {_HEADER}.")
     version, name, fps, declared = parser.header(*first)
     max_frames = int(MAX_DURATION_S * fps) + 1
-    masks, values, visemes, expressions, frame_numbers, number_lines = [], [], [], [], [], []
+    masks, values = _Rows(N_FAPS, bool), _Rows(N_FAPS, np.float64)
+    visemes, expressions = _Rows(4, np.int64), _Rows(6, np.int64)
+    frame_numbers, number_lines = _Rows(1, np.int64), _Rows(1, np.int64)
     for mask_line, mask_tokens in lines:
         if len(masks) >= max_frames:
             raise parser.error(mask_line, f"the file has more than {max_frames} frames, longer than "
@@ -199,14 +208,14 @@ def parse_fap(text: str, *, source: str = "<text>") -> FapSequence:
     if n != declared:
         parser.note("count", f"The header says {declared} frames, file has {n}"
                     + ("; all of them were read." if n > declared else "."))
-    parser.check_frame_numbers(np.array(frame_numbers, dtype=np.int64), number_lines)
-    low = np.array(values).reshape(n, N_FAPS)
+    parser.check_frame_numbers(frame_numbers.array()[:, 0], number_lines.array()[:, 0])
+    low = values.array()
     return FapSequence(
         fps=fps,
         values=low,
-        mask=np.array(masks).reshape(n, N_FAPS),
-        viseme=np.array(visemes, dtype=np.int64).reshape(n, 4),
-        expression=np.array(expressions, dtype=np.int64).reshape(n, 6),
+        mask=masks.array(),
+        viseme=visemes.array(),
+        expression=expressions.array(),
         name=name,
         version=version,
         notes=parser.notes,
@@ -214,28 +223,31 @@ def parse_fap(text: str, *, source: str = "<text>") -> FapSequence:
 
 
 def read_fap(path) -> FapSequence:
-    """Read a .fap file (UTF-8, latin-1 or UTF-16 with BOM text); see :func:`parse_fap`.
+    """Read a .fap file (UTF-8, latin-1 or UTF-16 with BOM text) line by line; see :func:`parse_fap_lines`.
 
     Raises
     ------
     FapFileError
-        Missing, unreadable or binary file, or any error of :func:`parse_fap`.
+        Missing, unreadable or binary file, or any error of :func:`parse_fap_lines`.
     """
     path = Path(path)
-    text, notes = read_text_file(
-        path, "FAP", FapFileError,
-        f"Mimica reads the textual .fap format (a header line {_HEADER}, then a mask line and a value line "
-        "per frame); a binary MPEG-4 FBA stream must be converted to a text .fap file first.")
-    seq = parse_fap(text, source=path.name)
-    seq.notes[:0] = notes
+    hint = (f"Mimica reads the textual .fap format (a header line {_HEADER}, then a mask line and a value line "
+            "per frame); a binary MPEG-4 FBA stream must be converted to a text .fap file first.")
+    for latin1 in (False, True):
+        with reading(FapFileError, f"'{path.name}'", "FAP"):
+            try:
+                seq = parse_fap_lines(text_lines(path, "FAP", FapFileError, hint, latin1=latin1), source=path.name)
+            except NotUtf8:
+                continue   # not UTF-8: read it again as latin-1 (every byte is a latin-1 character)
+        break
+    if is_utf16(path):
+        seq.notes.insert(0, "The file is UTF-16 text; it was read, but other programs may need UTF-8 or ASCII.")
     return seq
 
 
 def _guarded(parse):
     """``parse`` with any exception a hostile text provokes turned into FapFileError."""
     import functools
-
-    from core.formats.text_files import reading
 
     @functools.wraps(parse)
     def wrapper(text, *, source: str = "<text>"):
@@ -245,12 +257,43 @@ def _guarded(parse):
 
 
 parse_fap = _guarded(parse_fap)
+parse_fap_lines = _guarded(parse_fap_lines)
 
 
-def _content_lines(text: str):
+class _Rows:
+    """Rows of a fixed width appended one at a time into blocks of 4096 (a frame costs its bytes, not
+    a Python object per frame; joining them costs one more copy of the largest column)."""
+
+    BLOCK = 4096
+
+    def __init__(self, width: int, dtype):
+        self._width, self._dtype = width, dtype
+        self._blocks: list[np.ndarray] = []
+        self._n = 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, row) -> None:
+        k = self._n % self.BLOCK
+        if k == 0:
+            self._blocks.append(np.empty((self.BLOCK, self._width), self._dtype))
+        self._blocks[-1][k] = row
+        self._n += 1
+
+    def array(self) -> np.ndarray:
+        """(n, width) array of the rows; the blocks are released (call once, at the end)."""
+        out = np.empty((self._n, self._width), self._dtype)
+        for k, block in enumerate(self._blocks):
+            rows = out[k * self.BLOCK:(k + 1) * self.BLOCK]
+            rows[:] = block[:len(rows)]
+        self._blocks = []
+        return out
+
+
+def _content_lines(lines: Iterable[str]):
     """Yield (1-based line number, tokens) of each line that is neither blank nor a '#' comment."""
-    text = text.removeprefix("\ufeff").replace("\r\n", "\n").replace("\r", "\n")
-    for number, line in enumerate(text.split("\n"), 1):
+    for number, line in enumerate(lines, 1):
         tokens = line.split()
         if tokens and not tokens[0].startswith("#"):
             yield number, tokens

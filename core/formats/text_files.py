@@ -10,6 +10,7 @@ latin-1 fallback), JSON documents with depth and number checks, and the tokens' 
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import math
 import os
@@ -18,6 +19,7 @@ import stat
 from pathlib import Path
 
 _BINARY = re.compile(rb"[\x00-\x08\x0e-\x1f]")
+_BINARY_TEXT = re.compile("[\x00-\x08\x0e-\x1f]")
 
 #: Size caps (bytes) of the files Mimica reads, by format; a larger file is refused with the cap
 #: in the message. They bound the time and memory a file can cost (measured at the cap: a .fap
@@ -106,7 +108,7 @@ def reading(error: type[Exception], source: str, kind: str):
     a damaged or hostile file gives a message, never a traceback."""
     try:
         yield
-    except error:
+    except (error, NotUtf8):   # NotUtf8: the caller reads the file again as latin-1
         raise
     except RecursionError:
         raise error(f"{source}: the {kind} data is nested too deeply to be a {kind} file.") from None
@@ -201,6 +203,74 @@ def read_text_file(path, kind: str, error: type[Exception], binary_hint: str) ->
         return data.decode("utf-8-sig"), []
     except UnicodeDecodeError:
         return data.decode("latin-1"), []
+
+
+class NotUtf8(Exception):
+    """Raised by :func:`text_lines` when UTF-8 decoding fails: read the file again as latin-1."""
+
+
+class _CappedRaw(io.RawIOBase):
+    """A file's bytes, refusing (``error``) to go past ``cap`` even if the file grows while read."""
+
+    def __init__(self, fh, cap: int | None, error: Exception):
+        self._fh, self._left, self._error = fh, (cap + 1 if cap is not None else None), error
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        n = self._fh.readinto(buffer)
+        if self._left is not None and n:
+            self._left -= n
+            if self._left <= 0:
+                raise self._error
+        return n
+
+
+def text_lines(path, kind: str, error: type[Exception], binary_hint: str, *, latin1: bool = False):
+    """Yield the lines of a text file one at a time (without their line ends; any of \\n, \\r\\n,
+    \\r), so a parser holds only what it keeps, never the whole text: the streaming counterpart of
+    :func:`read_text_file`, with the same checks and messages (a binary line is refused when it is
+    reached; UTF-16 with a BOM is read, and a note about it goes to ``notes`` — pass a list).
+
+    Raises :class:`NotUtf8` when the bytes are not UTF-8: call again with ``latin1=True``.
+    """
+    path = Path(path)
+    check_file(path, kind, error)
+    cap = MAX_BYTES.get(kind)
+    too_big = error(f"'{path.name}' is more than the {size_text(cap)} Mimica accepts for a {kind} file."
+                    if cap is not None else f"'{path.name}' is too large.")
+    try:
+        fh = open(path, "rb")
+    except PermissionError:
+        raise error(f"Mimica is not allowed to read '{path}'. Check the file's permissions.") from None
+    except OSError as exc:
+        raise error(f"'{path.name}' could not be read: {exc.strerror or exc}.") from None
+    with fh:
+        start = fh.read(2)
+        fh.seek(0)
+        utf16 = start in (b"\xff\xfe", b"\xfe\xff")
+        encoding = "utf-16" if utf16 else "latin-1" if latin1 else "utf-8-sig"
+        text = io.TextIOWrapper(io.BufferedReader(_CappedRaw(fh, cap, too_big)), encoding=encoding, newline=None)
+        try:
+            for line in text:
+                line = line.rstrip("\n")
+                if not utf16 and _BINARY_TEXT.search(line):
+                    raise error(f"'{path.name}' is not a text file (it contains binary data). {binary_hint}")
+                yield line
+        except UnicodeDecodeError:
+            if utf16:
+                raise error(f"'{path.name}' starts like UTF-16 text but is not valid UTF-16. "
+                            "Save it again as UTF-8 text in a text editor.") from None
+            raise NotUtf8(str(path)) from None
+        except OSError as exc:
+            raise error(f"'{path.name}' could not be read: {exc.strerror or exc}.") from None
+
+
+def is_utf16(path) -> bool:
+    """Whether ``path`` starts with a UTF-16 byte-order mark."""
+    with open(path, "rb") as fh:
+        return fh.read(2) in (b"\xff\xfe", b"\xfe\xff")
 
 
 def number(token: str) -> float | None:
