@@ -30,7 +30,7 @@ Contact sheets (front + three-quarter, by ``app.render``) go to ``--sheets DIR``
 ``/tmp/mimica-face-quality``), one PNG per identity and pose family; ``--no-sheets`` skips them.
 
 Usage: python benchmarks/face_quality.py [--identities default generated sfm] [--no-mixes]
-       [--no-muscles] [--clean-ranges] [--sheets DIR | --no-sheets]
+       [--no-muscles] [--clean-ranges] [--sheets DIR | --no-sheets] [--tile PX] [--sheet-format jpg]
 """
 
 from __future__ import annotations
@@ -195,8 +195,8 @@ def run_identity(name: str, args) -> tuple[int, int]:
 
         args.sheets.mkdir(parents=True, exist_ok=True)
         for family, rows in sheets.items():
-            path = args.sheets / f"{name}_{family}.png"
-            sheet(rows, columns=4).save(path)
+            path = args.sheets / f"{name}_{family}.{args.sheet_format}"
+            sheet(rows, columns=4, tile=args.tile).save(path, quality=85)
         print(f"{name}: contact sheets in {args.sheets}", flush=True)
     print(f"{name} totals: " + " ".join(f"{k}={v}" for k, v in totals.items()), flush=True)
     print(f"{name}: failures={failures}/{len(poses)} ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -211,6 +211,8 @@ def main() -> None:
     parser.add_argument("--clean-ranges", action="store_true")
     parser.add_argument("--sheets", type=Path, default=Path("/tmp/mimica-face-quality"))
     parser.add_argument("--no-sheets", dest="sheets", action="store_const", const=None)
+    parser.add_argument("--tile", type=int, default=240, help="pixels per view in the contact sheets")
+    parser.add_argument("--sheet-format", choices=("png", "jpg"), default="png")
     args = parser.parse_args()
     if "sfm" in args.identities and not SFM_DIR.is_dir():
         print(f"sfm: skipped ({SFM_DIR} not found)")

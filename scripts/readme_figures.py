@@ -21,20 +21,22 @@ sys.path.insert(0, str(ROOT))
 TILE = 360   # pixels per view
 
 
-def sheet(rows: list[tuple[str, list[np.ndarray]]], columns: int = 3) -> Image.Image:
-    """Labelled tiles (each a row of views side by side), ``columns`` poses per line."""
+def sheet(rows: list[tuple[str, list[np.ndarray]]], columns: int = 3, tile: int = TILE) -> Image.Image:
+    """Labelled tiles (each a row of views side by side, ``tile`` pixels each), ``columns`` poses per line."""
     views = len(rows[0][1])
-    width = TILE * views
+    width = tile * views
+    columns = min(columns, len(rows))
     lines = (len(rows) + columns - 1) // columns
-    band = 40
-    out = Image.new("RGB", (width * columns, (TILE + band) * lines), (255, 255, 255))
+    band = max(24, tile // 9)
+    out = Image.new("RGB", (width * columns, (tile + band) * lines), (255, 255, 255))
     draw = ImageDraw.Draw(out)
-    font = ImageFont.load_default(size=26)
+    font = ImageFont.load_default(size=int(band * 0.65))
     for k, (label, images) in enumerate(rows):
-        x, y = (k % columns) * width, (k // columns) * (TILE + band)
-        draw.text((x + 10, y + 6), label, fill=(20, 20, 20), font=font)
+        x, y = (k % columns) * width, (k // columns) * (tile + band)
+        draw.text((x + 8, y + band * 0.15), label, fill=(190, 20, 20) if label.startswith("FAIL") else (20, 20, 20),
+                  font=font)
         for j, image in enumerate(images):
-            out.paste(Image.fromarray(image).resize((TILE, TILE)), (x + j * TILE, y + band))
+            out.paste(Image.fromarray(image).resize((tile, tile)), (x + j * tile, y + band))
     return out
 
 
