@@ -175,9 +175,10 @@ class _FaceRenderer:
     """
 
     #: Pixels between the face and the strip's edges (FXAA samples a few pixels around an edge).
-    STRIP_MARGIN = 32
-    #: The strip's left edge is a multiple of this many pixels (its width is fixed per export).
-    STRIP_STEP = 32
+    STRIP_MARGIN = 24
+    #: The strip's left edge and width are multiples of this many pixels (the width is fixed per
+    #: export, from the face at rest; the left edge follows the face).
+    STRIP_STEP = 16
     #: Drawing a strip wider than this share of the frame would save too little: the whole frame is drawn.
     STRIP_MAX_SHARE = 0.8
 
@@ -220,10 +221,12 @@ class _FaceRenderer:
         # Rows 0 and 3 of the full frame's projection (independent of the clipping range).
         m = camera.GetCompositeProjectionTransformMatrix(width / height, -1.0, 1.0)
         self._project = np.array([[m.GetElement(i, j) for j in range(4)] for i in (0, 3)])
-        span = self._x_span(rest.min(axis=0), rest.max(axis=0))
-        if span is None or width < 4 * self.STRIP_STEP:
+        span = self._x_span(rest)
+        if span is None or width < 8 * self.STRIP_STEP:
             return
-        slack = max(self.STRIP_STEP, 0.15 * (span[1] - span[0]))
+        # Room for the rounding of the left edge and for a face that widens as it moves (a mouth
+        # opening, a turn of the head); a frame that still does not fit is drawn whole.
+        slack = max(self.STRIP_STEP, 0.05 * (span[1] - span[0]))
         need = span[1] - span[0] + 2 * (self.STRIP_MARGIN + slack)
         strip = int(np.ceil(need / self.STRIP_STEP)) * self.STRIP_STEP
         if strip > self.STRIP_MAX_SHARE * width:
@@ -235,20 +238,19 @@ class _FaceRenderer:
         self._strip_width = strip
         self._set_window_width(strip)
 
-    def _x_span(self, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float] | None:
-        """Pixel columns (left, right) the box ``lo``..``hi`` covers in the full frame; None when
-        part of it is behind the camera."""
-        corners = np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), axis=-1).reshape(-1, 3)
-        clip = corners @ self._project[:, :3].T + self._project[:, 3]
+    def _x_span(self, vertices: np.ndarray) -> tuple[float, float] | None:
+        """Pixel columns (left, right) ``vertices`` cover in the full frame; None when some are
+        behind the camera."""
+        clip = vertices @ self._project[:, :3].T + self._project[:, 3]
         if not (clip[:, 1] > 1e-9).all():
             return None
         x = (clip[:, 0] / clip[:, 1] + 1.0) * (self.size[0] / 2.0)
         return float(x.min()), float(x.max())
 
-    def _strip_left(self, lo: np.ndarray, hi: np.ndarray) -> int | None:
-        """The strip's left column for a face in the box ``lo``..``hi`` (a function of the box only,
-        so every render process places it alike); None when it does not fit: draw the whole frame."""
-        span = self._x_span(lo, hi)
+    def _strip_left(self, vertices: np.ndarray) -> int | None:
+        """The strip's left column for the face at ``vertices`` (a function of the vertices only, so
+        every render process places it alike); None when it does not fit: draw the whole frame."""
+        span = self._x_span(vertices)
         if span is None:
             return None
         left, right = span[0] - self.STRIP_MARGIN, span[1] + self.STRIP_MARGIN
@@ -276,7 +278,7 @@ class _FaceRenderer:
         # The face is the only prop: its bounds give VTK's own clipping range without VTK's prop walk.
         self.plotter.renderer.ResetCameraClippingRange(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2])
         width = self.size[0]
-        x0 = None if self._background is None else self._strip_left(lo, hi)
+        x0 = None if self._background is None else self._strip_left(vertices)
         if x0 is None:
             self._set_window_width(width)
             self.plotter.camera.SetWindowCenter(0.0, 0.0)
