@@ -184,6 +184,7 @@ class _FaceRenderer:
 
     def __init__(self, face: Face, settings: ExportSettings, size: tuple[int, int], *, strip: bool = True):
         import pyvista as pv
+        from vtkmodules.vtkCommonCore import vtkUnsignedCharArray
 
         from app import render, scene
 
@@ -192,6 +193,7 @@ class _FaceRenderer:
         self.plotter = pv.Plotter(off_screen=True, window_size=self.size)
         self._strip_width = self.size[0]      # width of the window: the strip's, or the frame's
         self._background = None               # (h, w, 3) uint8 frame without the face, when drawing strips
+        self._pixels = vtkUnsignedCharArray()  # read-back buffer, reused
         try:
             # FXAA, not the window's multisampling: in software rendering (llvmpipe) 4x MSAA doubles the
             # CPU per frame (338 vs 156 ms at 1280x720 for the default face) for no visible gain in a
@@ -233,7 +235,7 @@ class _FaceRenderer:
             return
         self.actor.actor.SetVisibility(False)
         self.plotter.render()
-        self._background = np.array(self._read(width), dtype=np.uint8)
+        self._background = self._read(width)
         self.actor.actor.SetVisibility(True)
         self._strip_width = strip
         self._set_window_width(strip)
@@ -263,12 +265,27 @@ class _FaceRenderer:
         if self.plotter.render_window.GetSize()[0] != width:
             self.plotter.render_window.SetSize(width, self.size[1])
 
-    def _read(self, width: int) -> np.ndarray:
-        image = np.asarray(self.plotter.image)
-        if image.shape[:2] != (self.size[1], width):
-            raise ExportError(f"The renderer produced a {image.shape[1]}×{image.shape[0]} image instead of "
-                              f"{width}×{self.size[1]}; try a smaller size.")
-        return image[..., :3]
+    def _read(self, width: int, out: np.ndarray | None = None) -> np.ndarray:
+        """The window's (h, ``width``, 3) RGB pixels, top row first, into ``out`` if given.
+
+        Straight from the front buffer (what pyvista's ``plotter.image`` reads, without its image
+        filter and copies) into a reused array, flipped while copied into place."""
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+
+        height = self.size[1]
+        window = self.plotter.render_window
+        if tuple(window.GetSize()) != (width, height):
+            raise ExportError(f"The renderer produced a {window.GetSize()[0]}×{window.GetSize()[1]} image "
+                              f"instead of {width}×{height}; try a smaller size.")
+        window.GetPixelData(0, 0, width - 1, height - 1, 1, self._pixels, 0)
+        pixels = vtk_to_numpy(self._pixels)
+        if pixels.size != height * width * 3:
+            raise ExportError(f"The renderer gave {pixels.size} bytes of pixels instead of {height * width * 3} "
+                              f"({width}×{height} RGB); try a smaller size.")
+        if out is None:
+            out = np.empty((height, width, 3), dtype=np.uint8)
+        out[...] = pixels.reshape(height, width, 3)[::-1]
+        return out
 
     # ------------------------------------------------------------ frames
     def render(self, vertices: np.ndarray) -> np.ndarray:
@@ -290,7 +307,7 @@ class _FaceRenderer:
         self.plotter.camera.SetWindowCenter((strip - width + 2.0 * x0) / strip, 0.0)
         self.plotter.render()
         image = self._background.copy()
-        image[:, x0:x0 + strip] = self._read(strip)
+        self._read(strip, image[:, x0:x0 + strip])
         return image
 
     def close(self) -> None:
