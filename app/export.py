@@ -78,17 +78,19 @@ Parallel rendering (:attr:`ExportSettings.workers`, default one per core)
     (:func:`app.export_plan.planned_workers`): each costs a start-up of 1-3 s.
 
 Speed (measured here: Mesa llvmpipe, a 2-core VM shared with other jobs; benchmarks/bench_export.py)
-    One renderer draws a 1280x720 frame of the default face (53,772 vertices, textured, FXAA) in 134 ms
-    of CPU (FXAA about 40 of them; 4x MSAA would double it), and llvmpipe spreads it over both cores:
-    78 ms wall. x264 (preset fast, CRF 19) costs about 16 ms of CPU a frame in its own process.
-    10 s at 30 fps (300 frames) at load average ~3.5: one worker 28.0 s (10.7 fps, 1.74 cores busy,
-    162 ms of CPU a frame for all the processes), two workers 26.7 s (11.2 fps, 1.94 cores busy,
-    173 ms: the second start-up is the difference). So on 2 cores the workers gain little: the
-    serial path already keeps both busy. They pay off with more cores: llvmpipe's share that one process cannot spread
-    (vertex processing, set-up, VTK; ~21 ms of the 134 from the 78 ms wall on 2 threads) caps one
-    process near 35 fps on any machine, while N processes draw about N x 7.5 fps (an estimate from
-    these numbers, not measured on a bigger machine). Under other jobs' load (load average 4-6) both
-    ran at 3.6-7 fps.
+    A renderer draws a whole 1280x720 frame of the default face (53,772 vertices, 105,594 textured
+    triangles, FXAA) in 114-134 ms of CPU: FXAA ~30 of them, the gradient ~5, the rest the face,
+    whose llvmpipe cost follows its triangles (most are 2-3 pixels). Animations therefore draw only
+    the strip around the face (:class:`_FaceRenderer`; 496 px wide for the front view), ~92 ms, and
+    read it back with one call. x264 runs "veryfast" two CRF steps lower instead of "fast" (the
+    same PSNR/SSIM and size, :func:`app.export_sinks.x264_preset`): ~10 instead of ~19 ms a frame.
+    CPU per frame for all the processes, 5 s (150 frames) at load average ~5: one worker 115 ms
+    (the renderer 105 with its start-up, ffmpeg 10), two workers 134 (58 + 58 + exporter 7 +
+    ffmpeg 10; each render process costs ~2 s of CPU to start). Before these changes the window's
+    path took 148-161 ms a frame (bench_export, one worker). On an idle 2-core machine the cores
+    bound an export at about 2 / (CPU per frame); one worker does not reach that, as llvmpipe's
+    vertex processing and set-up run on one thread, so the default is a worker per core.
+    With more cores N processes draw about N x 10 fps (an estimate, not measured on a bigger machine).
 """
 
 from __future__ import annotations
@@ -167,8 +169,8 @@ class _FaceRenderer:
     With ``strip`` (animations; a still does not pay the extra start-up render) only a vertical
     strip of the frame around the face is drawn, the rest copied from the background drawn once:
     on software OpenGL the full-frame passes (FXAA, the gradient, read-back) cost in proportion to
-    the pixels, and the face covers about a third of a 16:9 frame (measured here at 1280x720: 114
-    -> 86 ms of CPU a frame). The strip is the same camera with its window centre shifted
+    the pixels, and the face covers about a third of a 16:9 frame (measured here at 1280x720, front
+    view, a 496 px strip: 114-125 -> 86-99 ms of CPU a frame). The strip is the same camera with its window centre shifted
     (``vtkCamera.SetWindowCenter``), so the face's pixels are those of a full frame except for
     rounding; the gradient's dither noise inside the strip differs by at most one level. Its place
     is a function of the frame's vertices only, so serial and parallel exports give the same pixels.
