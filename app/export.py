@@ -78,17 +78,19 @@ Parallel rendering (:attr:`ExportSettings.workers`, default one per core)
     (:func:`app.export_plan.planned_workers`): each costs a start-up of 1-3 s.
 
 Speed (measured here: Mesa llvmpipe, a 2-core VM shared with other jobs; benchmarks/bench_export.py)
-    One renderer draws a 1280x720 frame of the default face (53,772 vertices, textured, FXAA) in 134 ms
-    of CPU (FXAA about 40 of them; 4x MSAA would double it), and llvmpipe spreads it over both cores:
-    78 ms wall. x264 (preset fast, CRF 19) costs about 16 ms of CPU a frame in its own process.
-    10 s at 30 fps (300 frames) at load average ~3.5: one worker 28.0 s (10.7 fps, 1.74 cores busy,
-    162 ms of CPU a frame for all the processes), two workers 26.7 s (11.2 fps, 1.94 cores busy,
-    173 ms: the second start-up is the difference). So on 2 cores the workers gain little: the
-    serial path already keeps both busy. They pay off with more cores: llvmpipe's share that one process cannot spread
-    (vertex processing, set-up, VTK; ~21 ms of the 134 from the 78 ms wall on 2 threads) caps one
-    process near 35 fps on any machine, while N processes draw about N x 7.5 fps (an estimate from
-    these numbers, not measured on a bigger machine). Under other jobs' load (load average 4-6) both
-    ran at 3.6-7 fps.
+    A renderer draws a whole 1280x720 frame of the default face (53,772 vertices, 105,594 textured
+    triangles, FXAA) in 114-134 ms of CPU: FXAA ~30 of them, the gradient ~5, the rest the face,
+    whose llvmpipe cost follows its triangles (most are 2-3 pixels). Animations therefore draw only
+    the strip around the face (:class:`_FaceRenderer`; 496 px wide for the front view), ~92 ms, and
+    read it back with one call. x264 runs "veryfast" two CRF steps lower instead of "fast" (the
+    same PSNR/SSIM and size, :func:`app.export_sinks.x264_preset`): ~10 instead of ~19 ms a frame.
+    CPU per frame for all the processes, 5 s (150 frames) at load average ~5: one worker 115 ms
+    (the renderer 105 with its start-up, ffmpeg 10), two workers 134 (58 + 58 + exporter 7 +
+    ffmpeg 10; each render process costs ~2 s of CPU to start). Before these changes the window's
+    path took 148-161 ms a frame (bench_export, one worker). On an idle 2-core machine the cores
+    bound an export at about 2 / (CPU per frame); one worker does not reach that, as llvmpipe's
+    vertex processing and set-up run on one thread, so the default is a worker per core.
+    With more cores N processes draw about N x 10 fps (an estimate, not measured on a bigger machine).
 """
 
 from __future__ import annotations
@@ -162,16 +164,38 @@ def apply_camera(plotter, camera: dict) -> None:
 
 
 class _FaceRenderer:
-    """One off-screen plotter showing ``face``; :meth:`render` draws given vertices and reads the pixels."""
+    """One off-screen plotter showing ``face``; :meth:`render` draws given vertices and reads the pixels.
 
-    def __init__(self, face: Face, settings: ExportSettings, size: tuple[int, int]):
+    With ``strip`` (animations; a still does not pay the extra start-up render) only a vertical
+    strip of the frame around the face is drawn, the rest copied from the background drawn once:
+    on software OpenGL the full-frame passes (FXAA, the gradient, read-back) cost in proportion to
+    the pixels, and the face covers about a third of a 16:9 frame (measured here at 1280x720, front
+    view, a 496 px strip: 114-125 -> 86-99 ms of CPU a frame). The strip is the same camera with its window centre shifted
+    (``vtkCamera.SetWindowCenter``), so the face's pixels are those of a full frame except for
+    rounding; the gradient's dither noise inside the strip differs by at most one level. Its place
+    is a function of the frame's vertices only, so serial and parallel exports give the same pixels.
+    """
+
+    #: Pixels between the face and the strip's edges (FXAA samples a few pixels around an edge).
+    STRIP_MARGIN = 24
+    #: The strip's left edge and width are multiples of this many pixels (the width is fixed per
+    #: export, from the face at rest; the left edge follows the face).
+    STRIP_STEP = 16
+    #: Drawing a strip wider than this share of the frame would save too little: the whole frame is drawn.
+    STRIP_MAX_SHARE = 0.8
+
+    def __init__(self, face: Face, settings: ExportSettings, size: tuple[int, int], *, strip: bool = True):
         import pyvista as pv
+        from vtkmodules.vtkCommonCore import vtkUnsignedCharArray
 
         from app import render, scene
 
         render._prefer_egl_without_display()
-        self.size = size
-        self.plotter = pv.Plotter(off_screen=True, window_size=size)
+        self.size = (int(size[0]), int(size[1]))
+        self.plotter = pv.Plotter(off_screen=True, window_size=self.size)
+        self._strip_width = self.size[0]      # width of the window: the strip's, or the frame's
+        self._background = None               # (h, w, 3) uint8 frame without the face, when drawing strips
+        self._pixels = vtkUnsignedCharArray()  # read-back buffer, reused
         try:
             # FXAA, not the window's multisampling: in software rendering (llvmpipe) 4x MSAA doubles the
             # CPU per frame (338 vs 156 ms at 1280x720 for the default face) for no visible gain in a
@@ -186,21 +210,107 @@ class _FaceRenderer:
             else:
                 scene.set_camera_view(self.plotter, settings.view, face.vertices)
             self.plotter.show(auto_close=False)  # realises the window; later frames use render()
+            if strip:
+                self._plan_strip(np.asarray(face.vertices, dtype=np.float64))
         except BaseException:
             self.plotter.close()
             raise
 
+    # ------------------------------------------------------------ the strip
+    def _plan_strip(self, rest: np.ndarray) -> None:
+        """Choose the strip's width from the face at rest (with room for the head to move) and draw
+        the background, or keep drawing whole frames when a strip would not pay."""
+        width, height = self.size
+        camera = self.plotter.camera
+        # Rows 0 and 3 of the full frame's projection (independent of the clipping range).
+        m = camera.GetCompositeProjectionTransformMatrix(width / height, -1.0, 1.0)
+        self._project = np.array([[m.GetElement(i, j) for j in range(4)] for i in (0, 3)])
+        span = self._x_span(rest)
+        if span is None or width < 8 * self.STRIP_STEP:
+            return
+        # Room for the rounding of the left edge and for a face that widens as it moves (a mouth
+        # opening, a turn of the head); a frame that still does not fit is drawn whole.
+        slack = max(self.STRIP_STEP, 0.05 * (span[1] - span[0]))
+        need = span[1] - span[0] + 2 * (self.STRIP_MARGIN + slack)
+        strip = int(np.ceil(need / self.STRIP_STEP)) * self.STRIP_STEP
+        if strip > self.STRIP_MAX_SHARE * width:
+            return
+        self.actor.actor.SetVisibility(False)
+        self.plotter.render()
+        self._background = self._read(width)
+        self.actor.actor.SetVisibility(True)
+        self._strip_width = strip
+        self._set_window_width(strip)
+
+    def _x_span(self, vertices: np.ndarray) -> tuple[float, float] | None:
+        """Pixel columns (left, right) ``vertices`` cover in the full frame; None when some are
+        behind the camera."""
+        clip = vertices @ self._project[:, :3].T + self._project[:, 3]
+        if not (clip[:, 1] > 1e-9).all():
+            return None
+        x = (clip[:, 0] / clip[:, 1] + 1.0) * (self.size[0] / 2.0)
+        return float(x.min()), float(x.max())
+
+    def _strip_left(self, vertices: np.ndarray) -> int | None:
+        """The strip's left column for the face at ``vertices`` (a function of the vertices only, so
+        every render process places it alike); None when it does not fit: draw the whole frame."""
+        span = self._x_span(vertices)
+        if span is None:
+            return None
+        left, right = span[0] - self.STRIP_MARGIN, span[1] + self.STRIP_MARGIN
+        width, strip = self.size[0], self._strip_width
+        x0 = int(round(((left + right) / 2.0 - strip / 2.0) / self.STRIP_STEP)) * self.STRIP_STEP
+        x0 = min(max(x0, 0), width - strip)
+        return x0 if x0 <= left and right <= x0 + strip else None
+
+    def _set_window_width(self, width: int) -> None:
+        if self.plotter.render_window.GetSize()[0] != width:
+            self.plotter.render_window.SetSize(width, self.size[1])
+
+    def _read(self, width: int, out: np.ndarray | None = None) -> np.ndarray:
+        """The window's (h, ``width``, 3) RGB pixels, top row first, into ``out`` if given.
+
+        Straight from the front buffer (what pyvista's ``plotter.image`` reads, without its image
+        filter and copies) into a reused array, flipped while copied into place."""
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+
+        height = self.size[1]
+        window = self.plotter.render_window
+        if tuple(window.GetSize()) != (width, height):
+            raise ExportError(f"The renderer produced a {window.GetSize()[0]}×{window.GetSize()[1]} image "
+                              f"instead of {width}×{height}; try a smaller size.")
+        window.GetPixelData(0, 0, width - 1, height - 1, 1, self._pixels, 0)
+        pixels = vtk_to_numpy(self._pixels)
+        if pixels.size != height * width * 3:
+            raise ExportError(f"The renderer gave {pixels.size} bytes of pixels instead of {height * width * 3} "
+                              f"({width}×{height} RGB); try a smaller size.")
+        if out is None:
+            out = np.empty((height, width, 3), dtype=np.uint8)
+        out[...] = pixels.reshape(height, width, 3)[::-1]
+        return out
+
+    # ------------------------------------------------------------ frames
     def render(self, vertices: np.ndarray) -> np.ndarray:
         """(h, w, 3) uint8 RGB of the face at ``vertices`` (n, 3) mm, top row first."""
         self.actor.update_vertices(vertices)
-        self.plotter.renderer.ResetCameraClippingRange()
+        lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+        # The face is the only prop: its bounds give VTK's own clipping range without VTK's prop walk.
+        self.plotter.renderer.ResetCameraClippingRange(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2])
+        width = self.size[0]
+        x0 = None if self._background is None else self._strip_left(vertices)
+        if x0 is None:
+            self._set_window_width(width)
+            self.plotter.camera.SetWindowCenter(0.0, 0.0)
+            self.plotter.render()
+            return self._read(width)
+        strip = self._strip_width
+        self._set_window_width(strip)
+        # Shifts the frustum so the strip's pixels are the frame's columns x0 .. x0 + strip.
+        self.plotter.camera.SetWindowCenter((strip - width + 2.0 * x0) / strip, 0.0)
         self.plotter.render()
-        image = np.asarray(self.plotter.image)
-        height, width = self.size[1], self.size[0]
-        if image.shape[:2] != (height, width):
-            raise ExportError(f"The renderer produced a {image.shape[1]}×{image.shape[0]} image instead of "
-                              f"{width}×{height}; try a smaller size.")
-        return image[..., :3]
+        image = self._background.copy()
+        self._read(strip, image[:, x0:x0 + strip])
+        return image
 
     def close(self) -> None:
         self.plotter.close()
@@ -295,7 +405,7 @@ def _render_serial(face: Face, next_vertices, settings: ExportSettings, plan: _P
     """Every frame rendered in this process; (render s, encoder-wait s)."""
     render_s = encode_s = 0.0
     n_vertices = face.n_vertices
-    renderer = _FaceRenderer(face, settings, plan.size)
+    renderer = _FaceRenderer(face, settings, plan.size, strip=plan.n_frames > 1)
     try:
         total = plan.n_frames
         for k, t in enumerate(plan.times):

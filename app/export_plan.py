@@ -78,7 +78,8 @@ class ExportSettings:
     audio_path : Path, optional
         Sound track (MP4 and AVI only), starting at time 0 of the animation.
     quality : int
-        1..100: x264 CRF 35..15 (preset "fast", "medium" from 90 on), MJPEG q 31..2, JPEG quality.
+        1..100: x264 CRF 35..15 (preset "veryfast" two CRF steps lower, "medium" from 90 on;
+        :func:`app.export_sinks.x264_crf`), MJPEG q 31..2, JPEG quality.
     format : str, optional
         One of :data:`FORMATS`; default: from ``path``.
     workers : int, optional

@@ -2,9 +2,10 @@
 ----
 Frames rendered by several processes at once, for :mod:`app.export`.
 
-Software OpenGL (Mesa llvmpipe) costs about 134 ms of CPU for a 1280x720 frame of the default
-face. One process spreads part of that over the cores (llvmpipe's rasterizer threads), but not
-its vertex processing, set-up and VTK's own work; so an export with ``workers = N > 1`` starts N
+Software OpenGL (Mesa llvmpipe) costs about 92 ms of CPU for a 1280x720 frame of the default
+face (the strip around it, :class:`app.export._FaceRenderer`). One process spreads part of that
+over the cores (llvmpipe's rasterizer threads), but not its vertex processing, set-up and VTK's
+own work; so an export with ``workers = N > 1`` starts N
 render processes (``python -m app.export_workers SPEC.json``), each with its own off-screen
 renderer (:class:`app.export._FaceRenderer`, the code the serial path uses, so the pixels are the
 same), and the exporting process only computes the vertices, hands them out and passes the images

@@ -12,11 +12,15 @@ render / encoder-wait split, then per worker count::
 
     export_fps median=<fps> workers=<n> (ratio to 1 worker: <x>)
 
+with ``--baseline FPS`` (an earlier median, e.g. of the code before a change, measured alike) also::
+
+    export_fps best median=<fps> workers=<n> (ratio to the baseline <fps> fps: <x>)
+
 and the load average before and after (this machine is shared; software OpenGL, Mesa llvmpipe,
 draws a frame on one core, so the speed-up is bounded by the idle cores).
 
 Usage: python benchmarks/bench_export.py [--workers 1 2] [--repeats 3] [--seconds 10] [--size 1280x720]
-       [--quality 80] [--path window|cli]
+       [--quality 80] [--path window|cli] [--baseline FPS]
 """
 
 from __future__ import annotations
@@ -70,6 +74,8 @@ def main() -> None:
     parser.add_argument("--size", default="1280x720")
     parser.add_argument("--quality", type=int, default=80)
     parser.add_argument("--path", choices=("window", "cli"), default="window")
+    parser.add_argument("--baseline", type=float, default=None,
+                        help="frames per second to compare with (an earlier median, measured alike)")
     args = parser.parse_args()
     counts = args.workers or sorted({1, default_workers()})
     size = tuple(int(v) for v in args.size.lower().split("x"))
@@ -110,6 +116,11 @@ def main() -> None:
         median = float(np.median(fps[n]))
         print(f"export_fps median={median:.2f} workers={n} (ratio to {counts[0]} worker"
               f"{'s' if counts[0] != 1 else ''}: {median / base:.2f})")
+    if args.baseline:
+        best = max(counts, key=lambda n: float(np.median(fps[n])))
+        median = float(np.median(fps[best]))
+        print(f"export_fps best median={median:.2f} workers={best} (ratio to the baseline {args.baseline:g} fps: "
+              f"{median / args.baseline:.2f})")
     print(f"load average after: {load()}")
 
 

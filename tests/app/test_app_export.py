@@ -681,3 +681,32 @@ def test_progress_text_says_the_speed_and_the_time_left():
     assert progress_text(100, 300, 8.0) == "Rendering frame 100 of 300 — 8.0 fps, about 25 s left…"
     assert progress_text(100, 3000, 8.0).endswith("about 6 min left…")
     assert progress_text(300, 300, 8.0) == "Finishing the file…"
+
+
+def test_strip_frames_match_whole_frames_and_the_workers(tmp_path, face):
+    """An animation draws only a strip of the frame around the face (the rest is the background,
+    drawn once): the whole frame's pixels but for rounding and the gradient's dither (one level);
+    where the face does not fit the strip, the whole frame is drawn. The strip's place depends on
+    the frame only, so parallel workers give the serial export's pixels."""
+    source = opening_mouth(face, 60.0)
+    settings = ExportSettings(tmp_path / "x.mp4", end_s=1.0, size=(480, 270))
+    whole = ex._FaceRenderer(face, settings, settings.size, strip=False)
+    strip = ex._FaceRenderer(face, settings, settings.size, strip=True)
+    try:
+        assert strip._strip_width < 480
+        centre = face.vertices.mean(axis=0)
+        wider = centre + 1.6 * (face.vertices - centre)   # wider than the strip
+        aside = face.vertices + np.array([40.0, 0.0, 0.0])  # the strip follows the face
+        for v, drawn in ((source(0.0), strip._strip_width), (source(0.6), strip._strip_width),
+                         (aside, strip._strip_width), (wider, 480)):
+            a, b = whole.render(v).astype(int), strip.render(v).astype(int)
+            assert strip.plotter.render_window.GetSize()[0] == drawn
+            diff = np.abs(a - b)
+            assert diff.mean() < 0.5 and (diff.max(axis=2) > 2).mean() < 1e-3
+    finally:
+        whole.close()
+        strip.close()
+    one = export(face, source, ExportSettings(tmp_path / "one", end_s=0.5, size=(480, 270), fps=10, workers=1))
+    two = export(face, source, ExportSettings(tmp_path / "two", end_s=0.5, size=(480, 270), fps=10, workers=2))
+    for a, b in zip(one.files, two.files):
+        assert np.array_equal(read_png(a), read_png(b)), a.name
