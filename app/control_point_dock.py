@@ -146,6 +146,9 @@ class ControlPointDock(QDockWidget):
         self._syncing = False
         self.points_actor = None      # the control points in the viewport ("Show control points")
         self._points_mesh = None
+        self.drag = None              # dragging them (control_point_drag.ControlPointDrag), with the window
+        self.region = None            # the hovered point's influence region (control_point_drag.RegionHighlight)
+        self._tab_shown = False       # visibilityChanged's last word: this tab is the one shown
         self.mouse = None             # clicks on the face (picking.ViewportMouse), once a click mode is chosen
         self._picker = (None, None)   # (face actor, its SurfacePicker)
         self.inverse_vertex: int | None = None   # the skin vertex the inverse mode's next click moves
@@ -162,7 +165,14 @@ class ControlPointDock(QDockWidget):
                 window.view_menu.addAction(toggle)
             document.rig_changed.connect(lambda _rig: self._follow())
             document.face_changed.connect(lambda _face: self._follow())
-            self.visibilityChanged.connect(lambda shown: self.ensure_layers() if shown else None)
+            self.visibilityChanged.connect(self._shown)
+            plotter = getattr(window, "plotter", None)
+            if plotter is not None and getattr(window, "viewport", None) is not None:
+                from app.control_point_drag import ControlPointDrag, RegionHighlight
+
+                self.drag = ControlPointDrag(self)
+                self.region = RegionHighlight(plotter)
+                window.viewport.add_updater(("mesh",), self._update_points)
         self._follow()
 
     # ------------------------------------------------------------ widgets
@@ -201,9 +211,26 @@ class ControlPointDock(QDockWidget):
         form.addRow(self.poly_check)
         self.show_check = QCheckBox("Show control points", rbf)
         self.show_check.setObjectName("showControlPoints")
-        self.show_check.setToolTip("Draw the control points on the face (yellow), following the pose")
+        self.show_check.setChecked(True)
+        self.show_check.setToolTip("Draw the control points on the face (yellow, following the pose) while this "
+                                   "tab is shown. Drag a point to move it (Esc cancels the drag, one undo step "
+                                   "per drag); hovering a point shows its influence region; a drag anywhere "
+                                   "else turns the view")
         self.show_check.toggled.connect(self.set_points_visible)
-        form.addRow(self.show_check)
+        self.axis_combo = QComboBox(rbf)
+        self.axis_combo.setObjectName("dragAxis")
+        for title, axis in (("View plane", None), ("X (left-right)", "x"), ("Y (up-down)", "y"),
+                            ("Z (front-back)", "z")):
+            self.axis_combo.addItem(title, axis)
+        self.axis_combo.setToolTip("How a dragged control point moves: in the plane through it parallel to the "
+                                   "screen, or only along the face's X, Y or Z axis (the other two coordinates "
+                                   "stay). With 'Link left/right' its mirror partner moves mirrored")
+        show_row = QHBoxLayout()
+        show_row.addWidget(self.show_check)
+        show_row.addStretch(1)
+        show_row.addWidget(QLabel("Drag along", rbf))
+        show_row.addWidget(self.axis_combo)
+        form.addRow(show_row)
         self.click_combo = QComboBox(rbf)
         self.click_combo.setObjectName("clickMode")
         for title, mode in (("Orbit only", "off"), ("Move the point to the click", "move"),
@@ -324,7 +351,6 @@ class ControlPointDock(QDockWidget):
             self.rig = rig
             if rig is not None:
                 rig.parameters_changed.connect(self._on_parameters_changed)
-                rig.changed.connect(lambda _change, r=rig: self._update_points() if r is self.rig else None)
             # Built when the dock is really on screen (a tab behind another reports isVisible() but has
             # no visible region): at start-up the build would freeze the window for a second.
             if rig is not None and self.isVisible() and not self.visibleRegion().isEmpty():
@@ -404,7 +430,8 @@ class ControlPointDock(QDockWidget):
 
     # ------------------------------------------------------------ the viewport
     def set_points_visible(self, visible: bool) -> None:
-        """Show or hide the control points on the face (one point actor, moved with the pose)."""
+        """Show or hide the control points on the face (one point actor, moved with the pose; drawn only while
+        this dock is on screen)."""
         with QSignalBlocker(self.show_check):
             self.show_check.setChecked(bool(visible))
         plotter = getattr(self.window_, "plotter", None)
@@ -417,10 +444,70 @@ class ControlPointDock(QDockWidget):
             import pyvista as pv
 
             self._points_mesh = pv.PolyData(self._point_positions())
-            self.points_actor = plotter.add_mesh(self._points_mesh, color=(1.0, 0.85, 0.1), point_size=11,
+            self._points_mesh.point_data["rgb"] = self._point_colors()
+            self.points_actor = plotter.add_mesh(self._points_mesh, scalars="rgb", rgb=True, point_size=11,
                                                  render_points_as_spheres=True, pickable=False, reset_camera=False,
-                                                 name="control_points")
+                                                 show_scalar_bar=False, name="control_points", render=False)
+            self.points_actor.SetVisibility(self._on_screen())
+        self.show_hover(None)
         self.window_.viewport.request("render")
+
+    def _on_screen(self) -> bool:
+        """The dock is shown (not a tab behind another): its markers are drawn and draggable."""
+        return self._tab_shown and self.isVisible()
+
+    def _shown(self, shown: bool) -> None:
+        self._tab_shown = bool(shown)
+        if shown:
+            self.ensure_layers()
+        if self.points_actor is not None:
+            self.points_actor.SetVisibility(bool(shown))
+            if not shown:
+                self.show_hover(None)
+            self.window_.viewport.request("render")
+
+    def markers_shown(self) -> bool:
+        """The control points are drawn, so they can be hovered and dragged."""
+        return (self.points_actor is not None and bool(self.points_actor.GetVisibility()) and self.rig is not None
+                and self.rbf is not None and len(self.rbf.points) == self._points_mesh.n_points)
+
+    def _point_colors(self, hot: int | None = None):
+        import numpy as np
+
+        rgb = np.tile(np.array([255, 217, 26], dtype=np.uint8), (len(self.rbf.points), 1))
+        if hot is not None and hot < len(rgb):
+            rgb[hot] = (255, 90, 40)    # the hovered / dragged point, as in the reference chart
+        return rgb
+
+    def show_hover(self, index: int | None) -> None:
+        """Mark control point ``index`` (None: none) and show its influence region."""
+        if self.region is None:
+            return
+        if self._points_mesh is not None and self.rbf is not None \
+                and len(self.rbf.points) == self._points_mesh.n_points:
+            self._points_mesh.point_data["rgb"][:] = self._point_colors(index)
+            self._points_mesh.Modified()
+        changed = self.region.show(self.rbf, index, self.rig.vertices()) if index is not None \
+            else self.region.hide()
+        if self.rbf is not None and index is not None:
+            self.show_message(f"{self.rbf.points.names[index]}: drag to move it (Esc cancels); the blue area is "
+                              "what it may move.")
+        elif changed:
+            self.show_message("")
+        self.window_.viewport.request("render")
+
+    # Link left/right, drag axis and undo stack for control_point_drag.
+    def mirrored_values(self, key: str, value: float, available) -> dict[str, float]:
+        return mirrored(key, value, available)
+
+    def mirrored_keys(self, key: str, available) -> list[str]:
+        return list(mirrored(key, 0.0, available))
+
+    def drag_axis(self) -> str | None:
+        return self.axis_combo.currentData()
+
+    def undo_stack(self):
+        return getattr(self.document, "undo_stack", None)
 
     def _click_mode_changed(self) -> None:
         self.inverse_vertex = None
@@ -447,6 +534,8 @@ class ControlPointDock(QDockWidget):
         """A click on the face in the chosen mode: move the selected control point there (one undo step), or
         pick the inverse's skin point, then its target."""
         mode = self.click_combo.currentData()
+        if self.drag is not None and self.drag.claimed_press:
+            return      # the press grabbed a control point: a drag (or a click selecting it), not a face click
         try:
             if mode == "off" or self.rig is None or (self.rbf is None and not self.ensure_layers()):
                 return
@@ -502,15 +591,18 @@ class ControlPointDock(QDockWidget):
         x = self.rig.vertices()
         return x[v] + 0.6 * rbf.face.vertex_normals[v]   # lifted off the skin so the face never hides them
 
-    def _update_points(self) -> None:
-        if self._points_mesh is None or self.rbf is None:
-            return
+    def _update_points(self, _parts=frozenset()) -> bool:
+        """Move the markers and the shown region with the pose (a viewport updater: once per drawn frame)."""
+        if self._points_mesh is None or self.rig is None or self.rbf is None:
+            return False
         pos = self._point_positions()
         if len(pos) != self._points_mesh.n_points:      # the points were placed anew (a PPC)
             self.set_points_visible(True)
-            return
+            return True
         self._points_mesh.points = pos
-        self.window_.viewport.request("render")
+        if self.region is not None and self.region.index is not None:
+            self.region.show(self.rbf, self.region.index, self.rig.vertices())
+        return True
 
     # ------------------------------------------------------------ rig -> widgets
     def show_message(self, message: str) -> None:

@@ -1,0 +1,311 @@
+"""control_point_drag.py
+----
+Dragging RBF control points in the viewport (issue 17, item 2), for :mod:`app.control_point_dock`.
+
+* :class:`ControlPointDrag` — a Qt event filter on the viewport widget. A left press within
+  ``PICK_PX`` logical pixels of a visible control-point marker (not hidden behind the face) starts a drag
+  and the press, moves and release are consumed, so the camera does not orbit; any other press goes to
+  the camera as before. The point moves in the plane through it parallel to the screen, or along the
+  X/Y/Z axis chosen in the dock (the line's point nearest the pointer's ray). Until the pointer has moved
+  more than ``CLICK_SLOP_PX`` nothing moves (a click on a marker only selects the point). Each move is one
+  ``rig.set_values`` (the viewport's scheduler draws at most one frame per pass of the event loop); the
+  whole drag is one undo macro, "Move control point <name>" (the rig's own per-gesture steps, and
+  auto-keys, inside it). Esc during the drag puts the point back and leaves no undo step. With "Link
+  left/right" the mirror partner gets the dock's mirrored values (``control_point_dock.mirrored``).
+* :class:`RegionHighlight` — the influence region of the hovered (or dragged) point as a translucent
+  overlay whose opacity is the region weight Ω; the sub-mesh of each point is built once and cached.
+"""
+
+from __future__ import annotations
+
+import traceback
+
+import numpy as np
+from PySide6.QtCore import QEvent, QObject, Qt
+from PySide6.QtGui import QUndoCommand
+
+from app.picking import CLICK_SLOP_PX, qt_to_display
+from app.projection import closest_on_line, display_ray, display_to_world, world_to_display
+
+__all__ = ["ControlPointDrag", "RegionHighlight", "PICK_PX"]
+
+#: A press this close (logical pixels) to a marker grabs the control point.
+PICK_PX = 10.0
+#: A marker whose pick ray meets the face this much (mm) before reaching it is hidden behind the face.
+OCCLUDED_MM = 3.0
+REGION_RGB = (40, 200, 255)
+REGION_LIFT_MM = 0.5   # above the skin (and the draft copy drawn while moving), so the face does not hide it
+
+
+class RegionHighlight:
+    """The influence region of one control point drawn over the face (see the module docstring)."""
+
+    def __init__(self, plotter):
+        self.plotter = plotter
+        self.actor = None
+        self.mesh = None
+        self.index: int | None = None
+        self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def region(self, rbf, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(vertices (k,), triangles (m, 3) into them, weights (k,) in (0, 1]) of control point ``index``."""
+        deformer = rbf.deformer
+        key = (id(deformer), index)
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        face = deformer.face
+        if deformer.omega is None:   # no regions: every vertex
+            vertices, weights = np.asarray(deformer.active), np.ones(len(deformer.active))
+        else:
+            w = np.asarray(deformer.omega[:, index])
+            keep = w > 0.02
+            vertices, weights = np.asarray(deformer.active)[keep], w[keep]
+        local = np.full(face.n_vertices, -1, dtype=np.int64)
+        local[vertices] = np.arange(len(vertices))
+        tri = local[face.triangles]
+        tri = tri[(tri >= 0).all(axis=1)]
+        hit = (vertices, tri, weights)
+        if len(self._cache) > 200:
+            self._cache.clear()
+        self._cache[key] = hit
+        return hit
+
+    def show(self, rbf, index: int | None, vertices: np.ndarray) -> bool:
+        """Show the region of ``index`` (None: hide) on the posed ``vertices`` (n, 3); True if the picture changed."""
+        if index is None or rbf is None:
+            return self.hide()
+        verts, tri, weights = self.region(rbf, index)
+        if len(tri) == 0:
+            return self.hide()
+        if index != self.index or self.actor is None:
+            import pyvista as pv
+
+            self.remove()
+            faces = np.c_[np.full(len(tri), 3), tri].ravel()
+            self.mesh = pv.PolyData(self._points(rbf, verts, vertices), faces)
+            rgba = np.empty((len(verts), 4), dtype=np.uint8)
+            rgba[:, :3] = REGION_RGB
+            rgba[:, 3] = (60 + 150 * np.clip(weights, 0.0, 1.0)).astype(np.uint8)
+            self.mesh.point_data["rgba"] = rgba
+            self.actor = self.plotter.add_mesh(self.mesh, scalars="rgba", rgba=True, pickable=False,
+                                               reset_camera=False, render=False, show_scalar_bar=False,
+                                               lighting=False, name="control_point_region")
+            self.index = index
+            return True
+        self.mesh.points[:] = self._points(rbf, verts, vertices)
+        self.mesh.Modified()
+        return True
+
+    @staticmethod
+    def _points(rbf, verts: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+        return vertices[verts] + REGION_LIFT_MM * rbf.face.vertex_normals[verts]
+
+    def hide(self) -> bool:
+        changed = self.actor is not None
+        self.remove()
+        return changed
+
+    def remove(self) -> None:
+        if self.actor is not None:
+            self.plotter.remove_actor(self.actor, reset_camera=False, render=False)
+        self.actor = self.mesh = None
+        self.index = None
+
+    @property
+    def weights(self) -> np.ndarray | None:
+        """(k,) the shown region's per-vertex opacity (0-255), or None (tests)."""
+        return None if self.mesh is None else np.asarray(self.mesh.point_data["rgba"][:, 3])
+
+
+class _Drag:
+    """One drag in progress."""
+
+    def __init__(self, index: int, name: str, keys: list[str], start: dict, origin: np.ndarray, grab: np.ndarray,
+                 press, axis: str | None, link: bool, available: set):
+        self.index, self.name, self.keys, self.start = index, name, keys, start
+        self.origin, self.grab, self.press = origin, grab, press
+        self.axis, self.link, self.available = axis, link, available
+        self.moved = False
+        self.macro = False
+
+
+class ControlPointDrag(QObject):
+    """Drags control points on the viewport widget of ``dock`` (a ControlPointDock; see the module docstring).
+
+    ``hovered`` is the control point index under the pointer (or being dragged), ``drag`` the drag in progress.
+    """
+
+    def __init__(self, dock):
+        widget = dock.window_.plotter
+        super().__init__(widget)
+        self.dock = dock
+        self.widget = widget
+        self.hovered: int | None = None
+        self.drag: _Drag | None = None
+        self.claimed_press = False    # the last press grabbed a point (the dock's click modes ignore it)
+        widget.setMouseTracking(True)
+        widget.installEventFilter(self)
+
+    # ------------------------------------------------------------ geometry
+    @property
+    def renderer(self):
+        return self.dock.window_.plotter.renderer
+
+    def point_at(self, x: float, y: float) -> int | None:
+        """The control point whose marker is under display pixel (x, y) and not hidden by the face, or None."""
+        dock = self.dock
+        if not dock.markers_shown():
+            return None
+        markers = dock._point_positions()
+        screen = world_to_display(self.renderer, markers)
+        radius = PICK_PX * self.widget.devicePixelRatioF()
+        dist = np.hypot(screen[:, 0] - x, screen[:, 1] - y)
+        near = np.nonzero((dist <= radius) & (screen[:, 2] > 0.0) & (screen[:, 2] < 1.0))[0]
+        if not len(near):
+            return None
+        camera = np.array(self.renderer.GetActiveCamera().GetPosition())
+        for i in near[np.argsort(screen[near, 2])]:      # front-most first
+            hit = dock.pick(*screen[i, :2])
+            if hit is None or np.linalg.norm(np.array(hit.position) - camera) > \
+                    np.linalg.norm(markers[i] - camera) - OCCLUDED_MM:
+                return int(i)
+        return None
+
+    def _delta(self, d: _Drag, x: float, y: float) -> np.ndarray | None:
+        """World displacement (3,) of the point for the pointer at display (x, y), or None (axis along the view)."""
+        x, y = x + d.grab[0], y + d.grab[1]
+        if d.axis is None:
+            depth = world_to_display(self.renderer, d.origin)[0, 2]
+            return display_to_world(self.renderer, x, y, depth) - d.origin
+        axis = np.zeros(3)
+        axis["xyz".index(d.axis)] = 1.0
+        t = closest_on_line(d.origin, axis, *display_ray(self.renderer, x, y))
+        return None if t is None else t * axis
+
+    # ------------------------------------------------------------ drag
+    def start(self, index: int, x: float, y: float, press) -> None:
+        dock, rig = self.dock, self.dock.rig
+        rbf = dock.rbf
+        fp, name = rbf.points.feature_points[index], rbf.points.names[index]
+        keys = [f"cp:{fp}:{a}" for a in "xyz"]
+        link = dock.link_check.isChecked()
+        available = set(rig.parameters())
+        partner = [k for key in keys for k in (dock.mirrored_keys(key, available) if link else ())]
+        start = {k: rig.value(k) for k in keys + partner}
+        origin = np.array(rig.vertices()[rbf.points.vertices[index]])
+        grab = world_to_display(self.renderer, origin)[0, :2] - (x, y)   # the point keeps its offset from the pointer
+        self.drag = _Drag(index, name, keys, start, origin, grab, press, dock.drag_axis(), link, available)
+        self.hovered = index
+        combo = dock.point_combo
+        if combo.findData(fp) >= 0 and combo.currentData() != fp:
+            combo.setCurrentIndex(combo.findData(fp))
+        dock.show_hover(index)
+        self.widget.setFocus(Qt.FocusReason.MouseFocusReason)   # for Esc
+
+    def move(self, x: float, y: float, pos) -> None:
+        d = self.drag
+        if not d.moved:
+            if np.hypot(pos.x() - d.press.x(), pos.y() - d.press.y()) <= CLICK_SLOP_PX:
+                return       # a click, so far
+            d.moved = True
+        delta = self._delta(d, x, y)
+        if delta is None:
+            return
+        values = {}
+        for a, key in enumerate(d.keys):
+            values[key] = d.start[key] + float(delta[a])
+        if d.link:
+            for key in d.keys:
+                values.update(self.dock.mirrored_values(key, values[key], d.available))
+        stack = self.dock.undo_stack()
+        if not d.macro and stack is not None:
+            stack.beginMacro(f"Move control point {d.name}")
+            d.macro = True
+        self.dock._apply(values)
+
+    def finish(self, cancel: bool = False) -> None:
+        """End the drag: one undo step, or (``cancel``) the point back where it was and no step."""
+        d, self.drag = self.drag, None
+        if d is None:
+            return
+        if d.macro:
+            stack = self.dock.undo_stack()
+            stack.endMacro()
+            top = stack.command(stack.index() - 1)
+            # Cancelled, or nothing left (a drag back to its start): undo the macro (the rig, and any auto-keys,
+            # back as they were), then drop it from the redo side: pushing an obsolete command clears that side
+            # and is not kept. (Esc is a new gesture, so a cancel cannot simply merge away.)
+            if top is not None and (cancel or top.childCount() == 0):
+                stack.undo()
+                drop = QUndoCommand("")
+                drop.setObsolete(True)
+                stack.push(drop)
+        if cancel and d.moved and not d.macro:
+            self.dock._apply(dict(d.start))      # no undo stack to do it
+        self.dock.show_message("Drag cancelled." if cancel else "")
+
+    # ------------------------------------------------------------ events
+    def eventFilter(self, watched, event) -> bool:  # noqa: N802 - Qt override
+        kind = event.type()
+        try:
+            if self.drag is not None:
+                return self._while_dragging(kind, event)
+            if kind == QEvent.Type.MouseButtonPress:
+                self.claimed_press = False
+                if event.button() != Qt.MouseButton.LeftButton or event.buttons() != Qt.MouseButton.LeftButton:
+                    return False
+                pos = event.position()
+                x, y = qt_to_display(self.widget, pos.x(), pos.y())
+                index = self.point_at(x, y)
+                if index is None:
+                    return False                     # the camera's press
+                self.claimed_press = True
+                self.start(index, x, y, pos)
+                return True
+            if kind == QEvent.Type.MouseMove and event.buttons() == Qt.MouseButton.NoButton:
+                pos = event.position()
+                index = self.point_at(*qt_to_display(self.widget, pos.x(), pos.y()))
+                if index != self.hovered:
+                    self.hovered = index
+                    self.dock.show_hover(index)
+            elif kind == QEvent.Type.Leave and self.hovered is not None:
+                self.hovered = None
+                self.dock.show_hover(None)
+        except Exception as exc:  # noqa: BLE001 - an event filter must not raise into Qt
+            traceback.print_exc()
+            self._abandon(exc)
+        return False
+
+    def _while_dragging(self, kind, event) -> bool:
+        if kind == QEvent.Type.MouseMove:
+            pos = event.position()
+            self.move(*qt_to_display(self.widget, pos.x(), pos.y()), pos)
+            return True
+        if kind == QEvent.Type.MouseButtonRelease:
+            if event.button() == Qt.MouseButton.LeftButton:
+                self.finish()
+            return True
+        if kind in (QEvent.Type.ShortcutOverride, QEvent.Type.KeyPress) and event.key() == Qt.Key.Key_Escape:
+            event.accept()               # take Esc from the window's shortcuts for the drag
+            if kind == QEvent.Type.KeyPress:
+                self.finish(cancel=True)
+            return True
+        if kind in (QEvent.Type.MouseButtonPress, QEvent.Type.MouseButtonDblClick):
+            return True                  # other buttons while dragging: not the camera's
+        return False
+
+    def _abandon(self, exc: Exception) -> None:
+        """After an error: end any drag (its values so far stay, one step) and say what happened."""
+        try:
+            if self.drag is not None:
+                self.finish()
+        except Exception:  # noqa: BLE001
+            traceback.print_exc()
+            self.drag = None
+        self.dock.show_message(f"Control-point drag failed: {exc}")
+
+    def remove(self) -> None:
+        if self.drag is not None:
+            self.finish(cancel=True)
+        self.widget.removeEventFilter(self)
