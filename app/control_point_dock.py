@@ -13,10 +13,13 @@ muscles (``core.layers.waters``) of the document's rig.
   3.2-3.3, EPC files) at the intensity chosen; "Open EPC…" applies an emotion file, "Open PPC…" / "Save
   PPC…" place and save the control points; "Import DPC…" keys a DPC file's frames on the timeline (one
   undo step; the player's start/pause/speed are the timeline's) and "Export DPC…" writes its tracks.
-* "Show control points" draws them on the face (yellow points that follow the pose). "Clicks on the face"
-  (a drag still orbits): move the selected control point to the click (one undo step), or the inverse: a
-  first click picks a skin point, a second where it should go, and the Waters muscles move to bring it there
-  (``core.inverse``, one undo step).
+* "Show control points" (on by default) draws them on the face while this tab is shown (yellow points that
+  follow the pose). Drag one in the viewport (``app.control_point_drag``): it moves in the view plane or along
+  the axis in "Drag along", live, one undo step per drag, Esc cancels; with "Link left/right" its mirror
+  partner moves mirrored; hovering one shows its influence region. A drag that starts off the points turns
+  the camera as always. "Clicks on the face": move the selected control point to the click (one undo step),
+  or the inverse: a first click picks a skin point, a second where it should go, and the Waters muscles move
+  to bring it there (``core.inverse``, one undo step).
 * Waters: one row per muscle and side, "Link left/right", and how muscles combine (displacement limit,
   strongest of group, plain sum).
 
@@ -173,6 +176,8 @@ class ControlPointDock(QDockWidget):
                 self.drag = ControlPointDrag(self)
                 self.region = RegionHighlight(plotter)
                 window.viewport.add_updater(("mesh",), self._update_points)
+                self._window_set_draft = window.viewport.set_draft
+                window.viewport.set_draft = self._set_draft
         self._follow()
 
     # ------------------------------------------------------------ widgets
@@ -487,14 +492,27 @@ class ControlPointDock(QDockWidget):
                 and len(self.rbf.points) == self._points_mesh.n_points:
             self._points_mesh.point_data["rgb"][:] = self._point_colors(index)
             self._points_mesh.Modified()
-        changed = self.region.show(self.rbf, index, self.rig.vertices()) if index is not None \
+        changed = self.region.show(self.rbf, index, self.rig.vertices(), self._preview()) if index is not None \
             else self.region.hide()
-        if self.rbf is not None and index is not None:
-            self.show_message(f"{self.rbf.points.names[index]}: drag to move it (Esc cancels); the blue area is "
-                              "what it may move.")
-        elif changed:
-            self.show_message("")
+        status = getattr(self.window_, "statusBar", None)
+        if status is not None and self.rbf is not None and index is not None:
+            # the status bar, not the dock's message: a label appearing there would shift the dock under the mouse
+            status().showMessage(f"Control point {self.rbf.points.names[index]}: drag to move it (Esc cancels); "
+                                 "the blue area is what it may move", 4000)
+        elif status is not None and changed:
+            status().clearMessage()
         self.window_.viewport.request("render")
+
+    def _preview(self):
+        """The face's draft copy (app.preview.PreviewMesh) when it has one, for the region's draft copy."""
+        actor = getattr(self.window_, "face_actor", None)
+        return None if actor is None or self.rbf is None or actor.face is not self.rbf.face else actor.preview
+
+    def _set_draft(self, on: bool) -> bool:
+        """The viewport's level-of-detail switch, extended: the region follows the face to its draft copy."""
+        changed = bool(self._window_set_draft(on)) if self._window_set_draft is not None else False
+        actor = getattr(self.window_, "face_actor", None)
+        return self.region.use_draft(actor is not None and actor.showing_preview) or changed
 
     # Link left/right, drag axis and undo stack for control_point_drag.
     def mirrored_values(self, key: str, value: float, available) -> dict[str, float]:
@@ -601,7 +619,7 @@ class ControlPointDock(QDockWidget):
             return True
         self._points_mesh.points = pos
         if self.region is not None and self.region.index is not None:
-            self.region.show(self.rbf, self.region.index, self.rig.vertices())
+            self.region.show(self.rbf, self.region.index, self.rig.vertices(), self._preview())
         return True
 
     # ------------------------------------------------------------ rig -> widgets

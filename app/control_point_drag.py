@@ -13,7 +13,8 @@ Dragging RBF control points in the viewport (issue 17, item 2), for :mod:`app.co
   auto-keys, inside it). Esc during the drag puts the point back and leaves no undo step. With "Link
   left/right" the mirror partner gets the dock's mirrored values (``control_point_dock.mirrored``).
 * :class:`RegionHighlight` — the influence region of the hovered (or dragged) point as a translucent
-  overlay whose opacity is the region weight Ω; the sub-mesh of each point is built once and cached.
+  overlay whose opacity is the region weight Ω, and the point itself bigger; each point's sub-mesh is built
+  once and cached.
 """
 
 from __future__ import annotations
@@ -34,23 +35,36 @@ PICK_PX = 10.0
 #: A marker whose pick ray meets the face this much (mm) before reaching it is hidden behind the face.
 OCCLUDED_MM = 3.0
 REGION_RGB = (40, 200, 255)
-REGION_LIFT_MM = 0.5   # above the skin (and the draft copy drawn while moving), so the face does not hide it
+REGION_LIFT_MM = 0.5   # above the skin, so the face does not hide it
+HOT_RGB = (1.0, 0.35, 0.15)   # the hovered / dragged point, bigger, as in the reference chart
+HOT_SIZE_PX = 17
+HOT_LIFT_MM = 1.5
 
 
 class RegionHighlight:
-    """The influence region of one control point drawn over the face (see the module docstring)."""
+    """The influence region of one control point drawn over the face, and the point bigger (see the module
+    docstring).
+
+    Two copies of the region: on the full face, and on the face's draft copy (``app.preview``) that the
+    viewport draws while things move; :meth:`use_draft` shows the one matching the face (a translucent
+    full-resolution region would double a drag frame's draw time on software GL).
+    """
 
     def __init__(self, plotter):
         self.plotter = plotter
-        self.actor = None
-        self.mesh = None
         self.index: int | None = None
-        self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.draft = False
+        self.actors: dict[str, object] = {}     # "full" / "draft" region, "marker"
+        self.meshes: dict[str, object] = {}
+        self._verts: dict[str, np.ndarray] = {}
+        self._cache: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
-    def region(self, rbf, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(vertices (k,), triangles (m, 3) into them, weights (k,) in (0, 1]) of control point ``index``."""
+    def region(self, rbf, index: int, triangles: np.ndarray | None = None, tag: str = "full"
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(vertices (k,), triangles (m, 3) into them, weights (k,) in (0, 1]) of control point ``index``:
+        the ``triangles`` (face vertex ids; default the face's) whose corners it may all move."""
         deformer = rbf.deformer
-        key = (id(deformer), index)
+        key = (id(deformer), index, tag)
         hit = self._cache.get(key)
         if hit is not None:
             return hit
@@ -63,54 +77,88 @@ class RegionHighlight:
             vertices, weights = np.asarray(deformer.active)[keep], w[keep]
         local = np.full(face.n_vertices, -1, dtype=np.int64)
         local[vertices] = np.arange(len(vertices))
-        tri = local[face.triangles]
+        tri = local[face.triangles if triangles is None else triangles]
         tri = tri[(tri >= 0).all(axis=1)]
-        hit = (vertices, tri, weights)
+        used = np.unique(tri)                     # only the vertices these triangles use
+        hit = (vertices[used], np.searchsorted(used, tri), weights[used])
         if len(self._cache) > 200:
             self._cache.clear()
         self._cache[key] = hit
         return hit
 
-    def show(self, rbf, index: int | None, vertices: np.ndarray) -> bool:
-        """Show the region of ``index`` (None: hide) on the posed ``vertices`` (n, 3); True if the picture changed."""
+    def show(self, rbf, index: int | None, vertices: np.ndarray, preview=None) -> bool:
+        """Show the region of ``index`` (None: hide) on the posed ``vertices`` (n, 3), also on ``preview``'s
+        triangles when given (app.preview.PreviewMesh); True if the picture changed."""
         if index is None or rbf is None:
             return self.hide()
-        verts, tri, weights = self.region(rbf, index)
-        if len(tri) == 0:
-            return self.hide()
-        if index != self.index or self.actor is None:
-            import pyvista as pv
-
+        if index != self.index:
             self.remove()
-            faces = np.c_[np.full(len(tri), 3), tri].ravel()
-            self.mesh = pv.PolyData(self._points(rbf, verts, vertices), faces)
+        import pyvista as pv
+
+        parts = {"full": None} if preview is None else {"full": None, "draft": preview.index[preview.triangles]}
+        for tag, triangles in parts.items():
+            verts, tri, weights = self.region(rbf, index, triangles, tag)
+            points = vertices[verts] + REGION_LIFT_MM * rbf.face.vertex_normals[verts]
+            mesh = self.meshes.get(tag)
+            if mesh is not None:
+                mesh.points[:] = points
+                mesh.Modified()
+                continue
+            mesh = pv.PolyData(points, np.c_[np.full(len(tri), 3), tri].ravel())
             rgba = np.empty((len(verts), 4), dtype=np.uint8)
             rgba[:, :3] = REGION_RGB
-            rgba[:, 3] = (60 + 150 * np.clip(weights, 0.0, 1.0)).astype(np.uint8)
-            self.mesh.point_data["rgba"] = rgba
-            self.actor = self.plotter.add_mesh(self.mesh, scalars="rgba", rgba=True, pickable=False,
-                                               reset_camera=False, render=False, show_scalar_bar=False,
-                                               lighting=False, name="control_point_region")
-            self.index = index
-            return True
-        self.mesh.points[:] = self._points(rbf, verts, vertices)
-        self.mesh.Modified()
+            rgba[:, 3] = (30 + 120 * np.clip(weights, 0.0, 1.0)).astype(np.uint8)   # the skin shows through
+            mesh.point_data["rgba"] = rgba
+            self.meshes[tag], self._verts[tag] = mesh, verts
+            self.actors[tag] = self.plotter.add_mesh(
+                mesh, scalars="rgba", rgba=True, pickable=False, reset_camera=False, render=False,
+                show_scalar_bar=False, lighting=False, name=f"control_point_region_{tag}")
+        v = rbf.points.vertices[index]
+        marker = (vertices[v] + HOT_LIFT_MM * rbf.face.vertex_normals[v])[None]
+        if "marker" in self.meshes:
+            self.meshes["marker"].points[:] = marker
+            self.meshes["marker"].Modified()
+        else:
+            self.meshes["marker"] = pv.PolyData(marker)
+            self.actors["marker"] = self.plotter.add_mesh(
+                self.meshes["marker"], color=HOT_RGB, point_size=HOT_SIZE_PX, render_points_as_spheres=True,
+                pickable=False, reset_camera=False, render=False, name="control_point_hot")
+        self.index = index
+        self._apply_draft()
         return True
 
-    @staticmethod
-    def _points(rbf, verts: np.ndarray, vertices: np.ndarray) -> np.ndarray:
-        return vertices[verts] + REGION_LIFT_MM * rbf.face.vertex_normals[verts]
+    def use_draft(self, on: bool) -> bool:
+        """Show the region on the draft copy (``on``) or the full face; True if that changed what is drawn."""
+        on = bool(on)
+        changed = on != self.draft and self.index is not None and "draft" in self.actors
+        self.draft = on
+        self._apply_draft()
+        return changed
+
+    def _apply_draft(self) -> None:
+        draft = self.draft and "draft" in self.actors
+        if "full" in self.actors:
+            self.actors["full"].SetVisibility(not draft)
+        if "draft" in self.actors:
+            self.actors["draft"].SetVisibility(draft)
 
     def hide(self) -> bool:
-        changed = self.actor is not None
+        changed = bool(self.actors)
         self.remove()
         return changed
 
     def remove(self) -> None:
-        if self.actor is not None:
-            self.plotter.remove_actor(self.actor, reset_camera=False, render=False)
-        self.actor = self.mesh = None
+        for actor in self.actors.values():
+            self.plotter.remove_actor(actor, reset_camera=False, render=False)
+        self.actors.clear()
+        self.meshes.clear()
+        self._verts.clear()
         self.index = None
+
+    @property
+    def mesh(self):
+        """The full-face region mesh shown, or None."""
+        return self.meshes.get("full")
 
     @property
     def weights(self) -> np.ndarray | None:
@@ -243,7 +291,8 @@ class ControlPointDrag(QObject):
                 stack.push(drop)
         if cancel and d.moved and not d.macro:
             self.dock._apply(dict(d.start))      # no undo stack to do it
-        self.dock.show_message("Drag cancelled." if cancel else "")
+        if cancel:
+            self.dock.window_.statusBar().showMessage(f"Drag of {d.name} cancelled", 3000)
 
     # ------------------------------------------------------------ events
     def eventFilter(self, watched, event) -> bool:  # noqa: N802 - Qt override
