@@ -241,11 +241,12 @@ class ControlPointDock(QDockWidget):
         for title, mode in (("Orbit only", "off"), ("Move the point to the click", "move"),
                             ("Place the point at the click", "place"), ("Inverse: skin point, then target", "inverse")):
             self.click_combo.addItem(title, mode)
-        self.click_combo.setToolTip("What a click on the face does (a drag always orbits the camera). Move: the "
-                                    "selected point is displaced there; Place: its rest position is set there (a "
-                                    "new face: pick the point in the chart, click its spot). Inverse: "
-                                    "the first click picks a skin point, the second where it should go; the "
-                                    "Waters muscles move to bring it there as nearly as they can")
+        self.click_combo.setToolTip("What a click on the face does (a drag orbits the camera, but for a drag on a "
+                                    "control point or, in Inverse, on the skin). Move: the selected point is "
+                                    "displaced there; Place: its rest position is set there (a new face: pick the "
+                                    "point in the chart, click its spot). Inverse: drag a skin point and the Waters "
+                                    "muscles follow live to bring it under the pointer as nearly as they can (one "
+                                    "undo step, Esc cancels), or click a skin point, then where it should go")
         self.click_combo.currentIndexChanged.connect(lambda _i: self._click_mode_changed())
         form.addRow("Clicks on the face", self.click_combo)
         self.chart = ReferenceChart(rbf)
@@ -535,7 +536,8 @@ class ControlPointDock(QDockWidget):
 
             self.mouse = ViewportMouse(plotter, self.on_click)
         if self.click_combo.currentData() == "inverse":
-            self.show_message("Inverse: click the skin point to move, then where it should go.")
+            self.show_message("Inverse: drag a skin point (the Waters muscles follow live), or click it, then "
+                              "where it should go. Drag off the face to turn the view.")
 
     def pick(self, x: float, y: float):
         """The face under display pixel (x, y) (picking.SurfaceHit), or None."""

@@ -12,6 +12,10 @@ Dragging RBF control points in the viewport (issue 17, item 2), for :mod:`app.co
   whole drag is one undo macro, "Move control point <name>" (the rig's own per-gesture steps, and
   auto-keys, inside it). Esc during the drag puts the point back and leaves no undo step. With "Link
   left/right" the mirror partner gets the dock's mirrored values (``control_point_dock.mirrored``).
+* The inverse, live (issue 17, item 5): in the dock's inverse mode a press on the skin grabs that skin point
+  and each move solves the Waters activations that bring it nearest the pointer (``core.inverse.reach``,
+  regularised toward the current pose); one undo step per drag, Esc cancels. A click without a drag is
+  still the two-click inverse (skin point, then target); a drag off the face turns the camera.
 * :class:`RegionHighlight` — the influence region of the hovered (or dragged) point as a translucent
   overlay whose opacity is the region weight Ω, and the point itself bigger; each point's sub-mesh is built
   once and cached.
@@ -167,13 +171,16 @@ class RegionHighlight:
 
 
 class _Drag:
-    """One drag in progress."""
+    """One drag in progress: a control point (``index``), or a skin ``vertex`` in inverse mode."""
 
-    def __init__(self, index: int, name: str, keys: list[str], start: dict, origin: np.ndarray, grab: np.ndarray,
-                 press, axis: str | None, link: bool, available: set):
+    def __init__(self, index: int | None, name: str, keys: list[str], start: dict, origin: np.ndarray,
+                 grab: np.ndarray, press, axis: str | None, link: bool, available: set, *, vertex: int | None = None,
+                 response=None, x: float = 0.0, y: float = 0.0):
         self.index, self.name, self.keys, self.start = index, name, keys, start
         self.origin, self.grab, self.press = origin, grab, press
         self.axis, self.link, self.available = axis, link, available
+        self.vertex, self.response = vertex, response
+        self.x, self.y = x, y              # display pixel of the press
         self.moved = False
         self.macro = False
 
@@ -192,6 +199,8 @@ class ControlPointDrag(QObject):
         self.hovered: int | None = None
         self.drag: _Drag | None = None
         self.claimed_press = False    # the last press grabbed a point (the dock's click modes ignore it)
+        self._response = None         # (Waters layer, its core.inverse.LinearResponse) for inverse drags
+        self.miss: float | None = None   # mm between the last inverse drag's skin point and its target
         widget.setMouseTracking(True)
         widget.installEventFilter(self)
 
@@ -251,6 +260,39 @@ class ControlPointDrag(QObject):
         dock.show_hover(index)
         self.widget.setFocus(Qt.FocusReason.MouseFocusReason)   # for Esc
 
+    def start_inverse(self, x: float, y: float, press) -> bool:
+        """Inverse mode: grab the skin under display (x, y) (False: the face is not there)."""
+        dock = self.dock
+        waters = dock.waters
+        hit = dock.pick(x, y) if waters is not None else None
+        if hit is None:
+            return False
+        from core.inverse import LinearResponse
+
+        corners = dock.rig.face.triangles[hit.triangle]
+        vertex = int(corners[int(np.argmax(hit.barycentric))])
+        if self._response is None or self._response[0] is not waters:
+            self._response = (waters, LinearResponse.of_waters(waters))
+        response = self._response[1]
+        origin = np.array(dock.rig.vertices()[vertex])
+        grab = world_to_display(self.renderer, origin)[0, :2] - (x, y)
+        start = {k: dock.rig.value(k) for k in response.keys}
+        self.drag = _Drag(None, "skin point", [], start, origin, grab, press, dock.drag_axis(), False, set(),
+                          vertex=vertex, response=response, x=x, y=y)
+        self.widget.setFocus(Qt.FocusReason.MouseFocusReason)
+        return True
+
+    def _move_inverse(self, d: _Drag, delta: np.ndarray) -> None:
+        from core.inverse import reach
+
+        stack = self.dock.undo_stack()
+        if not d.macro and stack is not None:
+            stack.beginMacro("Inverse drag of a skin point")
+            d.macro = True
+        target = d.origin + delta
+        reach(self.dock.rig, self.dock.waters, d.response, [d.vertex], target[None])
+        self.miss = float(np.linalg.norm(self.dock.rig.vertices()[d.vertex] - target))
+
     def move(self, x: float, y: float, pos) -> None:
         d = self.drag
         if not d.moved:
@@ -259,6 +301,9 @@ class ControlPointDrag(QObject):
             d.moved = True
         delta = self._delta(d, x, y)
         if delta is None:
+            return
+        if d.vertex is not None:
+            self._move_inverse(d, delta)
             return
         values = {}
         for a, key in enumerate(d.keys):
@@ -291,8 +336,16 @@ class ControlPointDrag(QObject):
                 stack.push(drop)
         if cancel and d.moved and not d.macro:
             self.dock._apply(dict(d.start))      # no undo stack to do it
+        status = self.dock.window_.statusBar()
         if cancel:
-            self.dock.window_.statusBar().showMessage(f"Drag of {d.name} cancelled", 3000)
+            status.showMessage(f"Drag of the {d.name} cancelled" if d.index is None else
+                               f"Drag of {d.name} cancelled", 3000)
+        elif d.vertex is not None and not d.moved:      # a click in inverse mode: the two-click inverse
+            self.claimed_press = False
+            self.dock.on_click(d.x, d.y)
+        elif d.vertex is not None and self.miss is not None:
+            status.showMessage(f"The Waters muscles reach within {self.miss:.1f} mm of the target"
+                               + (": it is beyond what they can do" if self.miss > 1.0 else ""), 6000)
 
     # ------------------------------------------------------------ events
     def eventFilter(self, watched, event) -> bool:  # noqa: N802 - Qt override
@@ -307,11 +360,15 @@ class ControlPointDrag(QObject):
                 pos = event.position()
                 x, y = qt_to_display(self.widget, pos.x(), pos.y())
                 index = self.point_at(x, y)
-                if index is None:
-                    return False                     # the camera's press
-                self.claimed_press = True
-                self.start(index, x, y, pos)
-                return True
+                if index is not None:
+                    self.claimed_press = True
+                    self.start(index, x, y, pos)
+                    return True
+                if self.dock.click_combo.currentData() == "inverse" and self.dock.inverse_vertex is None \
+                        and self.start_inverse(x, y, pos):
+                    self.claimed_press = True
+                    return True
+                return False                     # the camera's press
             if kind == QEvent.Type.MouseMove and event.buttons() == Qt.MouseButton.NoButton:
                 pos = event.position()
                 index = self.point_at(*qt_to_display(self.widget, pos.x(), pos.y()))

@@ -10,6 +10,7 @@ it (the viewport's own timings):
     renderer=<OpenGL renderer string>
     cp_drag_to_pixels_ms median=<x> n=<moves> max=<x>
     cp_drag_compute_ms median=<x> cp_drag_draw_ms median=<x>
+    inverse_drag_to_pixels_ms median=<x> ...   the same for a live inverse drag of a cheek point (Waters)
 
 Usage: python benchmarks/bench_cp_drag.py [--moves 20]
 """
@@ -108,31 +109,44 @@ def main() -> None:
     ticks: list[tuple[float, float]] = []
     win.viewport.timed.connect(lambda c, d: ticks.append((c, d)))
 
+    def drag(world_point, radius_px: float, name: str, undo_text: str) -> None:
+        x, y, _ = world_to_display(win.plotter.renderer, world_point)[0]
+        start = QPoint(*(round(c) for c in display_to_qt(win.plotter, x, y)))
+        widget = win.plotter
+        ticks.clear()
+        QTest.mousePress(widget, Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier, start)
+        QTest.mouseMove(widget, start + QPoint(round(radius_px), 0))      # past the click slop: the drag is on
+        pump(0.5)
+        times = []
+        for i in range(args.moves):
+            pump(0.3, lambda: not win.viewport.timer.isActive())
+            watch["ref"], changed[:] = pixels(win), []
+            angle = 2 * np.pi * (i + 1) / args.moves
+            target = start + QPoint(round(radius_px * np.cos(angle)), round(-radius_px * np.sin(angle)))
+            t0 = time.perf_counter()
+            QTest.mouseMove(widget, target)
+            pump(10, lambda: bool(changed))
+            watch["ref"] = None
+            times.append((changed[0] - t0) * 1e3 if changed else float("nan"))
+        QTest.mouseRelease(widget, Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier, start)
+        pump(0.5)
+        assert win.undo_stack.undoText() == undo_text, win.undo_stack.undoText()
+        print(f"{name}_to_pixels_ms median={np.nanmedian(times):.1f} n={len(times)} max={np.nanmax(times):.1f}")
+        if ticks:
+            c, d = np.array(ticks).T
+            print(f"{name}_compute_ms median={np.median(c):.1f} {name}_draw_ms median={np.median(d):.1f}")
+
     index = dock.rbf.points.names.index("mouth_corner_l")
-    x, y, _ = world_to_display(win.plotter.renderer, dock._point_positions()[index])[0]
-    start = QPoint(*(round(c) for c in display_to_qt(win.plotter, x, y)))
-    widget = win.plotter
-    QTest.mousePress(widget, Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier, start)
-    QTest.mouseMove(widget, start + QPoint(12, 0))      # past the click slop: the drag is on
-    pump(0.5)
-    times = []
-    for i in range(args.moves):
-        pump(0.3, lambda: not win.viewport.timer.isActive())
-        watch["ref"], changed[:] = pixels(win), []
-        angle = 2 * np.pi * (i + 1) / args.moves
-        target = start + QPoint(round(12 * np.cos(angle)), round(-12 * np.sin(angle)))
-        t0 = time.perf_counter()
-        QTest.mouseMove(widget, target)
-        pump(10, lambda: bool(changed))
-        watch["ref"] = None
-        times.append((changed[0] - t0) * 1e3 if changed else float("nan"))
-    QTest.mouseRelease(widget, Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier, start)
-    pump(0.5)
-    assert win.undo_stack.undoText().startswith("Move control point"), win.undo_stack.undoText()
-    print(f"cp_drag_to_pixels_ms median={np.nanmedian(times):.1f} n={len(times)} max={np.nanmax(times):.1f}")
-    if ticks:
-        c, d = np.array(ticks).T
-        print(f"cp_drag_compute_ms median={np.median(c):.1f} cp_drag_draw_ms median={np.median(d):.1f}")
+    drag(dock._point_positions()[index], 12, "cp_drag", "Move control point mouth_corner_l")
+    win.undo_stack.undo()
+    # The inverse, live: a cheek point under the left zygomatic major pulled around by the Waters muscles.
+    dock.click_combo.setCurrentIndex(dock.click_combo.findData("inverse"))
+    dock.show_check.setChecked(False)
+    waters = win.rig.layer("waters")
+    muscle = waters.model.muscles[waters.model.keys.index("waters:zygomatic_major:left")]
+    skin = win.rig.face.vertices[np.argmin(np.linalg.norm(win.rig.face.vertices - (
+        0.7 * muscle.insertion + 0.3 * muscle.attachment), axis=1))]
+    drag(skin, 8, "inverse_drag", "Inverse drag of a skin point")
     win.close()
 
 

@@ -145,3 +145,34 @@ def test_hovering_a_point_shows_its_region(qtbot, win):
     assert dock.region.mesh is None and dock.drag.hovered is None
     dock.show_check.setChecked(False)                               # hidden points cannot be grabbed
     assert dock.drag.point_at(*_display(win, _marker_pixel(win, "mouth_corner_l"))) is None
+
+
+def test_an_inverse_drag_moves_the_waters_muscles_live_in_one_undo_step(qtbot, win):
+    from app.picking import display_to_qt, world_to_display
+
+    rig, dock, stack = win.rig, win.control_point_dock, win.undo_stack
+    dock.click_combo.setCurrentIndex(dock.click_combo.findData("inverse"))
+    dock.show_check.setChecked(False)          # the insertion is at the mouth corner's control point
+    waters = rig.layer("waters")
+    key = "waters:zygomatic_major:left"
+    m = waters.model.muscles[waters.model.keys.index(key)]
+    response = np.abs(waters.model.response[:, waters.model.keys.index(key)].toarray()).reshape(-1, 3).max(axis=1)
+    skin = int(np.argmin(np.linalg.norm(rig.face.vertices - m.insertion, axis=1) + 1e9 * (response < 1.0)))
+    x, y, _ = world_to_display(win.plotter.renderer, rig.face.vertices[skin])[0]
+    start = QPoint(*(round(c) for c in display_to_qt(win.plotter, x, y)))
+    assert dock.drag.point_at(*_display(win, start)) is None          # the skin, not a control point
+    toward = world_to_display(win.plotter.renderer, [m.insertion, m.attachment])
+    step = (toward[1, :2] - toward[0, :2]) / np.linalg.norm(toward[1, :2] - toward[0, :2]) * 12
+    end = start + QPoint(round(step[0]), -round(step[1]))             # 12 px toward the attachment on screen
+    camera = win.plotter.camera_position
+    count = stack.count()
+    before = rig.vertices()[skin].copy()
+    _drag(qtbot, win, start, end)
+    assert win.plotter.camera_position == camera
+    assert rig.value(key) > 0.0
+    moved = rig.vertices()[skin] - before
+    pull = m.attachment - m.insertion
+    assert moved @ pull / np.linalg.norm(pull) > 0.5                  # toward the attachment
+    assert stack.count() == count + 1 and stack.undoText() == "Inverse drag of a skin point"
+    stack.undo()
+    assert all(rig.value(k) == 0.0 for k in waters.parameters())
