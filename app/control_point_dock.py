@@ -348,6 +348,8 @@ class ControlPointDock(QDockWidget):
 
     def _follow(self) -> None:
         rig = None if self.document is None else self.document.rig
+        if rig is not self.rig and self.drag is not None and self.drag.drag is not None:
+            self.drag.finish(cancel=True)   # before the undo history of the old face goes
         if rig is not self.rig:
             if self.rig is not None:
                 try:

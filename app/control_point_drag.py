@@ -277,6 +277,7 @@ class ControlPointDrag(QObject):
         origin = np.array(dock.rig.vertices()[vertex])
         grab = world_to_display(self.renderer, origin)[0, :2] - (x, y)
         start = {k: dock.rig.value(k) for k in response.keys}
+        self.miss = None
         self.drag = _Drag(None, "skin point", [], start, origin, grab, press, dock.drag_axis(), False, set(),
                           vertex=vertex, response=response, x=x, y=y)
         self.widget.setFocus(Qt.FocusReason.MouseFocusReason)
@@ -322,8 +323,10 @@ class ControlPointDrag(QObject):
         d, self.drag = self.drag, None
         if d is None:
             return
+        stack = self.dock.undo_stack()
+        if d.macro and stack is not None and stack.count() == 0:
+            d.macro = False            # the history was cleared under the drag (a new face): no macro left to end
         if d.macro:
-            stack = self.dock.undo_stack()
             stack.endMacro()
             top = stack.command(stack.index() - 1)
             # Cancelled, or nothing left (a drag back to its start): undo the macro (the rig, and any auto-keys,
