@@ -176,3 +176,23 @@ def test_an_inverse_drag_moves_the_waters_muscles_live_in_one_undo_step(qtbot, w
     assert stack.count() == count + 1 and stack.undoText() == "Inverse drag of a skin point"
     stack.undo()
     assert all(rig.value(k) == 0.0 for k in waters.parameters())
+
+
+def test_the_region_follows_the_face_to_its_draft_copy_while_moving(qtbot, win):
+    """While things move the viewport draws the face's draft copy; the region goes with it (a translucent
+    full-resolution region would double the frame's draw time) and comes back with the full face."""
+    dock = win.control_point_dock
+    qtbot.waitUntil(lambda: win.face_actor.preview is not None, timeout=60000)
+    qtbot.mouseMove(win.plotter, _marker_pixel(win, "mouth_corner_l") + QPoint(1, 1))
+    region = dock.region
+    assert region.index == _index(win, "mouth_corner_l") and "draft" in region.actors
+    win.rig.set_values({"cp:8.3:y": 2.0})
+    win.viewport.timer.stop()
+    win.viewport.tick()                                   # a frame while moving: the draft copies
+    assert win.face_actor.showing_preview and region.actors["draft"].GetVisibility()
+    assert not region.actors["full"].GetVisibility()
+    full, draft = region.meshes["full"], region.meshes["draft"]
+    assert 0 < draft.n_cells < full.n_cells
+    win.flush_updates()                                   # input paused: the full face and region
+    assert not win.face_actor.showing_preview and region.actors["full"].GetVisibility()
+    assert not region.actors["draft"].GetVisibility()
