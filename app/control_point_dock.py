@@ -229,7 +229,8 @@ class ControlPointDock(QDockWidget):
             self.axis_combo.addItem(title, axis)
         self.axis_combo.setToolTip("How a dragged control point moves: in the plane through it parallel to the "
                                    "screen, or only along the face's X, Y or Z axis (the other two coordinates "
-                                   "stay). With 'Link left/right' its mirror partner moves mirrored")
+                                   "stay); the X, Y and Z keys switch it during a drag. With 'Link left/right' "
+                                   "its mirror partner moves mirrored")
         show_row = QHBoxLayout()
         show_row.addWidget(self.show_check)
         show_row.addStretch(1)

@@ -10,7 +10,8 @@ Dragging RBF control points in the viewport (issue 17, item 2), for :mod:`app.co
   more than ``CLICK_SLOP_PX`` nothing moves (a click on a marker only selects the point). Each move is one
   ``rig.set_values`` (the viewport's scheduler draws at most one frame per pass of the event loop); the
   whole drag is one undo macro, "Move control point <name>" (the rig's own per-gesture steps, and
-  auto-keys, inside it). Esc during the drag puts the point back and leaves no undo step. With "Link
+  auto-keys, inside it). Esc during the drag puts the point back and leaves no undo step; X, Y or Z
+  during the drag constrain it to that axis (pressed again: the view plane), as in Blender. With "Link
   left/right" the mirror partner gets the dock's mirrored values (``control_point_dock.mirrored``).
 * The inverse, live (issue 17, item 5): in the dock's inverse mode a press on the skin grabs that skin point
   and each move solves the Waters activations that bring it nearest the pointer (``core.inverse.reach``,
@@ -40,6 +41,8 @@ PICK_PX = 10.0
 OCCLUDED_MM = 3.0
 REGION_RGB = (40, 200, 255)
 REGION_LIFT_MM = 0.5   # above the skin, so the face does not hide it
+#: Keys during a drag: Esc cancels, X/Y/Z constrain to that axis (again: the view plane), as in Blender.
+AXIS_KEYS = {Qt.Key.Key_Escape: None, Qt.Key.Key_X: "x", Qt.Key.Key_Y: "y", Qt.Key.Key_Z: "z"}
 HOT_RGB = (1.0, 0.35, 0.15)   # the hovered / dragged point, bigger, as in the reference chart
 HOT_SIZE_PX = 17
 HOT_LIFT_MM = 1.5
@@ -183,6 +186,7 @@ class _Drag:
         self.x, self.y = x, y              # display pixel of the press
         self.moved = False
         self.macro = False
+        self.last = None                   # (x, y, pos) of the latest move
 
 
 class ControlPointDrag(QObject):
@@ -296,6 +300,7 @@ class ControlPointDrag(QObject):
 
     def move(self, x: float, y: float, pos) -> None:
         d = self.drag
+        d.last = (x, y, pos)
         if not d.moved:
             if np.hypot(pos.x() - d.press.x(), pos.y() - d.press.y()) <= CLICK_SLOP_PX:
                 return       # a click, so far
@@ -395,14 +400,25 @@ class ControlPointDrag(QObject):
             if event.button() == Qt.MouseButton.LeftButton:
                 self.finish()
             return True
-        if kind in (QEvent.Type.ShortcutOverride, QEvent.Type.KeyPress) and event.key() == Qt.Key.Key_Escape:
-            event.accept()               # take Esc from the window's shortcuts for the drag
-            if kind == QEvent.Type.KeyPress:
+        if kind in (QEvent.Type.ShortcutOverride, QEvent.Type.KeyPress) and event.key() in AXIS_KEYS:
+            event.accept()               # take Esc and X/Y/Z from the window's shortcuts for the drag
+            if kind == QEvent.Type.KeyPress and event.key() == Qt.Key.Key_Escape:
                 self.finish(cancel=True)
+            elif kind == QEvent.Type.KeyPress and not event.isAutoRepeat():
+                self._switch_axis(AXIS_KEYS[event.key()])
             return True
         if kind in (QEvent.Type.MouseButtonPress, QEvent.Type.MouseButtonDblClick):
             return True                  # other buttons while dragging: not the camera's
         return False
+
+    def _switch_axis(self, axis: str) -> None:
+        """X, Y or Z during a drag: along that axis from where the drag started (again: the view plane)."""
+        d = self.drag
+        d.axis = None if d.axis == axis else axis
+        if d.last is not None:
+            self.move(*d.last)
+        self.dock.window_.statusBar().showMessage(
+            f"Dragging along {d.axis.upper()}" if d.axis else "Dragging in the view plane", 3000)
 
     def _abandon(self, exc: Exception) -> None:
         """After an error: end any drag (its values so far stay, one step) and say what happened."""

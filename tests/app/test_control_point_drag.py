@@ -196,3 +196,16 @@ def test_the_region_follows_the_face_to_its_draft_copy_while_moving(qtbot, win):
     win.flush_updates()                                   # input paused: the full face and region
     assert not win.face_actor.showing_preview and region.actors["full"].GetVisibility()
     assert not region.actors["draft"].GetVisibility()
+
+
+def test_the_y_key_during_a_drag_constrains_it_to_y(qtbot, win):
+    rig = win.rig
+    win.control_point_dock.link_check.setChecked(False)
+    start = _marker_pixel(win, "lip_upper_mid")
+    fp = rig.layer("control_points").points.feature_points[_index(win, "lip_upper_mid")]
+    _drag(qtbot, win, start, start + QPoint(15, -15), release=False)
+    assert rig.value(f"cp:{fp}:x") != 0.0
+    QTest.keyClick(win.plotter, Qt.Key.Key_Y)                 # along Y from where the drag began
+    assert rig.value(f"cp:{fp}:x") == 0.0 and rig.value(f"cp:{fp}:z") == 0.0 and rig.value(f"cp:{fp}:y") > 0.0
+    qtbot.mouseRelease(win.plotter, Qt.MouseButton.LeftButton, pos=start + QPoint(15, -15))
+    assert win.undo_stack.undoText() == "Move control point lip_upper_mid"
