@@ -240,7 +240,8 @@ class ControlPointDock(QDockWidget):
         self.click_combo = QComboBox(rbf)
         self.click_combo.setObjectName("clickMode")
         for title, mode in (("Orbit only", "off"), ("Move the point to the click", "move"),
-                            ("Place the point at the click", "place"), ("Inverse: skin point, then target", "inverse")):
+                            ("Place the point at the click", "place"),
+                            ("Inverse: drag or click a skin point", "inverse")):
             self.click_combo.addItem(title, mode)
         self.click_combo.setToolTip("What a click on the face does (a drag orbits the camera, but for a drag on a "
                                     "control point or, in Inverse, on the skin). Move: the selected point is "
@@ -501,8 +502,8 @@ class ControlPointDock(QDockWidget):
         status = getattr(self.window_, "statusBar", None)
         if status is not None and self.rbf is not None and index is not None:
             # the status bar, not the dock's message: a label appearing there would shift the dock under the mouse
-            status().showMessage(f"Control point {self.rbf.points.names[index]}: drag to move it (Esc cancels); "
-                                 "the blue area is what it may move", 4000)
+            status().showMessage(f"Control point {self.rbf.points.names[index]}: drag to move it (X/Y/Z: along "
+                                 "an axis, Esc cancels); the blue area is what it may move", 4000)
         elif status is not None and changed:
             status().clearMessage()
         self.window_.viewport.request("render")

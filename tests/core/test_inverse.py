@@ -83,6 +83,7 @@ def test_rounding_outside_a_bound_is_clipped(monkeypatch):
 
     import core.inverse
 
-    monkeypatch.setattr(core.inverse, "lsq_linear", lambda *a, **k: types.SimpleNamespace(x=np.array([-1e-17, 2 + 1e-15])))
+    rounded = types.SimpleNamespace(x=np.array([-1e-17, 2 + 1e-15]))
+    monkeypatch.setattr(core.inverse, "lsq_linear", lambda *a, **k: rounded)
     s = solve_activations(np.eye(2), [0.0, 2.0], np.zeros(2), np.zeros(2), np.array([1.0, 2.0]))
     assert s[0] == 0.0 and s[1] == 2.0
