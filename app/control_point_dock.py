@@ -13,10 +13,13 @@ muscles (``core.layers.waters``) of the document's rig.
   3.2-3.3, EPC files) at the intensity chosen; "Open EPC…" applies an emotion file, "Open PPC…" / "Save
   PPC…" place and save the control points; "Import DPC…" keys a DPC file's frames on the timeline (one
   undo step; the player's start/pause/speed are the timeline's) and "Export DPC…" writes its tracks.
-* "Show control points" draws them on the face (yellow points that follow the pose). "Clicks on the face"
-  (a drag still orbits): move the selected control point to the click (one undo step), or the inverse: a
-  first click picks a skin point, a second where it should go, and the Waters muscles move to bring it there
-  (``core.inverse``, one undo step).
+* "Show control points" (on by default) draws them on the face while this tab is shown (yellow points that
+  follow the pose). Drag one in the viewport (``app.control_point_drag``): it moves in the view plane or along
+  the axis in "Drag along", live, one undo step per drag, Esc cancels; with "Link left/right" its mirror
+  partner moves mirrored; hovering one shows its influence region. A drag that starts off the points turns
+  the camera as always. "Clicks on the face": move the selected control point to the click (one undo step),
+  or the inverse: a first click picks a skin point, a second where it should go, and the Waters muscles move
+  to bring it there (``core.inverse``, one undo step).
 * Waters: one row per muscle and side, "Link left/right", and how muscles combine (displacement limit,
   strongest of group, plain sum).
 
@@ -146,6 +149,9 @@ class ControlPointDock(QDockWidget):
         self._syncing = False
         self.points_actor = None      # the control points in the viewport ("Show control points")
         self._points_mesh = None
+        self.drag = None              # dragging them (control_point_drag.ControlPointDrag), with the window
+        self.region = None            # the hovered point's influence region (control_point_drag.RegionHighlight)
+        self._tab_shown = False       # visibilityChanged's last word: this tab is the one shown
         self.mouse = None             # clicks on the face (picking.ViewportMouse), once a click mode is chosen
         self._picker = (None, None)   # (face actor, its SurfacePicker)
         self.inverse_vertex: int | None = None   # the skin vertex the inverse mode's next click moves
@@ -162,7 +168,16 @@ class ControlPointDock(QDockWidget):
                 window.view_menu.addAction(toggle)
             document.rig_changed.connect(lambda _rig: self._follow())
             document.face_changed.connect(lambda _face: self._follow())
-            self.visibilityChanged.connect(lambda shown: self.ensure_layers() if shown else None)
+            self.visibilityChanged.connect(self._shown)
+            plotter = getattr(window, "plotter", None)
+            if plotter is not None and getattr(window, "viewport", None) is not None:
+                from app.control_point_drag import ControlPointDrag, RegionHighlight
+
+                self.drag = ControlPointDrag(self)
+                self.region = RegionHighlight(plotter)
+                window.viewport.add_updater(("mesh",), self._update_points)
+                self._window_set_draft = window.viewport.set_draft
+                window.viewport.set_draft = self._set_draft
         self._follow()
 
     # ------------------------------------------------------------ widgets
@@ -201,19 +216,39 @@ class ControlPointDock(QDockWidget):
         form.addRow(self.poly_check)
         self.show_check = QCheckBox("Show control points", rbf)
         self.show_check.setObjectName("showControlPoints")
-        self.show_check.setToolTip("Draw the control points on the face (yellow), following the pose")
+        self.show_check.setChecked(True)
+        self.show_check.setToolTip("Draw the control points on the face (yellow, following the pose) while this "
+                                   "tab is shown. Drag a point to move it (Esc cancels the drag, one undo step "
+                                   "per drag); hovering a point shows its influence region; a drag anywhere "
+                                   "else turns the view")
         self.show_check.toggled.connect(self.set_points_visible)
-        form.addRow(self.show_check)
+        self.axis_combo = QComboBox(rbf)
+        self.axis_combo.setObjectName("dragAxis")
+        for title, axis in (("View plane", None), ("X (left-right)", "x"), ("Y (up-down)", "y"),
+                            ("Z (front-back)", "z")):
+            self.axis_combo.addItem(title, axis)
+        self.axis_combo.setToolTip("How a dragged control point moves: in the plane through it parallel to the "
+                                   "screen, or only along the face's X, Y or Z axis (the other two coordinates "
+                                   "stay); the X, Y and Z keys switch it during a drag. With 'Link left/right' "
+                                   "its mirror partner moves mirrored")
+        show_row = QHBoxLayout()
+        show_row.addWidget(self.show_check)
+        show_row.addStretch(1)
+        show_row.addWidget(QLabel("Drag along", rbf))
+        show_row.addWidget(self.axis_combo)
+        form.addRow(show_row)
         self.click_combo = QComboBox(rbf)
         self.click_combo.setObjectName("clickMode")
         for title, mode in (("Orbit only", "off"), ("Move the point to the click", "move"),
-                            ("Place the point at the click", "place"), ("Inverse: skin point, then target", "inverse")):
+                            ("Place the point at the click", "place"),
+                            ("Inverse: drag or click a skin point", "inverse")):
             self.click_combo.addItem(title, mode)
-        self.click_combo.setToolTip("What a click on the face does (a drag always orbits the camera). Move: the "
-                                    "selected point is displaced there; Place: its rest position is set there (a "
-                                    "new face: pick the point in the chart, click its spot). Inverse: "
-                                    "the first click picks a skin point, the second where it should go; the "
-                                    "Waters muscles move to bring it there as nearly as they can")
+        self.click_combo.setToolTip("What a click on the face does (a drag orbits the camera, but for a drag on a "
+                                    "control point or, in Inverse, on the skin). Move: the selected point is "
+                                    "displaced there; Place: its rest position is set there (a new face: pick the "
+                                    "point in the chart, click its spot). Inverse: drag a skin point and the Waters "
+                                    "muscles follow live to bring it under the pointer as nearly as they can (one "
+                                    "undo step, Esc cancels), or click a skin point, then where it should go")
         self.click_combo.currentIndexChanged.connect(lambda _i: self._click_mode_changed())
         form.addRow("Clicks on the face", self.click_combo)
         self.chart = ReferenceChart(rbf)
@@ -315,6 +350,8 @@ class ControlPointDock(QDockWidget):
 
     def _follow(self) -> None:
         rig = None if self.document is None else self.document.rig
+        if rig is not self.rig and self.drag is not None and self.drag.drag is not None:
+            self.drag.finish(cancel=True)   # before the undo history of the old face goes
         if rig is not self.rig:
             if self.rig is not None:
                 try:
@@ -324,7 +361,6 @@ class ControlPointDock(QDockWidget):
             self.rig = rig
             if rig is not None:
                 rig.parameters_changed.connect(self._on_parameters_changed)
-                rig.changed.connect(lambda _change, r=rig: self._update_points() if r is self.rig else None)
             # Built when the dock is really on screen (a tab behind another reports isVisible() but has
             # no visible region): at start-up the build would freeze the window for a second.
             if rig is not None and self.isVisible() and not self.visibleRegion().isEmpty():
@@ -404,7 +440,8 @@ class ControlPointDock(QDockWidget):
 
     # ------------------------------------------------------------ the viewport
     def set_points_visible(self, visible: bool) -> None:
-        """Show or hide the control points on the face (one point actor, moved with the pose)."""
+        """Show or hide the control points on the face (one point actor, moved with the pose; drawn only while
+        this dock is on screen)."""
         with QSignalBlocker(self.show_check):
             self.show_check.setChecked(bool(visible))
         plotter = getattr(self.window_, "plotter", None)
@@ -417,10 +454,83 @@ class ControlPointDock(QDockWidget):
             import pyvista as pv
 
             self._points_mesh = pv.PolyData(self._point_positions())
-            self.points_actor = plotter.add_mesh(self._points_mesh, color=(1.0, 0.85, 0.1), point_size=11,
+            self._points_mesh.point_data["rgb"] = self._point_colors()
+            self.points_actor = plotter.add_mesh(self._points_mesh, scalars="rgb", rgb=True, point_size=11,
                                                  render_points_as_spheres=True, pickable=False, reset_camera=False,
-                                                 name="control_points")
+                                                 show_scalar_bar=False, name="control_points", render=False)
+            self.points_actor.SetVisibility(self._on_screen())
+        self.show_hover(None)
         self.window_.viewport.request("render")
+
+    def _on_screen(self) -> bool:
+        """The dock is shown (not a tab behind another): its markers are drawn and draggable."""
+        return self._tab_shown and self.isVisible()
+
+    def _shown(self, shown: bool) -> None:
+        self._tab_shown = bool(shown)
+        if shown:
+            self.ensure_layers()
+        if self.points_actor is not None:
+            self.points_actor.SetVisibility(bool(shown))
+            if not shown:
+                self.show_hover(None)
+            self.window_.viewport.request("render")
+
+    def markers_shown(self) -> bool:
+        """The control points are drawn, so they can be hovered and dragged."""
+        return (self.points_actor is not None and bool(self.points_actor.GetVisibility()) and self.rig is not None
+                and self.rbf is not None and len(self.rbf.points) == self._points_mesh.n_points)
+
+    def _point_colors(self, hot: int | None = None):
+        import numpy as np
+
+        rgb = np.tile(np.array([255, 217, 26], dtype=np.uint8), (len(self.rbf.points), 1))
+        if hot is not None and hot < len(rgb):
+            rgb[hot] = (255, 90, 40)    # the hovered / dragged point, as in the reference chart
+        return rgb
+
+    def show_hover(self, index: int | None) -> None:
+        """Mark control point ``index`` (None: none) and show its influence region."""
+        if self.region is None:
+            return
+        if self._points_mesh is not None and self.rbf is not None \
+                and len(self.rbf.points) == self._points_mesh.n_points:
+            self._points_mesh.point_data["rgb"][:] = self._point_colors(index)
+            self._points_mesh.Modified()
+        changed = self.region.show(self.rbf, index, self.rig.vertices(), self._preview()) if index is not None \
+            else self.region.hide()
+        status = getattr(self.window_, "statusBar", None)
+        if status is not None and self.rbf is not None and index is not None:
+            # the status bar, not the dock's message: a label appearing there would shift the dock under the mouse
+            status().showMessage(f"Control point {self.rbf.points.names[index]}: drag to move it (X/Y/Z: along "
+                                 "an axis, Esc cancels); the blue area is what it may move", 4000)
+        elif status is not None and changed:
+            status().clearMessage()
+        self.window_.viewport.request("render")
+
+    def _preview(self):
+        """The face's draft copy (app.preview.PreviewMesh) when it has one, for the region's draft copy."""
+        actor = getattr(self.window_, "face_actor", None)
+        return None if actor is None or self.rbf is None or actor.face is not self.rbf.face else actor.preview
+
+    def _set_draft(self, on: bool) -> bool:
+        """The viewport's level-of-detail switch, extended: the region follows the face to its draft copy."""
+        changed = bool(self._window_set_draft(on)) if self._window_set_draft is not None else False
+        actor = getattr(self.window_, "face_actor", None)
+        return self.region.use_draft(actor is not None and actor.showing_preview) or changed
+
+    # Link left/right, drag axis and undo stack for control_point_drag.
+    def mirrored_values(self, key: str, value: float, available) -> dict[str, float]:
+        return mirrored(key, value, available)
+
+    def mirrored_keys(self, key: str, available) -> list[str]:
+        return list(mirrored(key, 0.0, available))
+
+    def drag_axis(self) -> str | None:
+        return self.axis_combo.currentData()
+
+    def undo_stack(self):
+        return getattr(self.document, "undo_stack", None)
 
     def _click_mode_changed(self) -> None:
         self.inverse_vertex = None
@@ -430,7 +540,8 @@ class ControlPointDock(QDockWidget):
 
             self.mouse = ViewportMouse(plotter, self.on_click)
         if self.click_combo.currentData() == "inverse":
-            self.show_message("Inverse: click the skin point to move, then where it should go.")
+            self.show_message("Inverse: drag a skin point (the Waters muscles follow live), or click it, then "
+                              "where it should go. Drag off the face to turn the view.")
 
     def pick(self, x: float, y: float):
         """The face under display pixel (x, y) (picking.SurfaceHit), or None."""
@@ -447,6 +558,8 @@ class ControlPointDock(QDockWidget):
         """A click on the face in the chosen mode: move the selected control point there (one undo step), or
         pick the inverse's skin point, then its target."""
         mode = self.click_combo.currentData()
+        if self.drag is not None and self.drag.claimed_press:
+            return      # the press grabbed a control point: a drag (or a click selecting it), not a face click
         try:
             if mode == "off" or self.rig is None or (self.rbf is None and not self.ensure_layers()):
                 return
@@ -502,15 +615,18 @@ class ControlPointDock(QDockWidget):
         x = self.rig.vertices()
         return x[v] + 0.6 * rbf.face.vertex_normals[v]   # lifted off the skin so the face never hides them
 
-    def _update_points(self) -> None:
-        if self._points_mesh is None or self.rbf is None:
-            return
+    def _update_points(self, _parts=frozenset()) -> bool:
+        """Move the markers and the shown region with the pose (a viewport updater: once per drawn frame)."""
+        if self._points_mesh is None or self.rig is None or self.rbf is None:
+            return False
         pos = self._point_positions()
         if len(pos) != self._points_mesh.n_points:      # the points were placed anew (a PPC)
             self.set_points_visible(True)
-            return
+            return True
         self._points_mesh.points = pos
-        self.window_.viewport.request("render")
+        if self.region is not None and self.region.index is not None:
+            self.region.show(self.rbf, self.region.index, self.rig.vertices(), self._preview())
+        return True
 
     # ------------------------------------------------------------ rig -> widgets
     def show_message(self, message: str) -> None:

@@ -44,7 +44,8 @@ def solve_activations(response: np.ndarray, target: np.ndarray, current: np.ndar
     r = np.sqrt(regularization)
     lhs = np.vstack([a, r * np.eye(len(s0))])
     rhs = np.concatenate([b, r * s0])
-    return lsq_linear(lhs, rhs, bounds=(lo, hi), method="bvls").x
+    # BVLS can end a rounding error outside a bound (-1e-17 for a muscle at 0), which the registry refuses.
+    return np.clip(lsq_linear(lhs, rhs, bounds=(lo, hi), method="bvls").x, lo, hi)
 
 
 class LinearResponse:

@@ -98,6 +98,7 @@ def test_control_points_show_on_the_face_and_follow_the_pose(qtbot, win):
     assert dock.points_actor is not None and dock._points_mesh.n_points == len(layer.points)
     before = np.array(dock._points_mesh.points)
     win.rig.set_values({"cp:8.3:y": 4.0})
+    win.flush_updates()                                  # the markers move with the drawn frame
     corner = layer.points.names.index("mouth_corner_l")
     assert np.array(dock._points_mesh.points)[corner, 1] - before[corner, 1] == pytest.approx(4.0, abs=1e-4)
     dock.show_check.setChecked(False)

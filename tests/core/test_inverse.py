@@ -75,3 +75,15 @@ def test_bounds_and_bad_input():
         solve_activations(a, [0, 0, 0], np.zeros(2), np.zeros(2), np.ones(2), -1.0)
     with pytest.raises(P.ParameterError, match="response"):
         solve_activations(a, [0, 0], np.zeros(2), np.zeros(2), np.ones(2))
+
+
+def test_rounding_outside_a_bound_is_clipped(monkeypatch):
+    """BVLS may end at -1e-17 for a muscle at rest; the rig's registry refuses anything below 0."""
+    import types
+
+    import core.inverse
+
+    rounded = types.SimpleNamespace(x=np.array([-1e-17, 2 + 1e-15]))
+    monkeypatch.setattr(core.inverse, "lsq_linear", lambda *a, **k: rounded)
+    s = solve_activations(np.eye(2), [0.0, 2.0], np.zeros(2), np.zeros(2), np.array([1.0, 2.0]))
+    assert s[0] == 0.0 and s[1] == 2.0
