@@ -14,7 +14,11 @@ from app.timeline_controller import TimelineController, muscle_keys, parameter_l
 
 
 GROUP_TITLES = {"jaw & chin": "Jaw & chin", "other": "Other FAPs", "expressions": "Expressions",
-                "visemes": "Visemes", "muscles": "Muscles"}
+                "visemes": "Visemes", "muscles": "Muscles", "control points": "Control points",
+                "waters": "Waters muscles", "blends": "Blends", "layers": "Other layers"}
+# Parameter kinds (core.parameters) -> their timeline group, after the FAP groups.
+_KIND_GROUPS = {"expression": "expressions", "viseme": "visemes", "muscle": "muscles", "jaw": "muscles",
+                "cp": "control points", "waters": "waters", "blend": "blends", "caricature": "blends"}
 
 
 KEY_COLOR = QColor(222, 222, 222)
@@ -34,15 +38,12 @@ def group_of(key: str) -> str:
     if kind == "fap":
         dock = tables.fap_spec(int(rest)).dock
         return dock if dock in tables.DOCK_GROUPS else "other"
-    if kind == "expression":
-        return "expressions"
-    if kind == "viseme":
-        return "visemes"
-    return "muscles"
+    return _KIND_GROUPS.get(kind, "layers")
 
 
 def group_order() -> tuple[str, ...]:
-    return (*tables.DOCK_GROUPS, "other", "expressions", "visemes", "muscles")
+    return (*tables.DOCK_GROUPS, "other", "expressions", "visemes", "muscles", "control points", "waters",
+            "blends", "layers")
 
 
 def all_parameters(controller: TimelineController) -> list[str]:
