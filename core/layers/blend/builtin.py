@@ -20,9 +20,11 @@ view). Measured against the FAP preset each pose is scanned from: each pose was 
 when the jaw drops; the middle of the lower lip's band landed on skin up to 5.7 mm lower than in
 the neutral, and D_k took that slide for motion (surprise: lower-lip error rms 2.09 mm, the band's
 middle 2.3 mm too low and 1.3 mm too far in). Registering each pose from the neutral keeps the
-vertices on their skin (lower-lip rms 1.65 mm; the band's middle 0.9 mm low). What is left sits on
-the inner lip contour, which the scanner does not see when the mouth is open (its landmark lands
-about 2.4 mm off on the visible lip), and on landmarks the detector puts 1-3 mm off.
+vertices on their skin (lower-lip rms 1.61 mm, max 3.95 mm; the band's middle 0.9 mm low). What is
+left sits on the inner lip contour, which the scanner does not see when the mouth is open (its
+landmark lands about 2.4 mm off on the visible lip), and on landmarks the detector puts 1-3 mm off.
+Not fixed: joy tears the outer eye corners of the default face (eye-region error rms 1.9 mm; it
+was 1.6 mm, with torn lower lids, before).
 
 The neutral is the default face itself registered with its own landmarks, so the library's rest
 (4560 vertices, template mpeg4_80) is in the default face's frame. The default face (53k vertices)
