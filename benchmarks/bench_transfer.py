@@ -10,7 +10,7 @@ adapting method, the thesis's included, can only lose against it.)
 
 * ``synthetic``: the synthetic protocol database (``core.registration.synthetic``). Persons A and B
   are scanned in each pose and registered (template mpeg4_80, landmarks from the scans: the real
-  pipeline). A's library (neutral + 6 expressions, each pose aligned to the neutral) is transferred
+  pipeline; the neutral by ``register_scan``, each pose from it by ``register_pose``). A's library (neutral + 6 expressions, each pose aligned to the neutral) is transferred
   onto B's registered neutral and compared with **B's true pose**: the generator's own displacement
   of B's face (its rig at that expression), carried to B's canonical vertices through the neutral
   scan's known pose. B's *registered* pose is not the reference, because its projection slides along
@@ -81,6 +81,7 @@ class Person:
     """A synthetic person: registered neutral and poses (canonical mpeg4_80), and the truth."""
 
     def __init__(self, person: int, poses, cache_dir=None):
+        from core.layers.blend.pose_registration import register_pose
         from core.registration.pipeline import register_scan
         from core.registration.synthetic import synthetic_scan
 
@@ -88,7 +89,10 @@ class Person:
         self.faces = {}
         for pose in ("neutral",) + tuple(poses):
             scan = synthetic_scan(person, pose, cache_dir=cache_dir)
-            self.faces[pose] = register_scan(scan, scan.landmarks, template="mpeg4_80").face
+            if pose == "neutral":
+                self.faces[pose] = register_scan(scan, scan.landmarks, template="mpeg4_80").face
+            else:   # as a library is built from a person's scans (core.layers.blend.scans)
+                self.faces[pose] = register_pose(scan, scan.landmarks, self.faces["neutral"])
         self.neutral = self.faces["neutral"]
         self.library = build_library(self.neutral, {p: self.faces[p] for p in poses}, template="mpeg4_80",
                                      base=f"synthetic person {person}")
@@ -96,8 +100,8 @@ class Person:
     def registered_pose(self, pose: str, intensity: float) -> np.ndarray:
         """(N, 3) mm: a new scan of the person at ``pose`` × ``intensity`` (FAP 2 preset), registered
         like the others and aligned onto the neutral (held-out data for the corrective)."""
+        from core.layers.blend.pose_registration import register_pose
         from core.registration import synthetic
-        from core.registration.pipeline import register_scan
         from core.registration.virtual_scanner import scan_face
 
         rig = synthetic._rig(self.person, 0)
@@ -107,7 +111,7 @@ class Person:
         rig.set_expression(None, 0.0)
         rng = np.random.default_rng([0, self.person, synthetic.poses().index(pose), 50])
         scan = scan_face(rig.face, vertices=v, rng=rng, **synthetic.SCAN_SETTINGS).face
-        face = register_scan(scan, scan.landmarks, template="mpeg4_80").face
+        face = register_pose(scan, scan.landmarks, self.neutral)
         return rigid_align(face.vertices, self.neutral.vertices)[0]
 
 

@@ -1,10 +1,12 @@
 """Regenerate the README's contact sheets of the built-in face (off screen; no display needed):
 
-    .venv/bin/python scripts/readme_figures.py
+    .venv/bin/python scripts/readme_figures.py [fap] [muscles] [blend]     (all three by default)
 
 docs/fap_expressions.png: the six expression presets, a jaw opening and a blink, each from the
-front and in three-quarter view; docs/muscle_presets.png: thesis C's muscle presets the same way.
-Every image is rendered by the same code as ``mimica render`` (app.render).
+front and in three-quarter view; docs/muscle_presets.png: thesis C's muscle presets the same way;
+docs/blend_library.png: poses of the built-in expression library and caricatures, each tile
+labelled with the ``mimica render`` option that makes it.
+Every image is rendered by the same code as ``mimica render`` (app.render, app.cli.render).
 """
 
 from __future__ import annotations
@@ -53,21 +55,72 @@ def poses_of(rig, settings) -> list[tuple[str, list[np.ndarray]]]:
     return rows
 
 
-def main() -> None:
+#: docs/blend_library.png: (label, view, {parameter key: value}) per tile, four tiles a line.
+BLEND_TILES = (
+    ("neutral", "front", {}), ("--blend joy:80", "front", {"blend:joy": 80.0}),
+    ("--blend surprise", "front", {"blend:surprise": 100.0}),
+    ("--blend viseme_10 (a)", "front", {"blend:viseme_10": 100.0}),
+    ("neutral", "three-quarter", {}), ("--blend joy:80", "three-quarter", {"blend:joy": 80.0}),
+    ("--blend surprise", "three-quarter", {"blend:surprise": 100.0}),
+    ("--caricature 100", "three-quarter", {"caricature": 100.0}),
+    ("--caricature -100 (mean face)", "front", {"caricature": -100.0}),
+    ("--caricature 0", "front", {"caricature": 0.0}), ("--caricature 100", "front", {"caricature": 100.0}),
+)
+
+
+def blend_sheet(face) -> Image.Image:
+    """docs/blend_library.png: :data:`BLEND_TILES` on dark tiles with yellow labels (posed as
+    ``mimica render`` poses them: rig layers on demand, then the values; one rig for all tiles)."""
+    from app.render import render_face_image
+    from core.rig import FaceRig
+
+    rig = FaceRig(face)
+
+    tile, columns = 300, 4
+    lines = (len(BLEND_TILES) + columns - 1) // columns
+    out = Image.new("RGB", (tile * columns, tile * lines), (40, 42, 48))
+    draw = ImageDraw.Draw(out)
+    font = ImageFont.load_default(size=16)
+    for k, (label, view, values) in enumerate(BLEND_TILES):
+        rig.reset()
+        rig.ensure_layers(values)
+        rig.set_values(values)
+        posed = face.with_vertices(rig.vertices())
+        image = Image.fromarray(render_face_image(posed, view=view, size=(2 * tile, 2 * tile))).resize((tile, tile))
+        x, y = (k % columns) * tile, (k // columns) * tile
+        out.paste(image, (x, y))
+        draw.text((x + 6, y + 6), label, fill=(255, 255, 0), font=font)
+    return out
+
+
+def main(argv=None) -> None:
     from core.default_face import load_default_face
     from core.layers.muscles import preset, preset_names
     from core.rig import FaceRig
 
+    which = set(sys.argv[1:] if argv is None else argv) or {"fap", "muscles", "blend"}
+    unknown = which - {"fap", "muscles", "blend"}
+    if unknown:
+        raise SystemExit(f"unknown sheet(s) {', '.join(sorted(unknown))}; choose from fap, muscles, blend")
     face = load_default_face()
+    if "blend" in which:
+        out = ROOT / "docs" / "blend_library.png"
+        blend_sheet(face).save(out)
+        print(f"wrote {out}")
+    if not which & {"fap", "muscles"}:
+        return
     rig = FaceRig(face)
     expressions = [("neutral", lambda r: None)] + [
         (name, lambda r, n=name: r.set_expression(n, 1.0))
         for name in ("joy", "surprise", "anger", "sadness", "fear", "disgust")]
     expressions += [("open jaw (FAP 3 = 600)", lambda r: r.set_fap(3, 600)),
                     ("blink (FAPs 19/20 = 1024)", lambda r: r.set_faps({19: 1024, 20: 1024}))]
-    out = ROOT / "docs" / "fap_expressions.png"
-    sheet(poses_of(rig, expressions)).save(out)
-    print(f"wrote {out}")
+    if "fap" in which:
+        out = ROOT / "docs" / "fap_expressions.png"
+        sheet(poses_of(rig, expressions)).save(out)
+        print(f"wrote {out}")
+    if "muscles" not in which:
+        return
 
     rig.ensure_layers(["muscle:risorius:left"])
     layer = rig.layer("muscles")

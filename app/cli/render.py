@@ -44,8 +44,13 @@ def blend_values(args) -> dict[str, float]:
     for item in getattr(args, "blend", None) or []:
         name, _, percent = item.partition(":")
         try:
+            number = float(percent) if percent.strip() else 100.0
+        except ValueError:
+            raise CliError(f"--blend {item!r}: the percent {percent.strip()!r} is not a number; write POSE or "
+                           "POSE:PERCENT, e.g. --blend joy:80") from None
+        try:
             key = P.key_of(f"blend:{name.strip()}")
-            values[key] = P.check_value(key, float(percent) if percent.strip() else 100.0)
+            values[key] = P.check_value(key, number)
         except (P.ParameterError, ValueError) as exc:
             raise CliError(f"--blend {item!r}: {exc}; write POSE or POSE:PERCENT, e.g. --blend joy:80") from None
     if getattr(args, "caricature", None) is not None:
@@ -69,6 +74,7 @@ def posed_vertices(face, values: dict[str, float]) -> np.ndarray:
         raise CliError(f"cannot animate this face: {exc}") from None
     try:
         rig.ensure_layers(values)
+        _check_blend_poses(rig, values)
         rig.set_values(values)
         muscles = rig.layer("muscles")
         start = time.perf_counter()
@@ -81,6 +87,26 @@ def posed_vertices(face, values: dict[str, float]) -> np.ndarray:
     except ValueError as exc:
         raise CliError(str(exc)) from None
     return rig.vertices()
+
+
+def _check_blend_poses(rig, values) -> None:
+    """CliError naming the library's poses when a ``--blend`` pose is not one of them (or the face has
+    no expression library at all)."""
+    wanted = [k.partition(":")[2] for k in values if k.startswith("blend:")]
+    if not wanted and "caricature" not in values:
+        return
+    layer = rig.layer("blend")
+    poses = tuple(getattr(layer, "poses", ()) or ())
+    has_mean = getattr(getattr(layer, "library", None), "mean", None) is not None
+    if not poses and not has_mean:
+        raise CliError("this face has no expression library: the built-in one fits the default face and faces "
+                       "registered to the mpeg4_80 template ('mimica register'); other libraries are made in the "
+                       "window (Blends dock)")
+    missing = [name for name in wanted if name not in poses]
+    if missing:
+        raise CliError(f"--blend: the expression library has no pose {missing[0]!r}; its poses are {', '.join(poses)}")
+    if "caricature" in values and not has_mean:
+        raise CliError("--caricature: this face's expression library has no mean face")
 
 
 def add_parser(sub) -> None:

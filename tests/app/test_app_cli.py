@@ -144,6 +144,15 @@ def test_landmarks_then_register_a_scan_in_other_units(tmp_path, capsys):
     joy = tmp_path / "joy.png"
     assert cli.main(["render", str(canonical), "--expression", "joy:80", "-o", str(joy), "--size", "200x150"]) == 0
     assert image_variance(np.asarray(Image.open(joy))) > 0
+    # The built-in expression library moves onto a registered face; bad poses and percents say why.
+    blend = tmp_path / "blend.png"
+    assert cli.main(["render", str(canonical), "--blend", "joy:80", "-o", str(blend), "--size", "200x150"]) == 0
+    assert image_variance(np.asarray(Image.open(blend))) > 0
+    capsys.readouterr()
+    assert cli.main(["render", str(canonical), "--blend", "grin:80", "-o", str(blend)]) == 1
+    assert "no pose 'grin'; its poses are joy, sadness" in capsys.readouterr().err
+    assert cli.main(["render", str(canonical), "--blend", "joy:lots", "-o", str(blend)]) == 1
+    assert "the percent 'lots' is not a number" in capsys.readouterr().err
     width = np.ptp(face.vertices[:, 0])
     assert abs(width - np.ptp(scan.vertices[:, 0])) < 0.1 * width   # back at the face's size in mm
     with pytest.raises(SystemExit):

@@ -368,3 +368,26 @@ def test_a_persons_scans_become_a_library_with_a_summary(default_rig):
     assert 5.0 < moved.max() < 40.0 and np.percentile(moved, 10) < 1.0, np.percentile(moved, [10, 50])   # mouth moves, forehead not
     with pytest.raises(LibraryError, match="pose names"):
         library_from_scans(neutral, {"Joy!": joy}, landmarks=given)
+
+
+def _canonical_default(rig):
+    from core.face import Face
+    from core.registration.correspondence import canonical_triangles, with_canonical_landmarks
+
+    return with_canonical_landmarks(Face(np.array(rig.deformer.dense.vertices), canonical_triangles("mpeg4_80")))
+
+
+def test_register_pose_on_the_neutral_itself_and_on_a_moved_copy(default_rig):
+    """A pose registered from the neutral: the neutral as its own scan gives the neutral back; a
+    rigidly moved copy gives the moved vertices (closest points of a vertex on its own mesh)."""
+    from core.layers.blend.pose_registration import register_pose
+
+    neutral = _canonical_default(default_rig)
+    lms = {n: neutral.landmarks[n] for n in neutral.landmark_names}
+    same = register_pose(neutral, lms, neutral)
+    np.testing.assert_allclose(same.vertices, neutral.vertices, atol=1e-9)
+    moved_v, _ = _rigid(neutral.vertices, angle_deg=6.0)
+    moved = register_pose(neutral.with_vertices(moved_v), lms, neutral)
+    np.testing.assert_allclose(moved.vertices, moved_v, atol=1e-6)
+    with pytest.raises(LibraryError, match="at least 4"):
+        register_pose(neutral, {n: lms[n] for n in list(lms)[:3]}, neutral)

@@ -8,16 +8,23 @@ Made through the real pipeline, not copied from the FAP presets' displacements:
 2. each scan is landmarked automatically (``detect_landmarks``, template mpeg4_80); when the
    detection reports trouble or lands far from the scanner's known truth, the scan's ground-truth
    landmarks stand in for the user's correction in the picker, and the summary says which;
-3. each scan is registered (``register_scan``: subdivision + projection onto the scan), aligned
+3. each scan is registered by moving the registered default face onto it
+   (``pose_registration.register_pose``: landmarks, a biharmonic spread, closest points), aligned
    rigidly onto the registered default face, and D_k = pose − neutral (``build_library``);
 4. the mean face (for the ``caricature`` slider) is the mean of the registered neutral default face
    and synthetic identities 1..8 of the protocol database (``core.registration.synthetic``).
 
-Known defect: in open-mouth poses (joy, surprise) a little of the lower teeth shows below the lower
-lip on the default face. Not yet pinned down: the inner-lip landmarks are visible to the scanner
-and the inner lower lip's 19.5 mm drop in joy is the FAP preset's own (raise_b_midlip −500 MNS), so
-the suspects are the canonical vertices along the mouth opening (their projection rays pass through
-the opened mouth) and the lower teeth, which follow the chin, not the lip.
+Open-mouth poses used to look crooked (lower lip sagging and lumpy, teeth over it in three-quarter
+view). Measured against the FAP preset each pose is scanned from: each pose was registered afresh
+(``register_scan``), which spreads the canonical vertices differently over a lower lip that curls
+when the jaw drops; the middle of the lower lip's band landed on skin up to 5.7 mm lower than in
+the neutral, and D_k took that slide for motion (surprise: lower-lip error rms 2.09 mm, the band's
+middle 2.3 mm too low and 1.3 mm too far in). Registering each pose from the neutral keeps the
+vertices on their skin (lower-lip rms 1.61 mm, max 3.95 mm; the band's middle 0.9 mm low). What is
+left sits on the inner lip contour, which the scanner does not see when the mouth is open (its
+landmark lands about 2.4 mm off on the visible lip), and on landmarks the detector puts 1-3 mm off.
+Not fixed: joy tears the outer eye corners of the default face (eye-region error rms 1.9 mm; it
+was 1.6 mm, with torn lower lids, before).
 
 The neutral is the default face itself registered with its own landmarks, so the library's rest
 (4560 vertices, template mpeg4_80) is in the default face's frame. The default face (53k vertices)
@@ -159,8 +166,9 @@ def transferred_to(library: ExpressionLibrary, canonical_vertices, method: str =
                                                             else TEMPLATE), method=method)
 
 
-def _scan_and_register(rig, preset: str, name, index: int, report, *, detect: bool = True):
-    from core.registration.pipeline import detect_landmarks, register_scan
+def _scan_and_register(rig, preset: str, name, index: int, report, neutral, *, detect: bool = True):
+    from core.layers.blend.pose_registration import register_pose
+    from core.registration.pipeline import detect_landmarks
     from core.registration.synthetic import SCAN_SETTINGS
     from core.registration.virtual_scanner import scan_face
 
@@ -194,9 +202,8 @@ def _scan_and_register(rig, preset: str, name, index: int, report, *, detect: bo
                 note = "automatic, no correction"
         except Exception as exc:  # noqa: BLE001 - a failed detection is corrected by hand (the truth)
             note = f"automatic detection failed ({exc}); all landmarks corrected"
-    reg = register_scan(scan, landmarks, template=TEMPLATE)
-    report(f"{preset} {name}: {note}; {reg.fallbacks} projection fallbacks")
-    return reg.face
+    report(f"{preset} {name}: {note}")
+    return register_pose(scan, landmarks, neutral, template=TEMPLATE)
 
 
 def _positions(scan, landmarks) -> dict:
@@ -220,10 +227,10 @@ def build_builtin_library(*, detect: bool = True, mean_people: int = 8, report=p
     index = 0
     for name in tables.expression_names()[1:]:
         index += 1
-        poses[name] = _scan_and_register(rig, "expression", name, index, report, detect=detect)
+        poses[name] = _scan_and_register(rig, "expression", name, index, report, neutral, detect=detect)
     for vid in range(1, len(tables.viseme_phonemes())):
         index += 1
-        poses[f"viseme_{vid}"] = _scan_and_register(rig, "viseme", vid, index, report, detect=detect)
+        poses[f"viseme_{vid}"] = _scan_and_register(rig, "viseme", vid, index, report, neutral, detect=detect)
     mean = None
     if mean_people > 0:
         from core.layers.blend.caricature import mean_face
@@ -252,12 +259,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     lib = build_builtin_library(detect=not args.no_detect, mean_people=args.mean_people)
-    out = args.out
-    if out is None:
-        from pathlib import Path
+    from pathlib import Path
 
-        out = Path(str(resources._ROOT)) / RESOURCE
-        out.parent.mkdir(parents=True, exist_ok=True)
+    out = Path(args.out) if args.out is not None else Path(str(resources._ROOT)) / RESOURCE
+    out.parent.mkdir(parents=True, exist_ok=True)
     path = write_library(lib, out)
     print(f"wrote {path} ({len(lib.names)} poses, {lib.n_vertices} vertices) in {time.perf_counter() - t0:.0f} s")
     return 0

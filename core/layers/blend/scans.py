@@ -2,8 +2,10 @@
 
 Each scan (a Face in mm) is landmarked automatically (``detect_landmarks``), unless the caller
 passes landmarks for it (the user's corrections from the landmark picker), registered to the
-template (``register_scan``: subdivision + projection), and the poses are aligned rigidly onto the
-neutral before their displacements are taken (``build_library``). The summary says, per scan,
+template: the neutral by ``register_scan`` (subdivision + projection), each pose by moving the
+registered neutral onto it (``pose_registration.register_pose``, so vertex i stays on the same skin
+point across poses), and the poses are aligned rigidly onto the neutral before their displacements
+are taken (``build_library``). The summary says, per scan,
 where its landmarks came from and which detected ones have low confidence (worth correcting in
 the picker before trusting the pose).
 """
@@ -49,6 +51,7 @@ def library_from_scans(neutral, poses: Mapping[str, object], *, template: str = 
         landmarks the user gave or corrected (not detected again).
     Raises LibraryError (bad pose names) or the registration's own ValueErrors, naming the pose.
     """
+    from core.layers.blend.pose_registration import register_pose
     from core.registration.pipeline import detect_landmarks, register_scan
 
     given = dict(landmarks or {})
@@ -64,11 +67,14 @@ def library_from_scans(neutral, poses: Mapping[str, object], *, template: str = 
             else:
                 det = detect_landmarks(scan, template=template)
                 lms, source, low = det.landmarks, "detected", tuple(det.low_confidence())
-            reg = register_scan(scan, lms, template=template)
+            if name == "neutral":
+                reg = register_scan(scan, lms, template=template)
+                faces[name], fallbacks = reg.face, int(reg.fallbacks)
+            else:
+                faces[name], fallbacks = register_pose(scan, lms, faces["neutral"], template=template), 0
         except ValueError as exc:
             raise LibraryError(f"scan of pose {name!r}: {exc}") from None
-        faces[name] = reg.face
-        reports.append(ScanReport(name, source, low, int(reg.fallbacks)))
+        reports.append(ScanReport(name, source, low, fallbacks))
     if progress is not None:
         progress(1.0, "building the library")
     lib = build_library(faces["neutral"], {n: faces[n] for n in names}, template=template, base=base)
