@@ -64,13 +64,15 @@ def identity_face(name: str):
         return generate_face(FaceParameters.random(np.random.default_rng(7), spread=0.8))
     if name == "sfm":
         import evaluate_landmarks_sfm as sfm
-        from core.registration.pipeline import register_scan
+        from core.registration.pipeline import detect_landmarks, register_scan
         from core.registration.synthetic import poses
 
         model = sfm.load_sfm(SFM_DIR)
         surface = sfm.refine_topology(model)
         case = next(iter(sfm.make_scans(model, surface, 1, 0, [0.0], [list(poses())[0]], textured=False)))
-        return register_scan(case.face, dict(case.face.landmarks)).face
+        # The model's truth has 21 points; detection finds the rest, steered by them (as bench_correspondence).
+        landmarks = detect_landmarks(case.face, fixed=dict(case.face.landmarks)).landmarks
+        return register_scan(case.face, landmarks).face
     raise SystemExit(f"unknown identity {name!r}: choose default, generated or sfm")
 
 
