@@ -67,6 +67,18 @@ def main() -> None:
     window.close()
 
 
+def control_points_in_front(window, settle):
+    """Raise the Control points dock, wait until its markers are drawn, front view without landmarks."""
+    dock = window.control_point_dock
+    dock.raise_()
+    deadline = time.monotonic() + 60
+    while not dock.markers_shown() and time.monotonic() < deadline:
+        settle(0.2)
+    window.set_landmarks_visible(False)
+    window.set_camera_view("front")
+    return dock
+
+
 def control_point_drag_shot(window, app, settle) -> None:
     """docs/control_point_drag.png: the left mouth corner in the middle of a drag (real mouse events on the
     viewport, as a user's), its influence region highlighted and the mirror partner following."""
@@ -76,13 +88,7 @@ def control_point_drag_shot(window, app, settle) -> None:
     from app.picking import display_to_qt
     from app.projection import world_to_display
 
-    dock = window.control_point_dock
-    dock.raise_()
-    deadline = time.monotonic() + 60
-    while not dock.markers_shown() and time.monotonic() < deadline:
-        settle(0.2)
-    window.set_landmarks_visible(False)
-    window.set_camera_view("front")
+    dock = control_points_in_front(window, settle)
     index = dock.rbf.points.names.index("mouth_corner_l")
     camera = window.plotter.camera          # closer, centred a little above the mouth
     shift = [0.0, dock._point_positions()[index][1] + 15.0 - camera.focal_point[1], 0.0]
@@ -121,13 +127,8 @@ def control_point_tour(window, app, settle) -> None:
     from core.formats.dpc_file import DpcSequence, write_dpc
     from core.layers.rbf.emotions import emotion_displacements
 
-    dock = window.control_point_dock
-    dock.raise_()
-    deadline = time.monotonic() + 60
-    while not dock.markers_shown() and time.monotonic() < deadline:
-        settle(0.2)
-    window.set_landmarks_visible(False)
-    window.set_camera_view("front")
+    dock = control_points_in_front(window, settle)
+    window.rig.reset([k for k in window.rig.parameters() if k.startswith("cp:")])   # e.g. the drag shot's pose
     window.plotter.camera.zoom(1.3)
     widget, panels = window.plotter, []
 
