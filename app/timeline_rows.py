@@ -16,6 +16,7 @@ from app.timeline_controller import TimelineController, muscle_keys, parameter_l
 GROUP_TITLES = {"jaw & chin": "Jaw & chin", "other": "Other FAPs", "expressions": "Expressions",
                 "visemes": "Visemes", "muscles": "Muscles", "control points": "Control points",
                 "waters": "Waters muscles", "blends": "Blends", "layers": "Other layers"}
+_LAYER_GROUPS = ("control points", "waters", "blends")
 # Parameter kinds (core.parameters) -> their timeline group, after the FAP groups.
 _KIND_GROUPS = {"expression": "expressions", "viseme": "visemes", "muscle": "muscles", "jaw": "muscles",
                 "cp": "control points", "waters": "waters", "blend": "blends", "caricature": "blends"}
@@ -59,6 +60,9 @@ def all_parameters(controller: TimelineController) -> list[str]:
         keys += [f"viseme:{i}" for i in range(1, len(tables.viseme_names()))]
     if controller.document.muscle_layer is not None:
         keys += list(muscle_keys())
+    if rig is not None:   # the other layers the face has now: control points, Waters muscles, blends
+        seen = set(keys)
+        keys += [k for k in rig.parameters() if k not in seen and group_of(k) in _LAYER_GROUPS]
     return keys
 
 

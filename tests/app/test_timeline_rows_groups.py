@@ -14,3 +14,16 @@ def test_every_layer_kind_has_its_own_timeline_group():
     assert group_of("someday:new") == "layers"
     groups = {group_of(k) for k in ("cp:8.3:x", "waters:a:left", "blend:joy", "someday:x", "jaw")}
     assert groups <= set(group_order()) and all(g in GROUP_TITLES for g in groups)
+
+
+def test_show_all_lists_the_other_layers_the_face_has():
+    from types import SimpleNamespace
+
+    from app.timeline_rows import all_parameters
+
+    rig = SimpleNamespace(animated_faps=(3,), parameters=lambda: ("fap:3", "cp:8.3:x", "waters:zygomatic_major:left",
+                                                                   "blend:joy", "expression:joy"))
+    controller = SimpleNamespace(rig=rig, document=SimpleNamespace(muscle_layer=None))
+    keys = all_parameters(controller)
+    assert {"cp:8.3:x", "waters:zygomatic_major:left", "blend:joy"} <= set(keys)
+    assert len(keys) == len(set(keys)), "no parameter twice"
