@@ -350,10 +350,11 @@ def _reference_mesh(template_name: str) -> tuple[np.ndarray, np.ndarray] | None:
     fold-free face of that topology whose local shape is the prior of :func:`regularise`; None when
     the default face lacks the template's landmarks."""
     from core.default_face import load_default_face
+    from core.registration.templates import template_positions
 
     face = load_default_face()
-    positions = {n: face.landmark_position(n) for n in face.landmark_names}
     try:
+        positions = template_positions(face, template_name)   # a48's derived points from the MPEG-4 ones
         proj = project_template(face, template_name, positions)
     except (ValueError, KeyError):   # TemplateError / CorrespondenceError: landmarks it does not have
         return None
