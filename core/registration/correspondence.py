@@ -296,12 +296,7 @@ def untangle(scan: Face, projection: Projection, template_name: str) -> tuple[Pr
     bad = collapsed()
     if not bad.any():
         return projection, 0, 0
-    n = len(v)
-    rows = np.concatenate([t[:, 0], t[:, 1], t[:, 2], t[:, 1], t[:, 2], t[:, 0]])
-    cols = np.concatenate([t[:, 1], t[:, 2], t[:, 0], t[:, 0], t[:, 1], t[:, 2]])
-    adjacency = scipy.sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
-    adjacency.data[:] = 1.0
-    degree = np.asarray(adjacency.sum(axis=1)).ravel()
+    adjacency, degree = _adjacency(t, len(v))
     surface = TriangleSet(scan.vertices, scan.triangles)
     scan_triangle = np.array(projection.scan_triangle)
     scan_bary = np.array(projection.scan_bary, float)
@@ -362,15 +357,20 @@ def _reference_mesh(template_name: str) -> tuple[np.ndarray, np.ndarray] | None:
     return np.array(proj.dense.vertices, float), np.array(proj.dense.triangles)
 
 
-def _umbrella(triangles: np.ndarray, n: int) -> scipy.sparse.csr_matrix:
-    """(n, n) uniform graph Laplacian: x_i minus the mean of its neighbours."""
+def _adjacency(triangles: np.ndarray, n: int) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
+    """(n, n) 0/1 vertex adjacency of a triangle mesh and each vertex's degree."""
     rows = np.concatenate([triangles[:, 0], triangles[:, 1], triangles[:, 2], triangles[:, 1], triangles[:, 2],
                            triangles[:, 0]])
     cols = np.concatenate([triangles[:, 1], triangles[:, 2], triangles[:, 0], triangles[:, 0], triangles[:, 1],
                            triangles[:, 2]])
     adjacency = scipy.sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
     adjacency.data[:] = 1.0
-    degree = np.asarray(adjacency.sum(axis=1)).ravel()
+    return adjacency, np.asarray(adjacency.sum(axis=1)).ravel()
+
+
+def _umbrella(triangles: np.ndarray, n: int) -> scipy.sparse.csr_matrix:
+    """(n, n) uniform graph Laplacian: x_i minus the mean of its neighbours."""
+    adjacency, degree = _adjacency(triangles, n)
     return (scipy.sparse.identity(n, format="csr") - scipy.sparse.diags(1.0 / np.maximum(degree, 1)) @ adjacency).tocsr()
 
 
@@ -385,8 +385,8 @@ def _similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarr
     return scale, rotation, mt - scale * ms @ rotation.T
 
 
-def regularise(scan: Face, projection: Projection, template_name: str) -> tuple[Projection, int]:
-    """(projection, triangles turned over before) after a regularised non-rigid fit: the canonical
+def regularise(scan: Face, projection: Projection, template_name: str) -> tuple[Projection, int, int]:
+    """(projection, triangles turned over before, after) after a regularised non-rigid fit: the canonical
     mesh is pulled onto the scan (its closest points) while keeping the local shape of the same
     mesh on Mimica's default face (Laplacian coordinates of the reference, aligned by a similarity on
     the landmarks), over rounds of decreasing stiffness; landmarks stay put. Projection alone folds
@@ -398,7 +398,7 @@ def regularise(scan: Face, projection: Projection, template_name: str) -> tuple[
     n_base = len(get_template(template_name).base.points)
     found = _reference_mesh(template_name)
     if found is None or len(found[0]) != len(v) or not np.array_equal(found[1], t):
-        return projection, 0
+        return projection, 0, 0
     reference = found[0]
     scale, rotation, shift = _similarity(reference[:n_base], v[:n_base])
     prior = scale * reference @ rotation.T + shift
@@ -444,7 +444,7 @@ def regularise(scan: Face, projection: Projection, template_name: str) -> tuple[
     x[near] = snapped[near]
     tri[:n_base], bary[:n_base] = projection.scan_triangle[:n_base], projection.scan_bary[:n_base]
     dense = dataclasses.replace(projection.dense, vertices=x, face_triangle=tri)
-    return dataclasses.replace(projection, dense=dense, scan_triangle=tri, scan_bary=bary), before
+    return dataclasses.replace(projection, dense=dense, scan_triangle=tri, scan_bary=bary), before, turned(x)
 
 
 def canonical_face(scan: Face, projection: Projection, template_name: str) -> Face:
@@ -553,7 +553,7 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
         raise CorrespondenceError("the scan has no triangles")
     proj = project_template(scan, template, positions, rays=rays)
     proj, untangled, left = untangle(scan, proj, template)
-    proj, _turned = regularise(scan, proj, template)
+    proj, turned_before, turned_after = regularise(scan, proj, template)
     face = canonical_face(scan, proj, template)
     total = int(sum(proj.fallbacks))
     report = [f"dense correspondence ({template}): {face.n_vertices} vertices, {face.n_triangles} triangles; "
@@ -562,6 +562,9 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
     if untangled or left:
         report.append(f"{untangled} vertices projected onto the same spot as a neighbour were moved apart"
                       + (f"; {left} triangles still have (almost) no area: check the landmarks near them" if left else ""))
+    if turned_before:
+        report.append(f"{turned_before} canonical triangles faced the other way than on a face after projection; "
+                      f"the regularised fit left {turned_after}")
     if proj.engine != "embree":
         report.append("embreex is not available: projection used the slower numpy ray test")
     return Registration(face, total, proj, scan, template, report)
