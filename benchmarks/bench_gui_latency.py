@@ -27,19 +27,16 @@ Usage: python benchmarks/bench_gui_latency.py [--cold] [--inputs 12]
 from __future__ import annotations
 
 import os
-import shutil
-import subprocess
 import sys
 import tempfile
 import time
 
 LAUNCH = time.perf_counter()
 
-if not os.environ.get("DISPLAY") and not os.environ.get("MIMICA_BENCH_CHILD"):
-    if shutil.which("xvfb-run") is None:
-        sys.exit("No display and no xvfb-run: run ./scripts/test.sh once (it installs Xvfb), or set DISPLAY.")
-    env = dict(os.environ, MIMICA_BENCH_CHILD="1")
-    sys.exit(subprocess.call(["xvfb-run", "-a", "-s", "-screen 0 1600x1000x24", sys.executable, *sys.argv], env=env))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from virtual_display import rerun_under_xvfb_without_display  # noqa: E402
+
+rerun_under_xvfb_without_display()
 
 import argparse  # noqa: E402
 from pathlib import Path  # noqa: E402
