@@ -23,7 +23,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from virtual_display import rerun_under_xvfb_without_display  # noqa: E402
+from virtual_display import pump_events, rerun_under_xvfb_without_display  # noqa: E402
 
 rerun_under_xvfb_without_display()
 
@@ -58,13 +58,7 @@ from app.projection import world_to_display  # noqa: E402
 
 
 def pump(seconds: float, until=None) -> bool:
-    end = time.perf_counter() + seconds
-    while time.perf_counter() < end:
-        app.processEvents()
-        if until is not None and until():
-            return True
-        time.sleep(0.001)
-    return until() if until is not None else True
+    return pump_events(app, seconds, until)
 
 
 def pixels(win) -> np.ndarray:

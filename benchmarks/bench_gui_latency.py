@@ -34,7 +34,7 @@ import time
 LAUNCH = time.perf_counter()
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from virtual_display import rerun_under_xvfb_without_display  # noqa: E402
+from virtual_display import pump_events, rerun_under_xvfb_without_display  # noqa: E402
 
 rerun_under_xvfb_without_display()
 
@@ -102,13 +102,7 @@ class Frames:
 
 
 def pump(seconds: float, until=None) -> bool:
-    end = time.perf_counter() + seconds
-    while time.perf_counter() < end:
-        app.processEvents()
-        if until is not None and until():
-            return True
-        time.sleep(0.001)
-    return until() if until is not None else True
+    return pump_events(app, seconds, until)
 
 
 def median(values) -> str:

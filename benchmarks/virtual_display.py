@@ -15,3 +15,17 @@ def rerun_under_xvfb_without_display() -> None:
         sys.exit("No display and no xvfb-run: run ./scripts/test.sh once (it installs Xvfb), or set DISPLAY.")
     env = dict(os.environ, MIMICA_BENCH_CHILD="1")
     sys.exit(subprocess.call(["xvfb-run", "-a", "-s", "-screen 0 1600x1000x24", sys.executable, *sys.argv], env=env))
+
+
+def pump_events(app, seconds: float, until=None) -> bool:
+    """Process Qt events for ``seconds`` or until ``until()`` is true; returns whether it came true
+    (True when there is no condition)."""
+    import time
+
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        app.processEvents()
+        if until is not None and until():
+            return True
+        time.sleep(0.001)
+    return until() if until is not None else True
