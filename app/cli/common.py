@@ -151,11 +151,18 @@ def rig_values(args) -> dict[str, float]:
             except P.ParameterError as exc:
                 raise CliError(f"--muscles: {exc}") from None
     if getattr(args, "jaw", None) is not None:
-        try:
-            values["jaw"] = P.check_value("jaw", args.jaw)
-        except P.ParameterError as exc:
-            raise CliError(f"--jaw: {exc}") from None
+        values["jaw"] = checked_value("--jaw", "jaw", args.jaw)
     return values
+
+
+def checked_value(option: str, key: str, value) -> float:
+    """``value`` of parameter ``key`` checked through the registry; CliError naming ``option`` if not."""
+    from core import parameters as P
+
+    try:
+        return P.check_value(key, value)
+    except P.ParameterError as exc:
+        raise CliError(f"{option}: {exc}") from None
 
 
 def parse_muscle_forces(text: str):

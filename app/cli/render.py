@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.cli.common import MODES, VIEWS, CliError, load_face_or_default, parse_size, rig_values
+from app.cli.common import MODES, VIEWS, CliError, checked_value, load_face_or_default, parse_size, rig_values
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,10 +54,7 @@ def blend_values(args) -> dict[str, float]:
         except (P.ParameterError, ValueError) as exc:
             raise CliError(f"--blend {item!r}: {exc}; write POSE or POSE:PERCENT, e.g. --blend joy:80") from None
     if getattr(args, "caricature", None) is not None:
-        try:
-            values["caricature"] = P.check_value("caricature", args.caricature)
-        except P.ParameterError as exc:
-            raise CliError(f"--caricature: {exc}") from None
+        values["caricature"] = checked_value("--caricature", "caricature", args.caricature)
     return values
 
 

@@ -82,6 +82,9 @@ def test_render_bad_arguments_fail_cleanly(tmp_path):
     _assert_clean_error(run_mimica("render", "--out", str(tmp_path / "nodir" / "x.png")), "does not exist")
     _assert_clean_error(run_mimica("render"), "--out")
     _assert_clean_error(run_mimica("frobnicate"), "invalid choice")
+    # out-of-range parameter options name the option and the range
+    _assert_clean_error(run_mimica("render", "--out", out, "--jaw", "nan"), "--jaw")
+    _assert_clean_error(run_mimica("render", "--out", out, "--caricature", "999"), "--caricature")
 
 
 def test_render_unreadable_face_fails_cleanly(tmp_path):
