@@ -121,8 +121,9 @@ def mouth_opening_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
     span_model = model_px[c1, 0] - model_px[c0, 0]
     if abs(span_model) < 1:
         return done()
-    def opening_edges(c):
-        """(last row above, first row below) the opening in column c (absolute rows), or None."""
+    def opening_edges(c, min_mm=OPENING_MIN_MM):
+        """(last row above, first row below) the opening in column c (absolute rows), or None when
+        it has none at least ``min_mm`` tall."""
         if not 0 <= c < W:
             return None
         zcol = depth[top:bottom + 1, c]
@@ -137,7 +138,7 @@ def mouth_opening_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
         if not len(back_down) or not len(back_up):
             return None
         r_up, r_lo = int(back_down[0]), int(back_up[-1])
-        if (r_lo - r_up - 1) * px < OPENING_MIN_MM:
+        if (r_lo - r_up - 1) * px < min_mm:
             return None
         return top + r_up, top + r_lo
 
@@ -157,6 +158,9 @@ def mouth_opening_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
             width = abs(out[c1, 0] - out[c0, 0])
             if 0.3 * width <= hi_c - lo_c <= 1.2 * width:
                 ends = (lo_c, hi_c) if out[c0, 0] < out[c1, 0] else (hi_c, lo_c)
+        tips = _opening_tips(opening_edges, c_mid, mid, W, abs(span_model))
+        if tips is not None:
+            ends = _place_corners(template, names, out, peak, moved, skip, model_px, c0, c1, tips, search)
     edges = {}
     for k in upper_in + lower_in:
         if skip[k]:
@@ -216,6 +220,77 @@ def mouth_opening_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
                 out[k] = (out[k, 0], float(np.clip(pred, lo_row, hi_row)))
             moved.append(k)
     return done()
+
+
+def _opening_tips(opening_edges, c_mid: int, mid: tuple[int, int], width_px: int, model_span_px: float):
+    """The open mouth's two lateral tips, ((col, row) left, (col, row) right) in pixels, or None.
+
+    From the opening's middle column the opening is followed sideways, column by column, while the
+    column still has one (a hole or a depth step back of any height) overlapping the previous
+    column's: its last column is where the lips meet, the commissure. Tips implausibly near or far
+    from the middle (outside ``TIP_SPAN`` x the model's mouth width, e.g. an opening that runs
+    into a nostril or the scan's border) give None."""
+    tips = []
+    for step in (-1, 1):
+        band, last = mid, None
+        c = c_mid
+        while 0 <= c < width_px:
+            found = opening_edges(c, 0.0)
+            if found is None or found[1] < band[0] or found[0] > band[1]:
+                break
+            last, band = (c, found), found
+            c += step
+        if last is None:
+            return None
+        col, (r_up, r_lo) = last
+        half = abs(col + 0.5 * step - c_mid)
+        if not TIP_SPAN[0] * model_span_px <= 2 * half <= TIP_SPAN[1] * model_span_px:
+            return None
+        tips.append((col + 0.5 * step, 0.5 * (r_up + r_lo)))
+    return tips[0], tips[1]
+
+
+def _place_corners(template, names, out, peak, moved, skip, model_px, c0: int, c1: int, tips,
+                   search) -> tuple[float, float]:
+    """Put the inner-lip corners ``c0``/``c1`` on the opening's tips and the outer-lip corners
+    (``OUTER_CORNERS``) at the model's offset from them (the default face's: 1.5 mm sideways; put
+    on the tip itself, SFM smiles' outer corners went 10-15 mm astray in the later passes, which
+    read the pair's offset); returns the corners' columns (c0's, c1's).
+
+    In an open mouth both lip contours meet at the commissure, the opening's lateral tip; the patch
+    search alone leaves a smiling mouth's corners where the model's (closed, level) corners were,
+    5-9 mm medial and low on a wide smile. The opening's tip is where the corner is at the least:
+    lips parted only in the middle (anger) meet farther out, so a corner already beyond its tip
+    stays (with its outer corner). With ``search``, each point goes to the covered scan
+    pixel nearest to its place (a pixel in the opening has no surface: the point would keep its
+    greedy match, on SFM anger once 25 mm away)."""
+    left, right = tips
+    on_scan = (lambda px: px) if search is None else search.nearest_covered   # noqa: E731
+    ends = []
+    outer = [template.index(n) for n in OUTER_CORNERS if n in names]
+    centre = 0.5 * (left[0] + right[0])
+    for inner in (c0, c1):
+        tip = np.asarray(left if model_px[inner, 0] <= model_px[c0 if inner == c1 else c1, 0] else right)
+        if np.all(np.isfinite(out[inner])) and abs(out[inner, 0] - centre) >= abs(tip[0] - centre):
+            ends.append(float(out[inner, 0]))   # already beyond the opening: lips that touch there
+            continue
+        if not skip[inner]:
+            out[inner], peak[inner] = on_scan(tip), max(peak[inner], 0.5)
+            moved.append(inner)
+        ends.append(float(tip[0]))
+        if outer:
+            k = min(outer, key=lambda i: abs(model_px[i, 0] - model_px[inner, 0]))
+            if not skip[k]:
+                out[k] = on_scan(tip + (model_px[k] - model_px[inner]))
+                peak[k] = max(peak[k], 0.5)
+                moved.append(k)
+    return ends[0], ends[1]
+
+
+TIP_SPAN = (0.5, 1.8)            # an opening's tip-to-tip width, as a share of the model's mouth width
+
+
+OUTER_CORNERS = ("8.3", "8.4")   # outer-lip corners, at the commissure with the inner ones
 
 
 JAW_POINTS = ("2.10", "2.1", "2.11", "2.12")

@@ -140,9 +140,61 @@ def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
     np.testing.assert_array_equal(est.pixel, model_px)      # the pass returns moves, changes nothing
     upper = [names.index(n) for n in loop[1:half]]
     lower = [names.index(n) for n in loop[half + 1:]]
+    corners = [names.index(loop[0]), names.index(loop[half])]
     assert np.all(out[upper, 1] == 34) and np.all(out[lower, 1] == 51)
     assert np.all((out[upper + lower, 0] > 24) & (out[upper + lower, 0] < 56))
+    # The corners (cols 20 and 60) are already beyond the opening's ends (24.5, 55.5): they stay.
+    np.testing.assert_array_equal(out[corners], model_px[corners])
     assert set(moves.index) == set(upper + lower) and np.all(moves.peak == 0.5)
+
+
+def test_corners_of_a_smiling_open_mouth_go_to_the_opening_tips():
+    """An opening shaped like a smile (its ends curve up and narrow to a point at cols 22 and 58):
+    the inner-lip corners go to the tips, up and out from the model's level closed corners, and the
+    outer-lip corners keep the model's offset from them. An opening much wider than the model's
+    mouth (a raster border, not lips) moves no corner."""
+    from core.registration.matching import FrontalRaster
+    from core.registration.mouth_passes import mouth_opening_pass
+    from core.registration.pass_results import PixelEstimates
+
+    tpl = get_template("mpeg4_80")
+    names = tpl.detected
+    P = len(names)
+    model_px = np.full((P, 2), 40.0)
+    loop = list(tpl.base.mouth)
+    half = len(loop) // 2
+    for j, n in enumerate(loop):
+        t = j / half if j <= half else (len(loop) - j) / half
+        model_px[names.index(n)] = (25 + 30 * t, 45.0)
+    c0, c1 = names.index(loop[0]), names.index(loop[half])
+    outer = {names.index("8.3"), names.index("8.4")}
+    for o, i in (("8.3", "2.4"), ("8.4", "2.5")):   # each outer corner 2 px beyond its inner one
+        inner = names.index(i)
+        model_px[names.index(o)] = model_px[inner] + (2.0 if model_px[inner, 0] > 40 else -2.0, 0.0)
+    model_px[names.index("9.15")] = (40, 15)
+    for n in ("2.10", "2.1", "2.11", "2.12"):
+        model_px[names.index(n)] = (40, 80)
+    depth = np.zeros((95, 80))
+    for col in range(22, 59):
+        centre = 46.0 - 0.03 * (col - 40) ** 2           # the ends curve up
+        h = 6.0 * (1.0 - ((col - 40) / 18.5) ** 2)       # and close to a point
+        if h >= 0.5:
+            depth[int(round(centre - h)):int(round(centre + h)) + 1, col] = -15.0
+    raster = FrontalRaster(0.0, 0.0, 0.75, np.zeros(depth.shape, int), np.zeros(depth.shape + (3,)),
+                           np.zeros(depth.shape + (1,)), depth)
+    est = PixelEstimates(model_px.copy(), np.zeros(P))
+    out = est.apply(mouth_opening_pass(pixel_context_for(tpl, raster, model_px), est)).pixel
+    open_cols = np.nonzero((depth < -1).any(axis=0))[0]
+    left, right = (c0, c1) if model_px[c0, 0] < model_px[c1, 0] else (c1, c0)
+    assert out[left, 0] == open_cols[0] - 0.5 and out[right, 0] == open_cols[-1] + 0.5
+    assert out[left, 1] < 40 and out[right, 1] < 40                  # raised, from row 45
+    for k in outer:
+        inner = left if out[k, 0] < 40 else right
+        np.testing.assert_allclose(out[k] - out[inner], model_px[k] - model_px[inner])
+    depth[44:48, 0:80] = -15.0                             # an opening across the whole raster
+    est = PixelEstimates(model_px.copy(), np.zeros(P))
+    out = est.apply(mouth_opening_pass(pixel_context_for(tpl, raster, model_px), est)).pixel
+    np.testing.assert_array_equal(out[[c0, c1] + sorted(outer)], model_px[[c0, c1] + sorted(outer)])
 
 
 def test_steep_points_are_the_lateral_sides(model):
