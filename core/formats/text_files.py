@@ -18,6 +18,8 @@ import re
 import stat
 from pathlib import Path
 
+import numpy as np
+
 _BINARY = re.compile(rb"[\x00-\x08\x0e-\x1f]")
 _BINARY_TEXT = re.compile("[\x00-\x08\x0e-\x1f]")
 
@@ -39,6 +41,8 @@ MAX_BYTES = {
 }
 #: JSON nesting deeper than this is refused (every Mimica document is at most ~6 deep).
 MAX_JSON_DEPTH = 64
+#: The note a UTF-16 file earns (it was read, but other programs may not read it).
+UTF16_NOTE = "The file is UTF-16 text; it was read, but other programs may need UTF-8 or ASCII."
 
 
 def size_text(n: int) -> str:
@@ -196,7 +200,7 @@ def read_text_file(path, kind: str, error: type[Exception], binary_hint: str) ->
         except UnicodeDecodeError:
             raise error(f"'{path.name}' starts like UTF-16 text but is not valid UTF-16. "
                         "Save it again as UTF-8 text in a text editor.") from None
-        return text, ["The file is UTF-16 text; it was read, but other programs may need UTF-8 or ASCII."]
+        return text, [UTF16_NOTE]
     if _BINARY.search(data):
         raise error(f"'{path.name}' is not a text file (it contains binary data). {binary_hint}")
     try:
@@ -265,6 +269,52 @@ def text_lines(path, kind: str, error: type[Exception], binary_hint: str, *, lat
             raise NotUtf8(str(path)) from None
         except OSError as exc:
             raise error(f"'{path.name}' could not be read: {exc.strerror or exc}.") from None
+
+
+class RowBlocks:
+    """Rows of a fixed width appended one at a time into arrays of 4096 rows (a frame costs its bytes, not
+    a Python object per frame; joining them costs one more copy of the largest column)."""
+
+    BLOCK = 4096
+
+    def __init__(self, width: int, dtype):
+        self._width, self._dtype = width, dtype
+        self._blocks: list[np.ndarray] = []
+        self._pending: list = []   # the rows of the block being filled (converted in one call when full)
+
+    def __len__(self) -> int:
+        return len(self._blocks) * self.BLOCK + len(self._pending)
+
+    def append(self, row) -> None:
+        self._pending.append(row)
+        if len(self._pending) == self.BLOCK:
+            self._blocks.append(self._block(self._pending))
+            self._pending = []
+
+    def _block(self, rows) -> np.ndarray:
+        return np.array(rows, self._dtype).reshape(len(rows), self._width)
+
+    def array(self) -> np.ndarray:
+        """(n, width) array of the rows; the blocks are released (call once, at the end)."""
+        out = np.empty((len(self), self._width), self._dtype)
+        for k, block in enumerate(self._blocks):
+            out[k * self.BLOCK:(k + 1) * self.BLOCK] = block
+        out[len(self._blocks) * self.BLOCK:] = self._block(self._pending)
+        self._blocks, self._pending = [], []
+        return out
+
+
+def parse_text_lines(path, kind: str, error: type[Exception], binary_hint: str, parse):
+    """(``parse(lines)``, notes) for the text file at ``path``, read line by line through
+    :func:`text_lines` (UTF-8, else latin-1; UTF-16 with a BOM earns a note): the streaming
+    counterpart of :func:`read_text_file` for parsers that take an iterable of lines."""
+    for latin1 in (False, True):
+        try:
+            result = parse(text_lines(path, kind, error, binary_hint, latin1=latin1))
+        except NotUtf8:
+            continue   # not UTF-8: read it again as latin-1 (every byte is a latin-1 character)
+        break
+    return result, [UTF16_NOTE] if is_utf16(path) else []
 
 
 def is_utf16(path) -> bool:
