@@ -4,8 +4,8 @@ than its format's cap, stated in the refusal), reads its bytes and turns any fai
 into the format's own error class (:func:`reading`), so a damaged or hostile file is a message,
 never a traceback, a hang or a memory blow-up.
 
-Also: small text formats (.fap, DPC) with clear errors (binary data, UTF-16 read with a note,
-latin-1 fallback), JSON documents with depth and number checks, and the tokens' numbers."""
+Also: line formats (.fap, DPC, EPC, PPC, landmark CSV) read one line at a time with clear errors
+(binary data, UTF-16 read with a note, latin-1 fallback), JSON documents with depth and number checks, and the tokens' numbers."""
 
 from __future__ import annotations
 
@@ -186,29 +186,6 @@ def read_json_file(path, kind: str, error: type[Exception], *, what: str | None 
     return parse_json(text, f"'{path.name}'", error, kind, hint=hint)
 
 
-def read_text_file(path, kind: str, error: type[Exception], binary_hint: str) -> tuple[str, list[str]]:
-    """(text, notes) of ``path``; ``error(message)`` for anything unreadable.
-
-    kind : what the file should be, for messages ("FAP", "DPC").
-    binary_hint : one sentence saying what a text file of this kind looks like.
-    """
-    path = Path(path)
-    data = read_file_bytes(path, kind, error)
-    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
-        try:
-            text = data.decode("utf-16")
-        except UnicodeDecodeError:
-            raise error(f"'{path.name}' starts like UTF-16 text but is not valid UTF-16. "
-                        "Save it again as UTF-8 text in a text editor.") from None
-        return text, [UTF16_NOTE]
-    if _BINARY.search(data):
-        raise error(f"'{path.name}' is not a text file (it contains binary data). {binary_hint}")
-    try:
-        return data.decode("utf-8-sig"), []
-    except UnicodeDecodeError:
-        return data.decode("latin-1"), []
-
-
 class NotUtf8(Exception):
     """Raised by :func:`text_lines` when UTF-8 decoding fails: read the file again as latin-1."""
 
@@ -233,9 +210,9 @@ class _CappedRaw(io.RawIOBase):
 
 def text_lines(path, kind: str, error: type[Exception], binary_hint: str, *, latin1: bool = False):
     """Yield the lines of a text file one at a time (without their line ends; any of \\n, \\r\\n,
-    \\r), so a parser holds only what it keeps, never the whole text: the streaming counterpart of
-    :func:`read_text_file`, with the same checks and messages (a binary line is refused when it is
-    reached; UTF-16 with a BOM is read, and a note about it goes to ``notes`` — pass a list).
+    \\r), so a parser holds only what it keeps, never the whole text, after the checks of
+    :func:`check_file` (a binary line is refused when it is reached; UTF-16 with a BOM is read,
+    and :func:`parse_text_lines` adds the note it earns).
 
     Raises :class:`NotUtf8` when the bytes are not UTF-8: call again with ``latin1=True``.
     """
@@ -306,8 +283,8 @@ class RowBlocks:
 
 def parse_text_lines(path, kind: str, error: type[Exception], binary_hint: str, parse):
     """(``parse(lines)``, notes) for the text file at ``path``, read line by line through
-    :func:`text_lines` (UTF-8, else latin-1; UTF-16 with a BOM earns a note): the streaming
-    counterpart of :func:`read_text_file` for parsers that take an iterable of lines."""
+    :func:`text_lines` (UTF-8, else latin-1; UTF-16 with a BOM earns a note), for parsers that take
+    an iterable of lines."""
     for latin1 in (False, True):
         try:
             result = parse(text_lines(path, kind, error, binary_hint, latin1=latin1))
