@@ -373,3 +373,19 @@ def test_the_next_start_sweeps_what_a_killed_export_left(tmp_path, monkeypatch):
     assert _export_leftovers(out_dir, tmpdir, proc.pid) == []
     assert list(out_dir.iterdir()) == [] and list(tmpdir.iterdir()) == []
     assert list((tmp_path / "state" / "mimica" / "exports").iterdir()) == [], "the dead export's note goes too"
+
+
+@pytest.mark.parametrize("fps", ["0", "-5", "nan", "inf"])
+@pytest.mark.parametrize("command", [["export", "p.mimica", "--out", "o.fap"], ["export", "p.mimica", "--out", "o.mp4"],
+                                     ["lipsync", "hello", "--out", "l.mimica"], ["demo", "--out", "d.mp4"]])
+def test_every_fps_option_refuses_nonsense_with_a_message(tmp_path, capsys, monkeypatch, command, fps):
+    """``--fps 0`` is not "not given", and -5, nan and inf never reach a writer (issue 19), on every
+    command that takes --fps: a one-line message naming the option, no traceback."""
+    monkeypatch.chdir(tmp_path)
+    try:
+        status = cli.main([*command, "--fps", fps])
+    except SystemExit as exc:   # argparse: usage and one error line
+        status = exc.code
+    err = capsys.readouterr().err
+    assert status in (1, 2) and "--fps" in err and "Traceback" not in err, err
+    assert list(tmp_path.iterdir()) == []
