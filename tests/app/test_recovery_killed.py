@@ -148,3 +148,49 @@ def test_a_recovery_killed_at_any_moment_loses_nothing(tmp_path):
         time.sleep(float(delay))
         _kill(child)
         _work_is_on_disk(state, track, n_vertices)
+
+
+# The window with one timeline edit made once its face is shown (unsaved work); says "ready" then.
+EDITED = textwrap.dedent("""
+    import sys
+    from app import main_window as mw
+    real_show = mw.MainWindow.show
+    def show(self):
+        real_show(self)
+        def ready(ok):
+            controller = self.document.timeline
+            controller.push(lambda: controller.timeline.add_keys({"fap:3": [(0.5, 123.0)]}), "key")
+            print("ready", flush=True)
+        self.load_finished.connect(ready)
+    mw.MainWindow.show = show
+    sys.exit(mw.run_gui(sys.argv[1]))
+""")
+
+
+def test_sigterm_and_sighup_close_the_window_and_keep_unsaved_work(tmp_path):
+    """SIGTERM/SIGHUP (logout, kill, a closed terminal) close the window like its close button, without
+    a question: the process exits 0 and the unsaved edit is in an autosave offered at the next start
+    (before, the process died at once and the edit was lost)."""
+    from app_helpers import make_synthetic_face
+
+    shown = tmp_path / "shown.ply"
+    save_face(make_synthetic_face(12, 16, name="shown"), shown)
+    state = tmp_path / "config" / "Mimica" / "autosave"
+    for name in ("SIGTERM", "SIGHUP"):
+        env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"), XDG_CONFIG_HOME=str(tmp_path / "config"),
+                   PYTHONPATH=str(ROOT))
+        child = subprocess.Popen([sys.executable, "-c", EDITED, str(shown)], cwd=ROOT, env=env,
+                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        child.said = queue.Queue()
+        threading.Thread(target=lambda: [child.said.put(line.strip()) for line in child.stdout], daemon=True).start()
+        try:
+            _wait_for(child, "ready")
+            child.send_signal(getattr(signal, name))
+            assert child.wait(30) == 0, f"{name}: the window did not close cleanly"
+        finally:
+            if child.poll() is None:
+                child.kill()
+        autosaves = list(state.glob("untitled-*.mimica.autosave"))
+        assert len(autosaves) == 1, autosaves
+        assert cp.load_project(autosaves[0]).timeline.tracks["fap:3"].values.tolist() == [123.0]
+        autosaves[0].unlink()
