@@ -19,16 +19,3 @@ def _private_cache_dir(tmp_path_factory):
         os.environ.pop(CACHE_ENV, None)
     else:
         os.environ[CACHE_ENV] = before
-
-
-@pytest.fixture(autouse=True, scope="session")
-def _private_state_dir(tmp_path_factory):
-    """Mimica's state folder (autosaves of untitled projects, the exports' notes of where they stage)
-    goes to a folder of this test session, never the user's."""
-    before = os.environ.get("XDG_STATE_HOME")
-    os.environ["XDG_STATE_HOME"] = str(tmp_path_factory.mktemp("state"))
-    yield
-    if before is None:
-        os.environ.pop("XDG_STATE_HOME", None)
-    else:
-        os.environ["XDG_STATE_HOME"] = before
