@@ -9,8 +9,10 @@ Leftovers of crashed exports
     speech, the GIF's frames, logs). An export that ends in any ordinary way (done, failed,
     cancelled, SIGINT/SIGTERM/SIGHUP) removes its own; one killed outright (SIGKILL, a power cut)
     cannot, so every export first removes those of this machine whose owner is no longer running
-    (:func:`sweep_stale`). A live owner's files are never touched, nor another machine's (a shared
-    network folder), whose processes cannot be seen from here.
+    (:func:`sweep_stale`), and so does every start of Mimica (:func:`sweep_at_start`: the temporary
+    folder, and the target folders each export noted in the state folder before staging there).
+    A live owner's files are never touched, nor another machine's (a shared network folder), whose
+    processes cannot be seen from here.
 """
 
 from __future__ import annotations
@@ -314,6 +316,45 @@ def sweep_stale(folders=()) -> list[Path]:
     return removed
 
 
+def _journal_dir() -> Path:
+    """Where exports note the folders they stage in (``<state>/mimica/exports``)."""
+    from core.formats.project import default_state_dir
+
+    return default_state_dir().parent / "exports"
+
+
+_JOURNAL = re.compile(r"^(\d+)-([a-z0-9]+)\.folders$")
+
+
+def note_staging_folder(folder: Path) -> None:
+    """Note ``folder`` in this process's journal (``<pid>-<host>.folders``) before staging there, so a
+    start after a SIGKILL knows where the staging file was left (housekeeping: errors are ignored)."""
+    with contextlib.suppress(OSError):
+        journal = _journal_dir()
+        journal.mkdir(parents=True, exist_ok=True)
+        with open(journal / f"{owner_tag()}.folders", "a", encoding="utf-8") as fh:
+            fh.write(str(Path(folder).resolve()) + "\n")
+
+
+def sweep_at_start() -> list[Path]:
+    """What crashed exports left, removed when Mimica starts: work folders in the temporary folder and
+    staging files in the folders the dead exports noted (:func:`note_staging_folder`); a dead
+    export's journal goes once its folders are swept. Returns what was removed."""
+    folders: list[str] = []
+    journals = []
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(_journal_dir()):
+            if _stale(entry.name, _JOURNAL):
+                with contextlib.suppress(OSError, UnicodeError):
+                    folders += Path(entry.path).read_text(encoding="utf-8").splitlines()[:1000]
+                journals.append(Path(entry.path))
+    removed = sweep_stale(dict.fromkeys(f for f in folders if f))
+    for journal in journals:
+        with contextlib.suppress(OSError):
+            journal.unlink()
+    return removed
+
+
 def sweep_for(plan: _Plan) -> list[Path]:
     """:func:`sweep_stale` for the places an export of ``plan`` writes to."""
     folder = plan.folder
@@ -327,6 +368,7 @@ def _make_staging(plan: _Plan) -> Path:
     with this process's id (see :func:`sweep_stale`)."""
     folder = plan.folder
     owner = owner_tag()
+    note_staging_folder(folder if folder.is_dir() or plan.format != "png-sequence" else folder.parent)
     try:
         if plan.format == "png-sequence":
             parent = folder if folder.is_dir() else folder.parent

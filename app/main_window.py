@@ -592,12 +592,29 @@ def run_gui(face_path: str | None = None, argv: list[str] | None = None, *, demo
 
         window.load_finished.connect(start_demo)
     window.show()
+    _close_on_termination(window)
     # Ctrl+C in the terminal: the Python handler only runs when the
     # interpreter gets control, so wake it periodically.
     timer = QTimer(window)
     timer.timeout.connect(lambda: None)
     timer.start(250)
     return int(app.exec())
+
+
+def _close_on_termination(window: MainWindow) -> None:
+    """SIGTERM and SIGHUP (a logout, ``kill``, a closed terminal) close the window as its close button
+    does, without asking: unsaved work goes to the autosave (offered at the next start), loads and
+    exports are cancelled and their temporary files removed. Without this the process just died."""
+    import signal
+
+    def close(_signum, _frame) -> None:
+        if window.document.project is not None:
+            window.document.project.ask_on_close = False   # nobody is there to answer
+        QTimer.singleShot(0, window.close)
+
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), close)
 
 
 __all__ = ["MainWindow", "ExceptionDialogHook", "install_excepthook", "run_gui"]

@@ -199,7 +199,10 @@ class ProjectRecoveryMixin:
         return out
 
     def check_startup_recovery(self) -> bool:
+        from app.export_sinks import sweep_at_start
+
         sweep_stale_staging(self.state_dir)   # half-written autosaves of killed runs
+        sweep_at_start()                      # what killed exports left (temporary and target folders)
         found = self.startup_candidates()
         if not found:
             return False

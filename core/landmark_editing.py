@@ -61,7 +61,7 @@ from psygnal import Signal
 from core.face import Face, SurfacePoint
 from core.formats.landmarks_io import (FORMAT_NAME, FORMAT_VERSION, MAX_LANDMARKS, MAX_NAME_CHARS, POSITION_MISMATCH_MM,
                                       LandmarkFileError, load_landmarks, read_landmark_text)
-from core.formats.text_files import parse_json, reading
+from core.formats.text_files import NotUtf8, parse_json, reading, text_lines
 from core.formats.atomic_files import write_atomic, write_reporting_errors
 
 __all__ = [
@@ -466,35 +466,47 @@ class LandmarkEditModel:
             return self._read_csv(path, notes)
 
     def _read_csv(self, path: Path, notes: list[str] | None) -> dict[str, LandmarkState]:
-        text = _read_text(path)
-        rows: list[tuple[int, list[str]]] = []
+        lines = text_lines(path, "landmark", LandmarkFileError,
+                           f"A landmark CSV file is text with the header '{','.join(CSV_COLUMNS)}'.")
+        try:
+            names, xyz, statuses, confs = self._csv_rows(path.name, lines)
+        except NotUtf8:
+            raise LandmarkFileError(f"'{path.name}' is not a text (UTF-8) file.") from None
+        target = np.array(xyz, dtype=np.float64)
+        closest, tri, bary = self._face.closest_surface_points(target)
+        distance = np.linalg.norm(closest - target, axis=1)
+        if notes is not None:
+            notes.extend(
+                f"Landmark '{n}' was {d:.1f} mm off the surface; it was placed at the closest surface point."
+                for n, d in zip(names, distance) if d > POSITION_MISMATCH_MM)
+        return {n: LandmarkState(SurfacePoint(int(t), tuple(b)), s, c)
+                for n, t, b, s, c in zip(names, tri, bary, statuses, confs)}
+
+    @staticmethod
+    def _csv_rows(file_name: str, lines) -> tuple[list[str], list[list[float]], list, list]:
+        """(names, xyz, statuses, confidences) of a landmark CSV file's rows, read and checked one line
+        at a time (a problem names its line; at most MAX_LANDMARKS rows are held)."""
         header_line = None
-        for lineno, line in enumerate(text.splitlines(), start=1):
+        names, xyz, statuses, confs, first_line = [], [], [], [], {}
+        for lineno, line in enumerate(lines, start=1):
             if not line.strip() or line.lstrip().startswith("#"):
                 continue
             try:
                 fields = next(csv.reader([line]))
             except csv.Error as exc:
-                raise LandmarkFileError(f"'{path.name}' line {lineno}: {exc}.") from None
+                raise LandmarkFileError(f"'{file_name}' line {lineno}: {exc}.") from None
             if header_line is None:
                 header = [f.strip().lower() for f in fields]
                 if tuple(header) != CSV_COLUMNS:
                     raise LandmarkFileError(
-                        f"'{path.name}' line {lineno}: expected the header '{','.join(CSV_COLUMNS)}', "
+                        f"'{file_name}' line {lineno}: expected the header '{','.join(CSV_COLUMNS)}', "
                         f"found '{line.strip()}'. Is this a Mimica landmark CSV file?")
                 header_line = lineno
                 continue
-            rows.append((lineno, fields))
-            if len(rows) > MAX_LANDMARKS:
-                raise LandmarkFileError(f"'{path.name}' line {lineno}: more than {MAX_LANDMARKS} landmarks; a "
+            if len(names) >= MAX_LANDMARKS:
+                raise LandmarkFileError(f"'{file_name}' line {lineno}: more than {MAX_LANDMARKS} landmarks; a "
                                         f"landmark file holds at most {MAX_LANDMARKS} (the densest template has 80).")
-        if header_line is None:
-            raise LandmarkFileError(f"'{path.name}' is empty: expected the header '{','.join(CSV_COLUMNS)}'.")
-        if not rows:
-            raise LandmarkFileError(f"'{path.name}' has a header but no landmarks.")
-        names, xyz, statuses, confs, first_line = [], [], [], [], {}
-        for lineno, fields in rows:
-            where = f"'{path.name}' line {lineno}"
+            where = f"'{file_name}' line {lineno}"
             if len(fields) != len(CSV_COLUMNS):
                 raise LandmarkFileError(
                     f"{where}: expected {len(CSV_COLUMNS)} values ({','.join(CSV_COLUMNS)}), found {len(fields)}.")
@@ -526,15 +538,11 @@ class LandmarkEditModel:
             xyz.append(coords)
             statuses.append(status)
             confs.append(conf)
-        target = np.array(xyz, dtype=np.float64)
-        closest, tri, bary = self._face.closest_surface_points(target)
-        distance = np.linalg.norm(closest - target, axis=1)
-        if notes is not None:
-            notes.extend(
-                f"Landmark '{n}' was {d:.1f} mm off the surface; it was placed at the closest surface point."
-                for n, d in zip(names, distance) if d > POSITION_MISMATCH_MM)
-        return {n: LandmarkState(SurfacePoint(int(t), tuple(b)), s, c)
-                for n, t, b, s, c in zip(names, tri, bary, statuses, confs)}
+        if header_line is None:
+            raise LandmarkFileError(f"'{file_name}' is empty: expected the header '{','.join(CSV_COLUMNS)}'.")
+        if not names:
+            raise LandmarkFileError(f"'{file_name}' has a header but no landmarks.")
+        return names, xyz, statuses, confs
 
     def load_csv(self, path, *, notes: list[str] | None = None) -> list[str]:
         """Read a CSV file and apply it (names in the file replace or are added). Returns the names."""
@@ -572,7 +580,3 @@ class LandmarkEditModel:
     def _sorted(states: Mapping[str, LandmarkState]) -> list[str]:
         order = list(states)
         return sorted(order, key=lambda n: fp_sort_key(n, order.index(n)))
-
-
-def _read_text(path: Path) -> str:
-    return read_landmark_text(path)

@@ -1,7 +1,7 @@
 """A corpus of hostile files for every reader Mimica has, and a runner that feeds them to the readers.
 
 Nothing large is committed: every case is generated from a seed, starting from a valid file of its
-format written by Mimica itself (a project, landmark JSON and CSV, a .fap, a DPC file, a muscle
+format written by Mimica itself (a project, landmark JSON and CSV, a .fap, DPC, PPC and EPC files, a muscle
 force file, OBJ/MTL, PLY, STL, glTF, a texture image) and then damaged: truncated, bytes flipped or
 inserted, numbers swapped for hostile ones (1e30, nan, 10^400, 0, -5, 1e-7), JSON values replaced by
 other types, nesting 100,000 deep, bloated lines, UTF-16/latin-1/binary noise, empty files, named
@@ -167,6 +167,17 @@ def _seeds(folder: Path) -> dict[str, list[Path]]:
                                                tuple(names), fps=25))
     (folder / "bare.dpc").write_text("2\n\n1 2 0\n1.1 0 0.5\n\n2 2 0\n0 -3 3\n")
     out["dpc"] = [folder / "seed.dpc", folder / "bare.dpc"]
+    from core.formats.epc_file import EpcEmotion, write_epc
+    from core.formats.ppc_file import ControlPointPositions, write_ppc
+
+    points = control_points()
+    write_ppc(folder / "seed.ppc", ControlPointPositions(tuple(p.name for p in points), tuple(p.fp for p in points),
+                                                         np.random.default_rng(2).normal(0, 30, (len(points), 3))))
+    (folder / "bare.ppc").write_text("".join(f"{i},5 {-i},25 2\n" for i in range(len(names))))
+    out["ppc"] = [folder / "seed.ppc", folder / "bare.ppc"]
+    write_epc(folder / "seed.epc", EpcEmotion("joy", np.random.default_rng(3).normal(0, 2, (2, len(names), 3)),
+                                              tuple(names), aus=(6, 12)))
+    out["epc"] = [folder / "seed.epc"]
     save_force_set(folder / "seed.forces.json", preset("half_smile"))
     out["force"] = [folder / "seed.forces.json"]
     save_face(face, folder / "seed.obj")
@@ -328,7 +339,7 @@ def _set_raw(doc, path, raw: str) -> str:
 
 
 def _mutated(data: bytes, kind: str, rng: random.Random) -> tuple[bytes, str]:
-    text_kinds = {"project", "landmarks", "force", "fap", "dpc", "landmark_csv", "obj", "mtl"}
+    text_kinds = {"project", "landmarks", "force", "fap", "dpc", "ppc", "epc", "landmark_csv", "obj", "mtl"}
     json_kinds = {"project", "landmarks", "force"}
     roll = rng.random()
     if kind in json_kinds and roll < 0.55:
@@ -343,7 +354,7 @@ def _mutated(data: bytes, kind: str, rng: random.Random) -> tuple[bytes, str]:
 
 # ====================================================================== the corpus
 SUFFIX = {"project": ".mimica", "landmarks": ".json", "landmark_csv": ".csv", "force": ".json", "fap": ".fap",
-          "dpc": ".dpc", "obj": ".obj", "ply": ".ply", "glb": ".glb", "stl": ".stl", "mtl": ".obj", "image": ".png"}
+          "dpc": ".dpc", "ppc": ".ppc", "epc": ".epc", "obj": ".obj", "ply": ".ply", "glb": ".glb", "stl": ".stl", "mtl": ".obj", "image": ".png"}
 
 
 def generate(folder: str | os.PathLike, cases: int, seed: int = 0) -> list[Case]:
@@ -452,9 +463,11 @@ def _image_case(rng: random.Random) -> tuple[bytes, str]:
 def _readers():
     from core.formats import project as P
     from core.formats.dpc_file import DpcFileError, read_dpc
+    from core.formats.epc_file import EpcFileError, read_epc
     from core.formats.fap_file import FapFileError, read_fap
     from core.formats.landmarks_io import LandmarkFileError, load_landmarks
     from core.formats.mesh_io import MeshLoadError, load_face, load_texture_image
+    from core.formats.ppc_file import PpcFileError, read_ppc
     from core.landmark_editing import LandmarkEditModel
     from core.layers.muscles import ForceFileError, load_force_set
 
@@ -466,6 +479,8 @@ def _readers():
         "force": (load_force_set, ForceFileError, _check_forces),
         "fap": (read_fap, FapFileError, _check_fap),
         "dpc": (read_dpc, DpcFileError, _check_dpc),
+        "ppc": (read_ppc, PpcFileError, _check_ppc),
+        "epc": (read_epc, EpcFileError, _check_epc),
         "obj": (load_face, MeshLoadError, _check_face),
         "mtl": (load_face, MeshLoadError, _check_face),
         "ply": (load_face, MeshLoadError, _check_face),
@@ -533,6 +548,20 @@ def _check_fap(seq) -> str | None:
 
 def _check_dpc(seq) -> str | None:
     if not np.isfinite(seq.displacements).all():
+        return "non-finite displacement accepted"
+    return None
+
+
+def _check_ppc(ppc) -> str | None:
+    if not np.isfinite(ppc.positions).all():
+        return "non-finite control-point position accepted"
+    if len(set(ppc.names)) != len(ppc.names):
+        return "a control point named twice accepted"
+    return None
+
+
+def _check_epc(emotion) -> str | None:
+    if not np.isfinite(emotion.frames).all():
         return "non-finite displacement accepted"
     return None
 

@@ -56,6 +56,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)  # argparse prints usage + one error line, exits 2
     func = getattr(args, "func", gui.run)
+    if func is not gui.run:   # the window sweeps when it offers recovery
+        from app.export_sinks import sweep_at_start
+
+        sweep_at_start()   # what killed exports left (their temporary and target folders)
     try:
         return int(func(args) or 0)
     except CliError as exc:

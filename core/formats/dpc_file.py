@@ -56,10 +56,12 @@ the line (``'smile.dpc', line 7: ...``).
 
 from __future__ import annotations
 
+import io
 import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -67,10 +69,10 @@ from core.formats.atomic_files import write_atomic, write_reporting_errors
 
 from core.formats.text_files import integer as _integer
 from core.formats.text_files import number as _number
-from core.formats.text_files import read_text_file
+from core.formats.text_files import RowBlocks, parse_text_lines
 
 __all__ = [
-    "DpcFileError", "DpcSequence", "ControlPoint", "control_points", "parse_dpc", "read_dpc", "format_dpc",
+    "DpcFileError", "DpcSequence", "ControlPoint", "control_points", "parse_dpc", "parse_dpc_lines", "read_dpc", "format_dpc",
     "write_dpc",
 ]
 
@@ -198,8 +200,18 @@ class DpcSequence:
 
 # ------------------------------------------------------------------ reading
 def parse_dpc(text: str, *, source: str = "<text>", names=None, n_points: int | None = None,
-              fps: float | None = None) -> DpcSequence:
-    """Parse the text of a DPC file (see the module docstring for the format and the choices).
+              fps: float | None = None, on_comment: Callable[[int, list[str]], None] | None = None) -> DpcSequence:
+    """Parse the text of a DPC file (see :func:`parse_dpc_lines`)."""
+    return parse_dpc_lines(io.StringIO(text.removeprefix("\ufeff"), newline=None), source=source, names=names,
+                           n_points=n_points, fps=fps, on_comment=on_comment)
+
+
+def parse_dpc_lines(lines: Iterable[str], *, source: str = "<text>", names=None, n_points: int | None = None,
+                    fps: float | None = None, on_comment: Callable[[int, list[str]], None] | None = None
+                    ) -> DpcSequence:
+    """Parse a DPC file from its lines (an iterable of strings, line ends optional; see the module
+    docstring for the format and the choices), one at a time: what is held is the displacements read
+    so far (24 bytes a control-point line), never the whole text.
 
     Parameters
     ----------
@@ -211,6 +223,8 @@ def parse_dpc(text: str, *, source: str = "<text>", names=None, n_points: int | 
         Points per frame when no names are given.
     fps : float, optional
         Frame rate (overrides a ``# fps`` comment).
+    on_comment : callable (line number, words), optional
+        Called with the words of every '#' comment (for formats built on DPC, such as EPC).
 
     Raises
     ------
@@ -220,13 +234,12 @@ def parse_dpc(text: str, *, source: str = "<text>", names=None, n_points: int | 
         names list that does not match the file; the message names the line.
     """
     p = _Parser(source)
-    meta, count, count_line, rows, blocks = p.scan(text)
-    if not rows:
+    meta, count, count_line, data, row_lines, blocks = p.scan(lines, on_comment)
+    if not len(data):
         if count is not None:
             raise p.error(count_line, f"the file says {count} frames but has no control-point lines after it")
         raise DpcFileError(f"{p.prefix()}the file has no data; expected a frame count, then one line "
                            "'dx dy dz' per control point and frame.")
-    data = p.numbers(rows)
     if names is not None:
         names = [str(n) for n in names]
         if n_points is not None and n_points != len(names):
@@ -234,12 +247,12 @@ def parse_dpc(text: str, *, source: str = "<text>", names=None, n_points: int | 
         n_points = len(names)
     if n_points is None and meta.get("points"):
         n_points = len(meta["points"])
-    n = p.points_per_frame(n_points, count, rows, blocks)
-    total = len(rows)
+    n = p.points_per_frame(n_points, count, row_lines, blocks)
+    total = len(data)
     if total % n:
         have = total % n
-        raise p.error(rows[-have][0], f"the last frame has {have} of {n} control-point lines "
-                                      f"(it starts here); the file is probably truncated")
+        raise p.error(int(row_lines[-have]), f"the last frame has {have} of {n} control-point lines "
+                                             f"(it starts here); the file is probably truncated")
     frames = total // n
     if count is None:
         p.note("count", f"The file has no frame-count line; {frames} frame{'s' * (frames != 1)} "
@@ -253,18 +266,18 @@ def parse_dpc(text: str, *, source: str = "<text>", names=None, n_points: int | 
 
 
 def read_dpc(path, *, names=None, n_points: int | None = None, fps: float | None = None) -> DpcSequence:
-    """Read a DPC file (UTF-8, latin-1 or UTF-16 text); see :func:`parse_dpc`.
+    """Read a DPC file (UTF-8, latin-1 or UTF-16 text) line by line; see :func:`parse_dpc_lines`.
 
     Raises
     ------
     DpcFileError
-        Missing, unreadable or binary file, or any error of :func:`parse_dpc`.
+        Missing, unreadable or binary file, or any error of :func:`parse_dpc_lines`.
     """
     path = Path(path)
-    text, notes = read_text_file(path, "DPC", DpcFileError,
-                                 "A DPC file is text: a frame count, then one line 'dx dy dz' per control point "
-                                 "and frame.")
-    seq = parse_dpc(text, source=path.name, names=names, n_points=n_points, fps=fps)
+    seq, notes = parse_text_lines(
+        path, "DPC", DpcFileError,
+        "A DPC file is text: a frame count, then one line 'dx dy dz' per control point and frame.",
+        lambda lines: parse_dpc_lines(lines, source=path.name, names=names, n_points=n_points, fps=fps))
     seq.notes[:0] = notes
     return seq
 
@@ -283,6 +296,7 @@ def _guarded(parse):
 
 
 parse_dpc = _guarded(parse_dpc)
+parse_dpc_lines = _guarded(parse_dpc_lines)
 
 
 class _Parser:
@@ -308,22 +322,31 @@ class _Parser:
             self._noted.add(kind)
             self.notes.append(text)
 
-    def scan(self, text: str):
-        """(metadata, frame count or None, its line, rows [(line, tokens)], blocks [[row index, ...]])."""
-        text = text.removeprefix("\ufeff").replace("\r\n", "\n").replace("\r", "\n")
+    def scan(self, lines: Iterable[str], on_comment=None):
+        """(metadata, frame count or None, its line, (n_rows, 3) displacements, (n_rows,) line of each
+        row, (n_blocks, 2) [first row, rows] of each blank-line-separated block), one line at a time.
+
+        Each data line is checked as it is read; 2-D files get dz = 0 when every line has 2 numbers."""
         meta: dict = {}
         count = count_line = None
-        rows: list[tuple[int, list[str]]] = []
-        blocks: list[list[int]] = [[]]
+        # line numbers as int32 (a DPC file is at most 8 MB): they cost a third of the displacements, not two
+        data, row_lines, blocks = RowBlocks(3, np.float64), RowBlocks(1, np.int32), RowBlocks(2, np.int64)
+        block_start = block_rows = 0
         first = True
-        for number, line in enumerate(text.split("\n"), 1):
+        first_2d_line = None   # the first line with 2 numbers, and whether any line has 3
+        any_3d = False
+        for number, line in enumerate(lines, 1):
             body, _, comment = line.partition("#")
             if comment:
-                self._metadata(number, comment.split(), meta)
+                words = comment.split()
+                self._metadata(number, words, meta)
+                if on_comment is not None and words:
+                    on_comment(number, words)
             tokens = body.replace(";", " ").split()
             if not tokens:
-                if not line.strip() and blocks[-1]:
-                    blocks.append([])  # a truly blank line ends a block; comment-only lines do not
+                if not line.strip() and block_rows:
+                    blocks.append((block_start, block_rows))  # a truly blank line ends a block; comments do not
+                    block_rows = 0
                 continue
             if first:
                 first = False
@@ -334,9 +357,26 @@ class _Parser:
                                                  f"≥ 0), found {tokens[0]!r}")
                     count, count_line = value, number
                     continue
-            blocks[-1].append(len(rows))
-            rows.append((number, tokens))
-        return meta, count, count_line, rows, [b for b in blocks if b]
+            values = self._numbers(number, tokens)
+            if len(values) == 2:
+                first_2d_line = number if first_2d_line is None else first_2d_line
+                values.append(0.0)
+            else:
+                any_3d = True
+            if not block_rows:
+                block_start = len(data)
+            block_rows += 1
+            data.append(values)
+            row_lines.append(number)
+        if block_rows:
+            blocks.append((block_start, block_rows))
+        if first_2d_line is not None:
+            if any_3d:
+                raise self.error(first_2d_line, "expected 3 numbers (dx dy dz of one control point), found 2; "
+                                                "other lines have 3")
+            self.note("2d", "Every line has 2 numbers (a 2-D file, e.g. from webcam tracking); they were read "
+                            "as dx dy with dz = 0.")
+        return meta, count, count_line, data.array(), row_lines.array()[:, 0], blocks.array()
 
     def _metadata(self, line: int, words: list[str], meta: dict) -> None:
         if not words:
@@ -354,31 +394,18 @@ class _Parser:
             meta["feature_points"] = values
             meta["feature_points_line"] = line
 
-    def numbers(self, rows: list[tuple[int, list[str]]]) -> np.ndarray:
-        """(n_rows, 3) float64 from the data rows (2-D files get dz = 0)."""
-        widths = set()
-        parsed = []
-        for line, tokens in rows:
-            tokens = self._split(line, tokens)
-            values = [_number(t) for t in tokens]
-            for token, value in zip(tokens, values):
-                if value is None:
-                    raise self.error(line, f"{token!r} is not a number; each line holds one control point's "
-                                           "displacement 'dx dy dz'")
-            if len(values) not in (2, 3):
-                raise self.error(line, f"expected 3 numbers (dx dy dz of one control point), found {len(values)}: "
-                                       f"{' '.join(tokens)!r}")
-            widths.add(len(values))
-            parsed.append((line, values))
-        if widths == {2}:
-            self.note("2d", "Every line has 2 numbers (a 2-D file, e.g. from webcam tracking); they were read "
-                            "as dx dy with dz = 0.")
-            return np.array([v + [0.0] for _, v in parsed])
-        if 2 in widths:
-            line = next(line for line, v in parsed if len(v) == 2)
-            raise self.error(line, "expected 3 numbers (dx dy dz of one control point), found 2; other lines "
-                                   "have 3")
-        return np.array([v for _, v in parsed])
+    def _numbers(self, line: int, tokens: list[str]) -> list[float]:
+        """The 2 or 3 numbers of one data line."""
+        tokens = self._split(line, tokens)
+        values = [_number(t) for t in tokens]
+        for token, value in zip(tokens, values):
+            if value is None:
+                raise self.error(line, f"{token!r} is not a number; each line holds one control point's "
+                                       "displacement 'dx dy dz'")
+        if len(values) not in (2, 3):
+            raise self.error(line, f"expected 3 numbers (dx dy dz of one control point), found {len(values)}: "
+                                   f"{' '.join(tokens)!r}")
+        return values
 
     def _split(self, line: int, tokens: list[str]) -> list[str]:
         """Undo decimal commas ('1,5') and comma-separated numbers ('1.5,0,2')."""
@@ -392,27 +419,30 @@ class _Parser:
         self.note("comma", f"Numbers are separated by commas (line {line}); they were read as separate numbers.")
         return split
 
-    def points_per_frame(self, n_points: int | None, count: int | None, rows, blocks) -> int:
-        total = len(rows)
+    def points_per_frame(self, n_points: int | None, count: int | None, row_lines: np.ndarray,
+                         blocks: np.ndarray) -> int:
+        """Control points per frame; ``row_lines`` (n_rows,) line of each data row, ``blocks``
+        (n_blocks, 2) first row and row count of each blank-line-separated block."""
+        total = len(row_lines)
         if n_points is not None:
             if n_points < 1:
                 raise ValueError(f"n_points must be ≥ 1, got {n_points}")
             return int(n_points)
-        sizes = [len(b) for b in blocks]
+        sizes = blocks[:, 1]
         if len(blocks) > 1:
-            if len(set(sizes)) == 1:
-                return sizes[0]
+            if (sizes == sizes[0]).all():
+                return int(sizes[0])
             # A last block shorter than the others is a truncated frame; report it where it starts.
-            if len(set(sizes[:-1])) == 1 and sizes[-1] < sizes[0] and (count is None or count == len(blocks)):
-                return sizes[0]
+            if (sizes[:-1] == sizes[0]).all() and sizes[-1] < sizes[0] and (count is None or count == len(blocks)):
+                return int(sizes[0])
             if count and total % count == 0:
                 self.note("blocks", "Blank lines in the file do not split it into frames of equal size; "
                                     f"frames were taken as {total // count} lines each from the frame count.")
                 return total // count
-            k = next(i for i, s in enumerate(sizes) if s != sizes[0])
-            raise self.error(rows[blocks[k][0]][0], f"frame {k + 1} (starting here) has {sizes[k]} control-point "
-                                                    f"lines but frame 1 has {sizes[0]}; every frame needs one line "
-                                                    "per control point")
+            k = int(np.flatnonzero(sizes != sizes[0])[0])
+            raise self.error(int(row_lines[blocks[k, 0]]), f"frame {k + 1} (starting here) has {sizes[k]} "
+                                                           f"control-point lines but frame 1 has {sizes[0]}; every "
+                                                           "frame needs one line per control point")
         if count:
             if total % count:
                 raise self.error(None, f"the file says {count} frames but has {total} control-point lines, which "

@@ -20,16 +20,18 @@ name defaults to the file's stem.
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
-from core.formats.dpc_file import DpcFileError, DpcSequence, format_dpc, parse_dpc
+from core.formats.dpc_file import DpcFileError, DpcSequence, format_dpc, parse_dpc_lines
 from core.formats.atomic_files import write_atomic, write_reporting_errors
-from core.formats.text_files import read_text_file
+from core.formats.text_files import parse_text_lines
 
-__all__ = ["EpcFileError", "EpcEmotion", "parse_epc", "read_epc", "format_epc", "write_epc"]
+__all__ = ["EpcFileError", "EpcEmotion", "parse_epc", "parse_epc_lines", "read_epc", "format_epc", "write_epc"]
 
 
 class EpcFileError(DpcFileError):
@@ -68,35 +70,46 @@ class EpcEmotion:
 
 
 def parse_epc(text: str, *, source: str = "<text>", name: str | None = None, names=None) -> EpcEmotion:
-    """Parse EPC text (see the module docstring); EpcFileError naming the line for anything malformed."""
-    try:
-        seq = parse_dpc(text, source=source, names=names)
-    except DpcFileError as exc:
-        raise EpcFileError(str(exc).replace("DPC", "EPC")) from None
-    meta_name, aus = None, ()
-    for number, line in enumerate(text.removeprefix("\ufeff").splitlines(), 1):
-        words = line.partition("#")[2].split()
+    """Parse EPC text (see :func:`parse_epc_lines`)."""
+    return parse_epc_lines(io.StringIO(text.removeprefix("\ufeff"), newline=None), source=source, name=name,
+                           names=names)
+
+
+def parse_epc_lines(lines: Iterable[str], *, source: str = "<text>", name: str | None = None,
+                    names=None, default_name: str = "emotion") -> EpcEmotion:
+    """Parse an EPC file from its lines, one at a time (the DPC reader's streaming parse, plus the
+    '# emotion' and '# aus' comments); EpcFileError naming the line for anything malformed. The
+    emotion is ``name``, else its '# emotion' comment, else ``default_name``."""
+    comments = {}
+
+    def on_comment(number: int, words: list[str]) -> None:
         if len(words) >= 2 and words[0].lower() == "emotion":
-            meta_name = words[1]
-        elif words and words[0].lower() == "aus":
+            comments["emotion"] = words[1]
+        elif words[0].lower() == "aus":
             try:
-                aus = tuple(int(w) for w in words[1:])
+                comments["aus"] = tuple(int(w) for w in words[1:])
             except ValueError:
                 where = "" if source == "<text>" else f"'{source}', "
                 raise EpcFileError(f"{where}line {number}: '# aus' lists FACS action units as whole numbers, "
                                    f"found {' '.join(words[1:])!r}.") from None
-    return EpcEmotion(name or meta_name or "emotion", seq.displacements, seq.names, seq.feature_points, aus,
-                      seq.notes)
+
+    try:
+        seq = parse_dpc_lines(lines, source=source, names=names, on_comment=on_comment)
+    except EpcFileError:
+        raise
+    except DpcFileError as exc:
+        raise EpcFileError(str(exc).replace("DPC", "EPC")) from None
+    return EpcEmotion(name or comments.get("emotion") or default_name, seq.displacements, seq.names,
+                      seq.feature_points, comments.get("aus", ()), seq.notes)
 
 
 def read_epc(path, *, names=None) -> EpcEmotion:
-    """Read an EPC file (size-capped text; the emotion is named by its '# emotion' comment or the file's stem)."""
+    """Read an EPC file line by line (size-capped text; the emotion is named by its '# emotion' comment or
+    the file's stem)."""
     path = Path(path)
-    text, notes = read_text_file(path, "EPC", EpcFileError,
-                                 "An EPC file is text: a frame count, then one line 'dx dy dz' per control point.")
-    emotion = parse_epc(text, source=path.name, names=names)
-    if emotion.name == "emotion" and "# emotion" not in text:
-        emotion.name = path.stem
+    emotion, notes = parse_text_lines(
+        path, "EPC", EpcFileError, "An EPC file is text: a frame count, then one line 'dx dy dz' per control point.",
+        lambda lines: parse_epc_lines(lines, source=path.name, names=names, default_name=path.stem))
     emotion.notes[:0] = notes
     return emotion
 

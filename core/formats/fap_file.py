@@ -39,6 +39,7 @@ from core.formats.atomic_files import write_atomic, write_reporting_errors
 from core.formats.text_files import integer as _integer
 from core.formats.text_files import number as _number
 from core.formats.text_files import NotUtf8, is_utf16, reading, text_lines
+from core.formats.text_files import RowBlocks as _Rows
 
 __all__ = [
     "N_FAPS", "VISEME_FIELDS", "EXPRESSION_FIELDS", "FapFileError", "FapSequence",
@@ -258,37 +259,6 @@ def _guarded(parse):
 
 parse_fap = _guarded(parse_fap)
 parse_fap_lines = _guarded(parse_fap_lines)
-
-
-class _Rows:
-    """Rows of a fixed width appended one at a time into blocks of 4096 (a frame costs its bytes, not
-    a Python object per frame; joining them costs one more copy of the largest column)."""
-
-    BLOCK = 4096
-
-    def __init__(self, width: int, dtype):
-        self._width, self._dtype = width, dtype
-        self._blocks: list[np.ndarray] = []
-        self._n = 0
-
-    def __len__(self) -> int:
-        return self._n
-
-    def append(self, row) -> None:
-        k = self._n % self.BLOCK
-        if k == 0:
-            self._blocks.append(np.empty((self.BLOCK, self._width), self._dtype))
-        self._blocks[-1][k] = row
-        self._n += 1
-
-    def array(self) -> np.ndarray:
-        """(n, width) array of the rows; the blocks are released (call once, at the end)."""
-        out = np.empty((self._n, self._width), self._dtype)
-        for k, block in enumerate(self._blocks):
-            rows = out[k * self.BLOCK:(k + 1) * self.BLOCK]
-            rows[:] = block[:len(rows)]
-        self._blocks = []
-        return out
 
 
 def _content_lines(lines: Iterable[str]):

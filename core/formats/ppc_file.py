@@ -17,17 +17,19 @@ UTF-16 (a note). Errors name the file and line and nothing is returned, so nothi
 
 from __future__ import annotations
 
+import io
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
 from core.formats.dpc_file import control_points
 from core.formats.atomic_files import write_atomic, write_reporting_errors
-from core.formats.text_files import integer, number, read_text_file, reading
+from core.formats.text_files import RowBlocks, integer, number, parse_text_lines, reading
 
-__all__ = ["PpcFileError", "ControlPointPositions", "parse_ppc", "read_ppc", "format_ppc", "write_ppc"]
+__all__ = ["PpcFileError", "ControlPointPositions", "parse_ppc", "parse_ppc_lines", "read_ppc", "format_ppc", "write_ppc"]
 
 _MAGIC = "mimica-ppc"
 _NAME = re.compile(r"^[A-Za-z_][\w.\-]*$")
@@ -63,12 +65,19 @@ def _known_fps() -> frozenset[str]:
 
 
 def parse_ppc(text: str, *, source: str = "<text>") -> ControlPointPositions:
-    """Parse PPC text (see the module docstring). PpcFileError naming the line for anything malformed."""
+    """Parse PPC text (see :func:`parse_ppc_lines`)."""
+    return parse_ppc_lines(io.StringIO(text.removeprefix("\ufeff"), newline=None), source=source)
+
+
+def parse_ppc_lines(lines: Iterable[str], *, source: str = "<text>") -> ControlPointPositions:
+    """Parse a PPC file from its lines (see the module docstring), one at a time: what is held is the
+    control points read so far, never the whole text. PpcFileError naming the line for anything
+    malformed."""
     with reading(PpcFileError, f"'{source}'" if source != "<text>" else "the PPC text", "PPC"):
-        return _parse(text, source)
+        return _parse(lines, source)
 
 
-def _parse(text: str, source: str) -> ControlPointPositions:
+def _parse(lines: Iterable[str], source: str) -> ControlPointPositions:
     where = "" if source == "<text>" else f"'{source}', "
 
     def error(line: int | None, message: str) -> PpcFileError:
@@ -76,17 +85,18 @@ def _parse(text: str, source: str) -> ControlPointPositions:
         return PpcFileError(f"{at}{message}.")
 
     notes: list[str] = []
-    text = text.removeprefix("\ufeff").replace("\r\n", "\n").replace("\r", "\n")
     table = {p.name: p.fp for p in control_points()}
     known = _known_fps()
     count = count_line = None
-    rows = []   # (line, name or None, fp or None, xyz)
-    for number_, raw in enumerate(text.split("\n"), 1):
+    names, fps, positions = [], [], RowBlocks(3, np.float64)   # name / fp None when the line has none
+    first_line = {}                   # name -> line it is first on
+    mixed_line = duplicate = None     # the first line that names (or not) unlike the first; the first repeat
+    for number_, raw in enumerate(lines, 1):
         body = raw.partition("#")[0].replace(";", " ")
         tokens = body.split()
         if not tokens:
             continue
-        if count is None and not rows and len(tokens) == 1 and integer(tokens[0]) is not None:
+        if count is None and not names and len(tokens) == 1 and integer(tokens[0]) is not None:
             count, count_line = integer(tokens[0]), number_
             if count < 0:
                 raise error(number_, f"the number of control points must be ≥ 0, found {tokens[0]!r}")
@@ -114,42 +124,46 @@ def _parse(text: str, source: str) -> ControlPointPositions:
             raise error(number_, f"{name!r} is not a control-point name (a word starting with a letter)")
         if fp is not None and fp != "-" and fp not in known:
             raise error(number_, f"{fp!r} is not an MPEG-4 feature point")
-        rows.append((number_, name, None if fp == "-" else fp, values))
-    if not rows:
+        if names and (name is None) != (names[0] is None) and mixed_line is None:
+            mixed_line = number_
+        if name is not None:
+            if name in first_line and duplicate is None:
+                duplicate = (number_, name, first_line[name])
+            first_line.setdefault(name, number_)
+        names.append(name)
+        fps.append(None if fp == "-" else fp)
+        positions.append(values)
+    if not names:
         raise error(count_line, "the file has no control points; expected one line 'name fp x y z' per point")
-    named = [r[1] is not None for r in rows]
-    if any(named) and not all(named):
-        line = rows[named.index(not named[0])][0]
-        raise error(line, "some lines name their control point and others do not; name every point or none")
-    if count is not None and count != len(rows):
-        notes.append(f"The file says {count} control points (line {count_line}) but has {len(rows)}; all "
-                     f"{len(rows)} were read.")
-    if all(named):
-        names = [r[1] for r in rows]
-        seen = {}
-        for line, name, _, _ in rows:
-            if name in seen:
-                raise error(line, f"the control point {name!r} is already on line {seen[name]}")
-            seen[name] = line
-        fps = [r[2] if r[2] is not None else table.get(r[1], r[1] if r[1] in known else None) for r in rows]
+    if mixed_line is not None:
+        raise error(mixed_line, "some lines name their control point and others do not; name every point or none")
+    if count is not None and count != len(names):
+        notes.append(f"The file says {count} control points (line {count_line}) but has {len(names)}; all "
+                     f"{len(names)} were read.")
+    if names[0] is not None:
+        if duplicate is not None:
+            line, name, first = duplicate
+            raise error(line, f"the control point {name!r} is already on line {first}")
+        fps = [fp if fp is not None else table.get(name, name if name in known else None)
+               for name, fp in zip(names, fps)]
     else:
         full, mouth = control_points(), control_points("mouth")
-        order = full if len(rows) == len(full) else mouth if len(rows) == len(mouth) else None
+        order = full if len(names) == len(full) else mouth if len(names) == len(mouth) else None
         if order is None:
-            raise error(None, f"the file has {len(rows)} unnamed control points, which matches no known set "
+            raise error(None, f"the file has {len(names)} unnamed control points, which matches no known set "
                               f"({len(full)} or {len(mouth)}); write 'name x y z' on every line")
         names = [p.name for p in order]
         fps = [p.fp for p in order]
-        notes.append(f"The control points are unnamed; they were read in Mimica's order of {len(rows)} points.")
-    return ControlPointPositions(tuple(names), tuple(fps), np.array([r[3] for r in rows]), notes)
+        notes.append(f"The control points are unnamed; they were read in Mimica's order of {len(names)} points.")
+    return ControlPointPositions(tuple(names), tuple(fps), positions.array(), notes)
 
 
 def read_ppc(path) -> ControlPointPositions:
-    """Read a PPC file (size-capped text; see :func:`parse_ppc`)."""
+    """Read a PPC file line by line (size-capped text; see :func:`parse_ppc_lines`)."""
     path = Path(path)
-    text, notes = read_text_file(path, "PPC", PpcFileError,
-                                 "A PPC file is text: one line 'name fp x y z' per control point.")
-    out = parse_ppc(text, source=path.name)
+    out, notes = parse_text_lines(path, "PPC", PpcFileError,
+                                  "A PPC file is text: one line 'name fp x y z' per control point.",
+                                  lambda lines: parse_ppc_lines(lines, source=path.name))
     out.notes[:0] = notes
     return out
 

@@ -4,8 +4,8 @@ than its format's cap, stated in the refusal), reads its bytes and turns any fai
 into the format's own error class (:func:`reading`), so a damaged or hostile file is a message,
 never a traceback, a hang or a memory blow-up.
 
-Also: small text formats (.fap, DPC) with clear errors (binary data, UTF-16 read with a note,
-latin-1 fallback), JSON documents with depth and number checks, and the tokens' numbers."""
+Also: line formats (.fap, DPC, EPC, PPC, landmark CSV) read one line at a time with clear errors
+(binary data, UTF-16 read with a note, latin-1 fallback), JSON documents with depth and number checks, and the tokens' numbers."""
 
 from __future__ import annotations
 
@@ -17,6 +17,8 @@ import os
 import re
 import stat
 from pathlib import Path
+
+import numpy as np
 
 _BINARY = re.compile(rb"[\x00-\x08\x0e-\x1f]")
 _BINARY_TEXT = re.compile("[\x00-\x08\x0e-\x1f]")
@@ -39,6 +41,8 @@ MAX_BYTES = {
 }
 #: JSON nesting deeper than this is refused (every Mimica document is at most ~6 deep).
 MAX_JSON_DEPTH = 64
+#: The note a UTF-16 file earns (it was read, but other programs may not read it).
+UTF16_NOTE = "The file is UTF-16 text; it was read, but other programs may need UTF-8 or ASCII."
 
 
 def size_text(n: int) -> str:
@@ -182,29 +186,6 @@ def read_json_file(path, kind: str, error: type[Exception], *, what: str | None 
     return parse_json(text, f"'{path.name}'", error, kind, hint=hint)
 
 
-def read_text_file(path, kind: str, error: type[Exception], binary_hint: str) -> tuple[str, list[str]]:
-    """(text, notes) of ``path``; ``error(message)`` for anything unreadable.
-
-    kind : what the file should be, for messages ("FAP", "DPC").
-    binary_hint : one sentence saying what a text file of this kind looks like.
-    """
-    path = Path(path)
-    data = read_file_bytes(path, kind, error)
-    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
-        try:
-            text = data.decode("utf-16")
-        except UnicodeDecodeError:
-            raise error(f"'{path.name}' starts like UTF-16 text but is not valid UTF-16. "
-                        "Save it again as UTF-8 text in a text editor.") from None
-        return text, ["The file is UTF-16 text; it was read, but other programs may need UTF-8 or ASCII."]
-    if _BINARY.search(data):
-        raise error(f"'{path.name}' is not a text file (it contains binary data). {binary_hint}")
-    try:
-        return data.decode("utf-8-sig"), []
-    except UnicodeDecodeError:
-        return data.decode("latin-1"), []
-
-
 class NotUtf8(Exception):
     """Raised by :func:`text_lines` when UTF-8 decoding fails: read the file again as latin-1."""
 
@@ -229,9 +210,9 @@ class _CappedRaw(io.RawIOBase):
 
 def text_lines(path, kind: str, error: type[Exception], binary_hint: str, *, latin1: bool = False):
     """Yield the lines of a text file one at a time (without their line ends; any of \\n, \\r\\n,
-    \\r), so a parser holds only what it keeps, never the whole text: the streaming counterpart of
-    :func:`read_text_file`, with the same checks and messages (a binary line is refused when it is
-    reached; UTF-16 with a BOM is read, and a note about it goes to ``notes`` — pass a list).
+    \\r), so a parser holds only what it keeps, never the whole text, after the checks of
+    :func:`check_file` (a binary line is refused when it is reached; UTF-16 with a BOM is read,
+    and :func:`parse_text_lines` adds the note it earns).
 
     Raises :class:`NotUtf8` when the bytes are not UTF-8: call again with ``latin1=True``.
     """
@@ -265,6 +246,52 @@ def text_lines(path, kind: str, error: type[Exception], binary_hint: str, *, lat
             raise NotUtf8(str(path)) from None
         except OSError as exc:
             raise error(f"'{path.name}' could not be read: {exc.strerror or exc}.") from None
+
+
+class RowBlocks:
+    """Rows of a fixed width appended one at a time into arrays of 4096 rows (a frame costs its bytes, not
+    a Python object per frame; joining them costs one more copy of the largest column)."""
+
+    BLOCK = 4096
+
+    def __init__(self, width: int, dtype):
+        self._width, self._dtype = width, dtype
+        self._blocks: list[np.ndarray] = []
+        self._pending: list = []   # the rows of the block being filled (converted in one call when full)
+
+    def __len__(self) -> int:
+        return len(self._blocks) * self.BLOCK + len(self._pending)
+
+    def append(self, row) -> None:
+        self._pending.append(row)
+        if len(self._pending) == self.BLOCK:
+            self._blocks.append(self._block(self._pending))
+            self._pending = []
+
+    def _block(self, rows) -> np.ndarray:
+        return np.array(rows, self._dtype).reshape(len(rows), self._width)
+
+    def array(self) -> np.ndarray:
+        """(n, width) array of the rows; the blocks are released (call once, at the end)."""
+        out = np.empty((len(self), self._width), self._dtype)
+        for k, block in enumerate(self._blocks):
+            out[k * self.BLOCK:(k + 1) * self.BLOCK] = block
+        out[len(self._blocks) * self.BLOCK:] = self._block(self._pending)
+        self._blocks, self._pending = [], []
+        return out
+
+
+def parse_text_lines(path, kind: str, error: type[Exception], binary_hint: str, parse):
+    """(``parse(lines)``, notes) for the text file at ``path``, read line by line through
+    :func:`text_lines` (UTF-8, else latin-1; UTF-16 with a BOM earns a note), for parsers that take
+    an iterable of lines."""
+    for latin1 in (False, True):
+        try:
+            result = parse(text_lines(path, kind, error, binary_hint, latin1=latin1))
+        except NotUtf8:
+            continue   # not UTF-8: read it again as latin-1 (every byte is a latin-1 character)
+        break
+    return result, [UTF16_NOTE] if is_utf16(path) else []
 
 
 def is_utf16(path) -> bool:

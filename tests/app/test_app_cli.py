@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -347,3 +349,43 @@ def test_next_export_sweeps_what_a_killed_one_left(tmp_path, monkeypatch):
     assert _export_leftovers(out_dir, tmpdir, proc.pid) == []
     assert sorted(p.name for p in out_dir.iterdir()) == [other.name, "next.gif"]
     assert list(tmpdir.iterdir()) == []
+
+
+def test_the_next_start_sweeps_what_a_killed_export_left(tmp_path, monkeypatch):
+    """kill -9 of an export and of its render processes and encoder: the next start of ``mimica`` (any
+    command, here one that fails at once) removes the staging file beside the target and the work
+    folders in the temporary folder, without exporting again."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    proc, out_dir, tmpdir = _start_export_and_wait_for_frames(tmp_path)
+    children = _processes_mentioning(str(tmpdir), str(out_dir))
+    for pid in [proc.pid, *children]:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    _wait_until(lambda: not _processes_mentioning(str(tmpdir), str(out_dir)), 30, "the killed processes to end")
+    left = _export_leftovers(out_dir, tmpdir, proc.pid)
+    assert any(name.endswith(".part.mp4") for name in left) and any(n.startswith("mimica-export-") for n in left)
+
+    other = _worktree_mimica("export", str(tmp_path / "missing.mimica"), "--out", str(tmp_path / "x.fap"),
+                             tmpdir=tmpdir)
+    _, stderr = other.communicate(timeout=120)
+    assert other.returncode != 0 and "Traceback" not in stderr
+    assert _export_leftovers(out_dir, tmpdir, proc.pid) == []
+    assert list(out_dir.iterdir()) == [] and list(tmpdir.iterdir()) == []
+    assert list((tmp_path / "state" / "mimica" / "exports").iterdir()) == [], "the dead export's note goes too"
+
+
+@pytest.mark.parametrize("fps", ["0", "-5", "nan", "inf"])
+@pytest.mark.parametrize("command", [["export", "p.mimica", "--out", "o.fap"], ["export", "p.mimica", "--out", "o.mp4"],
+                                     ["lipsync", "hello", "--out", "l.mimica"], ["demo", "--out", "d.mp4"]])
+def test_every_fps_option_refuses_nonsense_with_a_message(tmp_path, capsys, monkeypatch, command, fps):
+    """``--fps 0`` is not "not given", and -5, nan and inf never reach a writer (issue 19), on every
+    command that takes --fps: a one-line message naming the option, no traceback."""
+    monkeypatch.chdir(tmp_path)
+    try:
+        status = cli.main([*command, "--fps", fps])
+    except SystemExit as exc:   # argparse: usage and one error line
+        status = exc.code
+    err = capsys.readouterr().err
+    assert status in (1, 2) and "--fps" in err and "Traceback" not in err, err
+    assert list(tmp_path.iterdir()) == []

@@ -16,9 +16,11 @@ from core.face import Face
 from core.formats import project as P
 from core.formats import text_files
 from core.formats.dpc_file import DpcFileError, read_dpc
+from core.formats.epc_file import EpcFileError, read_epc
 from core.formats.fap_file import FapFileError, parse_fap, read_fap
 from core.formats.landmarks_io import LandmarkFileError, load_landmarks
 from core.formats.mesh_io import MeshLoadError, load_face, load_texture_image, save_face
+from core.formats.ppc_file import PpcFileError, read_ppc
 from core.formats.project import ProjectError
 from core.landmark_editing import LandmarkEditModel
 from core.layers.muscles import ForceFileError, load_force_set
@@ -214,6 +216,9 @@ def _returns_quickly(call, seconds: float = 10.0):
     ("a.dpc", read_dpc, DpcFileError),
     ("f.json", load_force_set, ForceFileError),
     ("l.json", lambda p: load_landmarks(p, make_grid_face()), LandmarkFileError),
+    ("l.csv", lambda p: LandmarkEditModel(make_grid_face()).read_csv(p), LandmarkFileError),
+    ("a.ppc", read_ppc, PpcFileError),
+    ("a.epc", read_epc, EpcFileError),
 ])
 def test_named_pipes_are_refused_before_open(tmp_path, name, call, error):
     fifo = tmp_path / name
@@ -259,6 +264,34 @@ def test_obj_mtllib_outside_the_mesh_folder_is_not_followed(tmp_path):
     assert any("outside the mesh's folder" in n for n in face.metadata.notes)
     face = load_face(_obj_with_material(mesh_dir, "../secret.mtl"))
     assert any("outside the mesh's folder" in n for n in face.metadata.notes)
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes")
+def test_obj_material_and_texture_that_are_named_pipes_do_not_block(tmp_path):
+    os.mkfifo(tmp_path / "m.mtl")
+    obj = _obj_with_material(tmp_path, "m.mtl")
+    outcome = _returns_quickly(lambda: load_face(obj))
+    assert outcome["value"].texture is None and any("m.mtl" in n for n in outcome["value"].metadata.notes)
+    os.unlink(tmp_path / "m.mtl")
+    os.mkfifo(tmp_path / "skin.png")
+    obj = _obj_with_material(tmp_path, "m.mtl", "newmtl skin\nmap_Kd skin.png\n")
+    outcome = _returns_quickly(lambda: load_face(obj))
+    assert outcome["value"].texture is None and any("skin.png" in n for n in outcome["value"].metadata.notes)
+
+
+def test_a_dpc_longer_than_24_hours_does_not_reach_the_timeline():
+    from core.formats.dpc_file import parse_dpc
+    from core.layers.rbf.files import keys_from_dpc
+
+    mouth = "".join("\n" + "1 2 3\n" * 8 for _ in range(9000))   # 9,000 frames at 0.1 fps: 25 h
+    seq = parse_dpc("# fps 0.1\n9000\n" + mouth)
+    keys = keys_from_dpc(seq, seq.fps)
+    tl = Timeline(10.0, 25)
+    with pytest.raises(TimelineError, match="outside the timeline"):
+        tl.add_keys(keys)
+    with pytest.raises(TimelineError, match="between 0 and 86400 s"):
+        tl.set_settings(duration=max(t for rows in keys.values() for t, _, _ in rows))
+    assert tl.tracks == {} and tl.duration == 10.0
 
 
 def test_obj_map_kd_outside_the_mesh_folder_is_not_loaded(tmp_path):
