@@ -28,7 +28,9 @@ Then ``x = rest + F · (fap_values ∘ fapu)`` with F of shape (3n, 68), mm per 
 
 Several FAPs on one point add their displacements. The exception is lid contact: when an upper
 and a lower lid of one eye together close more than the opening (close_t + close_b > 1024 IRISD),
-both are scaled down so that they meet (``lid_contact``); the slider values are kept.
+both are scaled down so that they meet (``lid_contact``); the slider values are kept. After every
+layer's offset, skin that ended inside a row of teeth is pushed back out over it
+(``teeth_guard.TeethGuard``: the teeth move rigidly with the jaw, the skin only part way).
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from core.cache import DiskCache, fingerprint, source_version
 from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import tables
+from core.layers.fap.teeth_guard import TeethGuard
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
 N_FAPS = tables.N_FAPS
@@ -104,6 +107,7 @@ class FapDeformer:
         self._eyes = self._eyeball_pivots()
         self._lid_guards = self._lid_guards_over_eyeballs()
         self._eye_rims = self._eye_rims_of_skin()
+        self._teeth_guard = TeethGuard(face, np.nonzero(~self._in_any_part())[0])
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
         if self._eyes:
@@ -329,6 +333,13 @@ class FapDeformer:
             guards.append((lid, centre, clearance, angles, radii))
         return guards
 
+    def _in_any_part(self) -> np.ndarray:
+        """(n,) bool: vertices of a named part (eyeballs, teeth, mouth cavity), not skin."""
+        mask = np.zeros(self.face.n_vertices, bool)
+        for idx in self.face.parts.values():
+            mask[idx] = True
+        return mask
+
     def _eye_rims_of_skin(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per eye: (upper rim, lower rim) vertex indices of the skin's eye opening, ordered by x.
 
@@ -432,7 +443,7 @@ class FapDeformer:
 
     def finish(self, x: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(n, 3) ``x`` (all offsets added) after the FAPs' non-additive steps: upper lids stop on the
-        lower ones and slide over the eyeballs, eyeballs rotate (gaze 23-26), the head rotates (48-50)."""
+        lower ones and slide over the eyeballs, mouth skin stays outside the teeth, eyeballs rotate (gaze 23-26), the head rotates (48-50)."""
         values = lid_contact(np.asarray(values, dtype=float))
         x = np.array(x, dtype=float)
         if values[18:22].any():
@@ -454,6 +465,9 @@ class FapDeformer:
                     sel = lid[inside]
                     planar = (r[inside, :2] ** 2).sum(axis=1)
                     x[sel, 2] = centre[2] + np.sqrt(np.maximum(need[inside] ** 2 - planar, 0.0))
+        # Teeth move rigidly, the skin around them only partly (and some lip FAPs drive it straight
+        # at them): skin that ended inside a row of teeth goes back out over it.
+        self._teeth_guard.apply(x)
         if self._eyes:
             for name, (yaw, pitch) in (("eyeball_l", (23, 25)), ("eyeball_r", (24, 26))):
                 a, b = values[yaw - 1] * tables.ANGLE_UNIT, values[pitch - 1] * tables.ANGLE_UNIT
@@ -476,10 +490,11 @@ class FapDeformer:
 def deformer_key(face: Face) -> str:
     """The cache key of ``face``'s FapDeformer (see :meth:`FapDeformer.for_face`)."""
     import core.layers.fap.template as template_module
+    import core.layers.fap.teeth_guard as teeth_guard_module
     import core.surface_query as surface_query
     import core.subdivision as subdivision
 
-    code = source_version(sys.modules[__name__], template_module, tables, surface_query, subdivision)
+    code = source_version(sys.modules[__name__], template_module, teeth_guard_module, tables, surface_query, subdivision)
     landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]
