@@ -287,6 +287,7 @@ def test_the_teeth_guard_follows_the_lower_teeth_wherever_a_layer_moved_them():
     out = guard.apply(x.copy())
     rotation, shift = _rigid_fit(teeth, x[: 2 * n_row])
     assert np.allclose(rotation, turn) and np.allclose(shift, [2.0, -1.0, 1.0])
+    assert _rigid_fit(teeth, teeth + [1.0, 2.0, 3.0])[0] is None   # a plain shift needs no rotation
     local = (out[2 * n_row] - shift) @ rotation
     hull = guard.rows[0][1]
     radius, outer, _dx, _dz = hull.outer_radius(local[None])

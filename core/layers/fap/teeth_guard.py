@@ -27,9 +27,9 @@ HEIGHT_STEP_MM = 0.5
 HULL_MARGIN_MM = 1.0
 # Skin farther than this from a row's teeth at rest (mm) is never guarded (cheeks, nose, chin).
 GUARD_REACH_MM = 12.0
-# Steps of neighbour averaging that spread a push over the skin around it (a bulge, not a step:
+# Rings of neighbour averaging that spread a push over the skin around it (a bulge, not a step:
 # a vertex pushed millimetres out next to one left in place folds their triangles).
-SPREAD_STEPS = 6
+SPREAD_RINGS = 3
 N_ANCHORS = 12
 
 
@@ -50,40 +50,39 @@ class TeethRowHull:
         self.y0 = lo[1] - HULL_MARGIN_MM
         self.n_heights = int(np.ceil((hi[1] - lo[1] + 2 * HULL_MARGIN_MM) / HEIGHT_STEP_MM)) + 1
         self.n_angles = int(round(360.0 / ANGLE_STEP_DEG))
-        angle, height, radius = self._cylindrical(points)
-        a, h = self._bins(angle, height)
-        inside = (h >= 0) & (h < self.n_heights)
-        table = np.full((self.n_angles, self.n_heights), -np.inf)
-        np.maximum.at(table, (a[inside], h[inside]), radius[inside])
-        # Widen by one bin each way: a nearest-bin lookup then never sees a radius below the
-        # surface between samples, and the hull covers the edge of every tooth.
+        self.height = self.n_heights * HEIGHT_STEP_MM
+        dx, dz, height = points[:, 0] - self.centre[0], points[:, 2] - self.centre[2], points[:, 1] - self.y0
+        inside = (height >= 0) & (height < self.height)
+        table = np.full(self.n_angles * self.n_heights, -np.inf)
+        np.maximum.at(table, self.cells(dx[inside], dz[inside], height[inside]),
+                      np.hypot(dx[inside], dz[inside]))
+        table = table.reshape(self.n_angles, self.n_heights)
+        # Widen by one angle bin and the margin's height bins each way: a nearest-bin lookup then
+        # never sees a radius below the surface between samples, and the hull covers each tooth's edge.
         reach = int(np.ceil(HULL_MARGIN_MM / HEIGHT_STEP_MM))
         wide = table.copy()
         for shift_a in (-1, 0, 1):
             for shift_h in range(-reach, reach + 1):
-                rolled = np.roll(table, shift_a, axis=0)
-                if shift_h:   # the table's margins are -inf, so rolling never wraps a tooth around
-                    rolled = np.roll(rolled, shift_h, axis=1)
-                wide = np.maximum(wide, rolled)
+                # The table's margins are -inf, so rolling never wraps a tooth around.
+                wide = np.maximum(wide, np.roll(np.roll(table, shift_a, axis=0), shift_h, axis=1))
         self.radii = wide
+        self._flat = wide.ravel()
+        # Beyond this distance from the axis no point can be inside the hull (clearance included).
+        self.reach_squared = (float(wide[np.isfinite(wide)].max()) + TEETH_CLEARANCE_MM) ** 2
 
-    def _cylindrical(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        dx, dz = points[:, 0] - self.centre[0], points[:, 2] - self.centre[2]
-        return np.arctan2(dx, dz), points[:, 1] - self.y0, np.sqrt(dx * dx + dz * dz)
-
-    def _bins(self, angle: np.ndarray, height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        a = np.floor(np.degrees(angle) / ANGLE_STEP_DEG).astype(np.int64) % self.n_angles
-        h = np.floor(height / HEIGHT_STEP_MM).astype(np.int64)
-        return a, h
+    def cells(self, dx: np.ndarray, dz: np.ndarray, height: np.ndarray) -> np.ndarray:
+        """Flat table index of points at (dx, dz) from the axis and ``height`` (>= 0, < self.height)
+        above the table's bottom (mm). Written for few numpy calls: it runs every tick."""
+        a = ((np.arctan2(dx, dz) + np.pi) * (1.0 / np.radians(ANGLE_STEP_DEG))).astype(np.int64) % self.n_angles
+        return a * self.n_heights + (height * (1.0 / HEIGHT_STEP_MM)).astype(np.int64)
 
     def outer_radius(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(radius now, hull radius (-inf off the row), dx, dz) of points (k, 3) in the row's frame."""
-        angle, height, radius = self._cylindrical(points)
-        a, h = self._bins(angle, height)
-        inside = (h >= 0) & (h < self.n_heights)
+        dx, dz, height = points[:, 0] - self.centre[0], points[:, 2] - self.centre[2], points[:, 1] - self.y0
+        inside = (height >= 0) & (height < self.height)
         hull = np.full(len(points), -np.inf)
-        hull[inside] = self.radii[a[inside], h[inside]]
-        return radius, hull, points[:, 0] - self.centre[0], points[:, 2] - self.centre[2]
+        hull[inside] = self._flat[self.cells(dx[inside], dz[inside], height[inside])]
+        return np.hypot(dx, dz), hull, dx, dz
 
 
 def _sample_triangles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -128,52 +127,88 @@ class TeethGuard:
             anchors = idx[np.linspace(0, len(idx) - 1, N_ANCHORS).astype(np.int64)]
             self.rows.append((name, hull, skin[guarded], clearance[guarded], anchors))
         self._rest_anchors = {name: rest[anchors] for name, _h, _s, _c, anchors in self.rows}
-        # Every guarded vertex, and neighbour averaging among them (rows sum to 1) to spread pushes.
+        # Every guarded vertex, and how a push at one spreads to the others: SPREAD_RINGS steps of
+        # neighbour averaging (rows sum to 1), kept by column so a tick reads only the pushed ones.
         self.watched = np.unique(np.concatenate([s for _n, _h, s, _c, _a in self.rows] or [np.zeros(0, np.int64)]))
         ring = face.adjacency[self.watched][:, self.watched].tocsr()
         ring.data[:] = 1.0
-        degree = np.maximum(np.asarray(ring.sum(axis=1)).ravel(), 1.0)
-        self._average = (scipy.sparse.diags(1.0 / degree) @ ring).tocsr()
-        self._slot = {name: np.searchsorted(self.watched, s) for name, _h, s, _c, _a in self.rows}
+        ring = ring + scipy.sparse.identity(len(self.watched), format="csr")
+        step = (scipy.sparse.diags(1.0 / np.asarray(ring.sum(axis=1)).ravel()) @ ring).tocsr()
+        spread = scipy.sparse.identity(len(self.watched), format="csr")
+        for _ in range(SPREAD_RINGS):
+            spread = spread @ step
+        spread = spread.tocsc()
+        self._spread_indptr, self._spread_indices, self._spread_data = spread.indptr, spread.indices, spread.data
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """``x`` (n, 3) mm with the guarded skin pushed out of each row of teeth where it is (in place);
-        each push spreads to the skin around it, fading over ``SPREAD_STEPS`` rings."""
-        start = x[self.watched]
-        now = start.copy()
-        pushed = np.zeros(len(self.watched), dtype=bool)
+        each push spreads to the skin around it, fading over ``SPREAD_RINGS`` rings."""
+        pushes = []
         for name, hull, skin, clearance, anchors in self.rows:
-            if not len(skin):
-                continue
             rotation, shift = _rigid_fit(self._rest_anchors[name], x[anchors])
-            slot = self._slot[name]
-            local = (now[slot] - shift) @ rotation     # into the row's rest frame
-            radius, outer, dx, dz = hull.outer_radius(local)
-            need = outer + clearance
+            if rotation is None:
+                # Still or shifted (the FAP jaw): the height band alone rules out most skin before
+                # anything else is gathered.
+                height = x[skin, 1] - (shift[1] + hull.y0)
+                band = np.flatnonzero(np.abs(height - hull.height / 2) < hull.height / 2)
+                local = x[skin[band]] - shift
+            else:   # turned (the muscle mandible): into the row's rest frame first
+                local = (x[skin] - shift) @ rotation
+                height = local[:, 1] - hull.y0
+                band = np.flatnonzero(np.abs(height - hull.height / 2) < hull.height / 2)
+                local = local[band]
+            dx, dz = local[:, 0] - hull.centre[0], local[:, 2] - hull.centre[2]
+            squared = dx * dx + dz * dz
+            near = np.flatnonzero(squared < hull.reach_squared)
+            if not len(near):
+                continue
+            dx, dz = dx[near], dz[near]
+            need = hull._flat[hull.cells(dx, dz, local[near, 1] - hull.y0)] + clearance[band[near]]
+            radius = np.sqrt(squared[near])
             inside = radius < need
             if not inside.any():
                 continue
+            sel = near[inside]
             scale = need[inside] / np.maximum(radius[inside], 1e-9)
-            moved = local[inside]
+            moved = local[sel]
             moved[:, 0] = hull.centre[0] + dx[inside] * scale
             moved[:, 2] = hull.centre[2] + dz[inside] * scale
-            now[slot[inside]] = moved @ rotation.T + shift
-            pushed[slot[inside]] = True
-        if not pushed.any():
-            return x
-        push = now - start
-        spread = push.copy()
-        for _ in range(SPREAD_STEPS):
-            spread = self._average @ spread
-            spread[pushed] = push[pushed]
-        x[self.watched] = start + spread
+            moved = moved + shift if rotation is None else moved @ rotation.T + shift
+            vertices = skin[band[sel]]
+            pushes.append((vertices, moved - x[vertices]))
+            x[vertices] = moved
+        if pushes:
+            self._spread(x, pushes)
         return x
 
+    def _spread(self, x: np.ndarray, pushes) -> None:
+        """Let the skin around pushed vertices follow their pushes part way, fading over
+        ``SPREAD_RINGS`` rings (in place; pushed vertices keep their own push)."""
+        vertices = np.concatenate([v for v, _o in pushes])
+        offsets = np.concatenate([o for _v, o in pushes])
+        slot, which = np.unique(np.searchsorted(self.watched, vertices), return_inverse=True)
+        total = np.zeros((len(slot), 3))
+        np.add.at(total, which, offsets)     # a vertex both rows pushed has both pushes
+        # The pushed columns of the spread matrix, read straight from its CSC arrays (scipy's column
+        # slicing costs more than the whole guard).
+        starts, lengths = self._spread_indptr[slot], np.diff(self._spread_indptr)[slot]
+        entries = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
+        rows = self._spread_indices[entries]
+        weights = self._spread_data[entries]
+        column = np.repeat(np.arange(len(slot)), lengths)
+        n = len(self.watched)
+        around = np.stack([np.bincount(rows, weights * total[column, k], minlength=n) for k in range(3)], axis=1)
+        around[slot] = 0.0          # already where they must be
+        moved = np.unique(rows)
+        x[self.watched[moved]] += around[moved]
 
-def _rigid_fit(rest: np.ndarray, now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(R (3, 3), t (3,)) with now ~= rest @ R.T + t (Kabsch); identity when nothing moved."""
-    if np.array_equal(rest, now):
-        return np.eye(3), np.zeros(3)
+
+def _rigid_fit(rest: np.ndarray, now: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """(R (3, 3), t (3,)) with now ~= rest @ R.T + t (Kabsch); R is None when the points only
+    shifted (or stayed)."""
+    moved = now - rest
+    if np.abs(moved - moved[0]).max() < 1e-9:
+        return None, moved[0]
     mr, mn = rest.mean(axis=0), now.mean(axis=0)
     u, _s, vt = np.linalg.svd((rest - mr).T @ (now - mn))
     d = np.sign(np.linalg.det(vt.T @ u.T))
