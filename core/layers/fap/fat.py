@@ -47,6 +47,7 @@ from core.cache import DiskCache, fingerprint, source_version
 from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import tables
+from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
 from core.layers.fap.teeth_guard import TeethGuard
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
@@ -114,6 +115,15 @@ class FapDeformer:
             animated += [23, 24, 25, 26]
         animated += [48, 49, 50]
         self.animated_faps = tuple(sorted(animated))
+        report(0.97, "Finding where each FAP would break the surface…")
+        skin_triangles = face.triangles[~self._in_any_part()[face.triangles].any(axis=1)]
+        presets = np.concatenate([tables.expression_table(), tables.viseme_table()])
+        # The lids are not limited: they must close completely at 1024 IRISD, and their ends are
+        # shaped by lid contact and the lid guard, which a linear fold check does not see.
+        lids = {n for pair in LID_PAIRS for n in pair}
+        self.clean_limits = keeping(clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
+                                                 self.specs, [n for n in self.animated_faps if n not in lids]),
+                                    presets)
         assert self.matrix.shape == (3 * n, N_FAPS)
 
     # ------------------------------------------------------------ building
@@ -436,6 +446,17 @@ class FapDeformer:
             w[self.face.parts["teeth_lower"]] = 1.0
         return w
 
+    def limited(self, values: np.ndarray) -> np.ndarray:
+        """(68,) FAP values eased into this face's clean limits (``limits.soft_limit``): unchanged
+        well inside them, never past them."""
+        return soft_limit(values, self.clean_limits)
+
+    def limit_note(self, number: int) -> str | None:
+        """"beyond 240 the skin would fold: eased" for each slider end of FAP ``number`` that is
+        limited on this face (joined by "; "), None when it is not."""
+        limits = [v for v in self.clean_limits[number - 1] if np.isfinite(v)]
+        return "; ".join(f"beyond {v:.0f} {FOLD_REASON}: eased" for v in limits) or None
+
     def displacement(self, values: np.ndarray) -> np.ndarray:
         """(n, 3) mm: the FAT's offsets for (68,) effective FAP values (FAP units), lids in contact."""
         values = lid_contact(np.asarray(values, dtype=float))
@@ -490,11 +511,12 @@ class FapDeformer:
 def deformer_key(face: Face) -> str:
     """The cache key of ``face``'s FapDeformer (see :meth:`FapDeformer.for_face`)."""
     import core.layers.fap.template as template_module
+    import core.layers.fap.limits as limits_module
     import core.layers.fap.teeth_guard as teeth_guard_module
     import core.surface_query as surface_query
     import core.subdivision as subdivision
 
-    code = source_version(sys.modules[__name__], template_module, teeth_guard_module, tables, surface_query, subdivision)
+    code = source_version(sys.modules[__name__], template_module, teeth_guard_module, limits_module, tables, surface_query, subdivision)
     landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]

@@ -75,10 +75,10 @@ class FapLayer:
         self._set_state(new, expressions, visemes)
 
     def offset(self, x: np.ndarray) -> np.ndarray:
-        return self.deformer.displacement(self.effective_values())
+        return self.deformer.displacement(self.limited_values())
 
     def finish(self, x: np.ndarray) -> np.ndarray:
-        return self.deformer.finish(x, self.effective_values())
+        return self.deformer.finish(x, self.limited_values())
 
     def snapshot(self) -> tuple:
         return (tuple(self._values.tolist()), self._expressions, self._visemes)
@@ -143,8 +143,13 @@ class FapLayer:
         return out
 
     def effective_values(self) -> np.ndarray:
-        """(68,) user values + presets: what drives the deformation."""
+        """(68,) user values + presets (what the user asked for)."""
         return self._values + self.preset_values()
+
+    def limited_values(self) -> np.ndarray:
+        """(68,) the effective values eased into the face's clean limits: what drives the
+        deformation (equal to :meth:`effective_values` well inside the limits)."""
+        return self.deformer.limited(self.effective_values())
 
     # ------------------------------------------------------------ internals
     def _mix_and_id(self, k: P.ParamKey) -> tuple[Mix, int]:
