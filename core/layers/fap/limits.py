@@ -83,7 +83,11 @@ def keeping(limits: np.ndarray, values: np.ndarray) -> np.ndarray:
 def soft_limit(values: np.ndarray, limits: np.ndarray) -> np.ndarray:
     """(68,) ``values`` eased into ``limits`` (68, 2): unchanged within EASE_START of a limit, then
     ``start + room * tanh((v - start) / room)`` (slope 1 where it begins, the limit never reached)."""
-    out = np.array(values, dtype=float)
+    values = np.asarray(values, dtype=float)
+    ease = EASE_START * limits
+    if not ((values > ease[:, 1]).any() or (values < ease[:, 0]).any()):
+        return values          # the common case, every tick: nothing near a limit
+    out = values.copy()
     for side, sign in ((1, 1.0), (0, -1.0)):
         limit = sign * limits[:, side]                     # both ends as positive magnitudes
         beyond = sign * out > EASE_START * limit           # never true where the limit is inf
