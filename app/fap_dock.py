@@ -238,7 +238,7 @@ class FapDock(QDockWidget):
             group = FapGroup(name, self._groups_widget)
             group.reset_requested.connect(self.reset_group)
             for spec in members:
-                row = fap_row(spec, fapu, self._fp_names, group.body)
+                row = fap_row(spec, fapu, self._fp_names, group.body, rig.deformer.limit_note(spec.number))
                 row.edited.connect(self._row_edited)
                 row.reset_requested.connect(self.reset_fap)
                 row.hover_changed.connect(self._row_hover)

@@ -31,8 +31,10 @@ def _mm(value: float) -> str:
     return f"{value:.3f}" if a < 0.1 else f"{value:.2f}" if a < 10 else f"{value:.1f}"
 
 
-def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = None) -> str:
-    """Rich-text tooltip: full MPEG-4 name, feature point, direction, range and unit size on this face."""
+def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = None,
+                limit_note: str | None = None) -> str:
+    """Rich-text tooltip: full MPEG-4 name, feature point, direction, range and unit size on this face,
+    and ``limit_note`` when the face eases the FAP before a slider end (``FapDeformer.limit_note``)."""
     fp_names = fp_names if fp_names is not None else _feature_point_descriptions()
     fps = [p for p in spec.fp.split(";") if p]
     where = ", ".join(f"{p} ({fp_names[p].rstrip('.')})" if p in fp_names else p for p in fps)
@@ -50,6 +52,8 @@ def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = N
         lines.append(f"Range {spec.minimum:g} to {spec.maximum:g} {spec.unit}"
                      f" = {_mm(spec.minimum * unit_mm)} to {_mm(spec.maximum * unit_mm)} mm")
         lines.append(f"1 {spec.unit} unit = {_mm(unit_mm)} mm on this face")
+    if limit_note:
+        lines.append(f"On this face: {limit_note}")
     if spec.pair is not None:
         lines.append(f"Mirror: FAP {spec.pair} {tables.fap_spec(spec.pair).name} (moves too with Link left/right)")
     lines.append("<i>Double-click the name or press ↺ to reset</i>")
@@ -57,9 +61,10 @@ def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = N
 
 
 # ------------------------------------------------------------------ one FAP
-def fap_row(spec: "FapSpec", fapu: dict, fp_names: dict[str, str], parent: QWidget | None = None) -> ParameterRow:
+def fap_row(spec: "FapSpec", fapu: dict, fp_names: dict[str, str], parent: QWidget | None = None,
+            limit_note: str | None = None) -> ParameterRow:
     """The row of one FAP (``fap:<n>``): the registry's label and range, the face's tooltip."""
-    return ParameterRow(f"fap:{spec.number}", parent, tooltip=fap_tooltip(spec, fapu, fp_names),
+    return ParameterRow(f"fap:{spec.number}", parent, tooltip=fap_tooltip(spec, fapu, fp_names, limit_note),
                         name=f"fap{spec.number}")
 
 

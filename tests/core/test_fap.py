@@ -231,6 +231,70 @@ def test_a_blink_hides_the_whole_eyeball_and_never_cuts_it(rig):
 
 
 
+@pytest.mark.parametrize("values", [{15: 400}, {15: -400}, {6: -400}, {7: -400}, {53: -400}, {54: -400},
+                                    {17: -600}])
+def test_the_teeth_never_pass_through_the_mouth_skin(rig, values):
+    """The teeth follow the jaw rigidly, the skin around the mouth only part way (and stretch_cornerlip
+    at -400 or push_t_lip at -600 drive it straight at the arch): at these extremes the teeth used to
+    cut 257-489 lip triangles; the teeth guard keeps the skin outside them."""
+    from core.mesh_quality import FaceQualityProbe, count_intersections
+
+    probe = FaceQualityProbe(rig.face)
+    rig.reset_faps()
+    rig.set_faps(values)
+    assert count_intersections(rig.vertices(), probe.lip_tris, probe.teeth_tris) == 0
+    # Without the guard the same pose does cut the teeth: the check can fail.
+    unguarded = rig.face.vertices + rig.deformer.displacement(rig.effective_fap_values())
+    assert count_intersections(unguarded, probe.lip_tris, probe.teeth_tris) > 50
+    rig.reset_faps()
+
+
+def test_the_teeth_guard_leaves_the_neutral_face_and_small_motions_alone(rig):
+    """Skin keeps at most its own rest gap to the teeth as clearance, so nothing moves at rest, and a
+    pose that stays clear of the teeth is exactly the FAT's."""
+    rig.reset_faps()
+    assert np.array_equal(rig.vertices(), rig.face.vertices)
+    rig.set_faps({3: 300, 6: 100})
+    plain = rig.face.vertices + rig.deformer.displacement(rig.effective_fap_values())
+    assert np.array_equal(rig.vertices(), plain)
+    rig.reset_faps()
+
+
+def test_the_teeth_guard_follows_the_lower_teeth_wherever_a_layer_moved_them():
+    """The guard reads where the lower row is (a rigid fit of its vertices), not the jaw FAPs: a
+    skin point put inside the shifted and turned row comes out on its hull plus the clearance."""
+    from core.layers.fap.teeth_guard import TEETH_CLEARANCE_MM, TeethGuard, _rigid_fit
+    from tests.core.conftest import make_grid_face
+    from core.face import Face
+
+    # A row of "teeth": a box 40 mm wide, 10 mm high, 6 mm deep; one skin vertex 3 mm in front of it.
+    grid = make_grid_face(nx=11, ny=3, size_mm=40.0)
+    box = grid.vertices * [1.0, 0.25, 0.0] + [0.0, 0.0, -6.0]
+    front = grid.vertices * [1.0, 0.25, 0.0]
+    teeth = np.concatenate([box, front])
+    n_row = len(box)
+    tris = np.concatenate([grid.triangles, grid.triangles + n_row])
+    skin = np.array([[0.0, 0.0, 3.0], [1.0, 0.0, 3.0], [0.0, 1.0, 3.0]])
+    vertices = np.concatenate([teeth, skin])
+    face = Face(vertices, np.concatenate([tris, [[2 * n_row, 2 * n_row + 1, 2 * n_row + 2]]]),
+                parts={"teeth_lower": np.arange(2 * n_row)})
+    guard = TeethGuard(face, np.arange(2 * n_row, 2 * n_row + 3))
+    x = face.vertices.copy()
+    assert np.array_equal(guard.apply(x.copy()), x)            # 3 mm in front: left alone
+    turn = np.array([[np.cos(0.1), 0, np.sin(0.1)], [0, 1, 0], [-np.sin(0.1), 0, np.cos(0.1)]])
+    x[: 2 * n_row] = teeth @ turn.T + [2.0, -1.0, 1.0]        # the row moved and turned
+    x[2 * n_row] = np.array([0.0, 0.0, -3.0]) @ turn.T + [2.0, -1.0, 1.0]   # a skin point inside it
+    out = guard.apply(x.copy())
+    rotation, shift = _rigid_fit(teeth, x[: 2 * n_row])
+    assert np.allclose(rotation, turn) and np.allclose(shift, [2.0, -1.0, 1.0])
+    assert _rigid_fit(teeth, teeth + [1.0, 2.0, 3.0])[0] is None   # a plain shift needs no rotation
+    local = (out[2 * n_row] - shift) @ rotation
+    hull = guard.rows[0][1]
+    radius, outer, _dx, _dz = hull.outer_radius(local[None])
+    assert radius[0] >= outer[0] + TEETH_CLEARANCE_MM - 1e-9
+    assert local[2] > 0.0                                      # in front of the row's front face again
+
+
 def test_jaw_moves_the_mouth_corners_part_way_and_the_upper_lip_stays(rig):
     f = rig.face
     rig.reset_faps()

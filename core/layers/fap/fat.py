@@ -28,7 +28,9 @@ Then ``x = rest + F · (fap_values ∘ fapu)`` with F of shape (3n, 68), mm per 
 
 Several FAPs on one point add their displacements. The exception is lid contact: when an upper
 and a lower lid of one eye together close more than the opening (close_t + close_b > 1024 IRISD),
-both are scaled down so that they meet (``lid_contact``); the slider values are kept.
+both are scaled down so that they meet (``lid_contact``); the slider values are kept. After every
+layer's offset, skin that ended inside a row of teeth is pushed back out over it
+(``teeth_guard.TeethGuard``: the teeth move rigidly with the jaw, the skin only part way).
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ from core.cache import DiskCache, fingerprint, source_version
 from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import tables
+from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
+from core.layers.fap.teeth_guard import TeethGuard
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
 N_FAPS = tables.N_FAPS
@@ -104,12 +108,22 @@ class FapDeformer:
         self._eyes = self._eyeball_pivots()
         self._lid_guards = self._lid_guards_over_eyeballs()
         self._eye_rims = self._eye_rims_of_skin()
+        self._teeth_guard = TeethGuard(face, np.nonzero(~self._in_any_part())[0])
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
         if self._eyes:
             animated += [23, 24, 25, 26]
         animated += [48, 49, 50]
         self.animated_faps = tuple(sorted(animated))
+        report(0.97, "Finding where each FAP would break the surface…")
+        skin_triangles = face.triangles[~self._in_any_part()[face.triangles].any(axis=1)]
+        presets = np.concatenate([tables.expression_table(), tables.viseme_table()])
+        # The lids are not limited: they must close completely at 1024 IRISD, and their ends are
+        # shaped by lid contact and the lid guard, which a linear fold check does not see.
+        lids = {n for pair in LID_PAIRS for n in pair}
+        self.clean_limits = keeping(clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
+                                                 self.specs, [n for n in self.animated_faps if n not in lids]),
+                                    presets)
         assert self.matrix.shape == (3 * n, N_FAPS)
 
     # ------------------------------------------------------------ building
@@ -329,6 +343,13 @@ class FapDeformer:
             guards.append((lid, centre, clearance, angles, radii))
         return guards
 
+    def _in_any_part(self) -> np.ndarray:
+        """(n,) bool: vertices of a named part (eyeballs, teeth, mouth cavity), not skin."""
+        mask = np.zeros(self.face.n_vertices, bool)
+        for idx in self.face.parts.values():
+            mask[idx] = True
+        return mask
+
     def _eye_rims_of_skin(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per eye: (upper rim, lower rim) vertex indices of the skin's eye opening, ordered by x.
 
@@ -425,6 +446,17 @@ class FapDeformer:
             w[self.face.parts["teeth_lower"]] = 1.0
         return w
 
+    def limited(self, values: np.ndarray) -> np.ndarray:
+        """(68,) FAP values eased into this face's clean limits (``limits.soft_limit``): unchanged
+        well inside them, never past them."""
+        return soft_limit(values, self.clean_limits)
+
+    def limit_note(self, number: int) -> str | None:
+        """"beyond 240 the skin would fold: eased" for each slider end of FAP ``number`` that is
+        limited on this face (joined by "; "), None when it is not."""
+        limits = [v for v in self.clean_limits[number - 1] if np.isfinite(v)]
+        return "; ".join(f"beyond {v:.0f} {FOLD_REASON}: eased" for v in limits) or None
+
     def displacement(self, values: np.ndarray) -> np.ndarray:
         """(n, 3) mm: the FAT's offsets for (68,) effective FAP values (FAP units), lids in contact."""
         values = lid_contact(np.asarray(values, dtype=float))
@@ -432,7 +464,7 @@ class FapDeformer:
 
     def finish(self, x: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(n, 3) ``x`` (all offsets added) after the FAPs' non-additive steps: upper lids stop on the
-        lower ones and slide over the eyeballs, eyeballs rotate (gaze 23-26), the head rotates (48-50)."""
+        lower ones and slide over the eyeballs, mouth skin stays outside the teeth, eyeballs rotate (gaze 23-26), the head rotates (48-50)."""
         values = lid_contact(np.asarray(values, dtype=float))
         x = np.array(x, dtype=float)
         if values[18:22].any():
@@ -454,6 +486,9 @@ class FapDeformer:
                     sel = lid[inside]
                     planar = (r[inside, :2] ** 2).sum(axis=1)
                     x[sel, 2] = centre[2] + np.sqrt(np.maximum(need[inside] ** 2 - planar, 0.0))
+        # Teeth move rigidly, the skin around them only partly (and some lip FAPs drive it straight
+        # at them): skin that ended inside a row of teeth goes back out over it.
+        self._teeth_guard.apply(x)
         if self._eyes:
             for name, (yaw, pitch) in (("eyeball_l", (23, 25)), ("eyeball_r", (24, 26))):
                 a, b = values[yaw - 1] * tables.ANGLE_UNIT, values[pitch - 1] * tables.ANGLE_UNIT
@@ -476,10 +511,12 @@ class FapDeformer:
 def deformer_key(face: Face) -> str:
     """The cache key of ``face``'s FapDeformer (see :meth:`FapDeformer.for_face`)."""
     import core.layers.fap.template as template_module
+    import core.layers.fap.limits as limits_module
+    import core.layers.fap.teeth_guard as teeth_guard_module
     import core.surface_query as surface_query
     import core.subdivision as subdivision
 
-    code = source_version(sys.modules[__name__], template_module, tables, surface_query, subdivision)
+    code = source_version(sys.modules[__name__], template_module, teeth_guard_module, limits_module, tables, surface_query, subdivision)
     landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]

@@ -41,6 +41,7 @@ class FapLayer:
         self._values = np.zeros(N_FAPS)
         self._expressions: Mix = NEUTRAL
         self._visemes: Mix = NEUTRAL
+        self._limited: np.ndarray | None = None
         self._presets = (tuple(f"expression:{e}" for e in tables.expression_names()[1:])
                          + tuple(f"viseme:{v}" for v in range(1, len(tables.viseme_names()))))
 
@@ -75,10 +76,10 @@ class FapLayer:
         self._set_state(new, expressions, visemes)
 
     def offset(self, x: np.ndarray) -> np.ndarray:
-        return self.deformer.displacement(self.effective_values())
+        return self.deformer.displacement(self.limited_values())
 
     def finish(self, x: np.ndarray) -> np.ndarray:
-        return self.deformer.finish(x, self.effective_values())
+        return self.deformer.finish(x, self.limited_values())
 
     def snapshot(self) -> tuple:
         return (tuple(self._values.tolist()), self._expressions, self._visemes)
@@ -143,8 +144,15 @@ class FapLayer:
         return out
 
     def effective_values(self) -> np.ndarray:
-        """(68,) user values + presets: what drives the deformation."""
+        """(68,) user values + presets (what the user asked for)."""
         return self._values + self.preset_values()
+
+    def limited_values(self) -> np.ndarray:
+        """(68,) the effective values eased into the face's clean limits: what drives the
+        deformation (equal to :meth:`effective_values` well inside the limits)."""
+        if self._limited is None:   # offset and finish both ask, once per state
+            self._limited = self.deformer.limited(self.effective_values())
+        return self._limited
 
     # ------------------------------------------------------------ internals
     def _mix_and_id(self, k: P.ParamKey) -> tuple[Mix, int]:
@@ -156,6 +164,7 @@ class FapLayer:
 
     def _set_state(self, values: np.ndarray, expressions: Mix, visemes: Mix) -> None:
         old = self._state_values()
+        self._limited = None
         self._values = np.array(values, dtype=float)
         self._expressions, self._visemes = expressions, visemes
         new = self._state_values()

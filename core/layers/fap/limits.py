@@ -1,0 +1,98 @@
+"""How far each FAP can go on one face before the skin folds, and a soft limit that eases into it.
+
+A FAP's displacement is linear in its value, so "where does it break" is a bisection along one
+line per slider end: the value where the first skin triangle moved by the FAP turns its normal
+more than 90 degrees (a fold; slivers with no direction are not counted, as in
+``core.mesh_quality``).
+
+Only folds limit, and never below what a preset (expression or viseme at 100 %) asks of a FAP
+(:func:`keeping`): the presets' own folds are theirs to fix, a limit would only mute them. Texture stretch is a smear, not a break, and capping every FAP at its stretch
+limit would mute the presets (viseme aa's jaw 600 MNS against a stretch limit near 170); the teeth
+are kept outside by ``teeth_guard`` at any value; lips crossing is left to the combined pose (a lip
+FAP alone crosses a closed mouth's lips at once, while the visemes that use it open the jaw with it,
+so a per-FAP crossing limit would mute speech).
+
+:func:`soft_limit` is the identity up to ``EASE_START`` of a limit and then eases toward it (C1,
+never reaching it, never a hard clamp), applied per FAP to the effective values (user + presets).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Where easing begins, as a share of the limit: well inside, so ordinary values pass unchanged.
+EASE_START = 0.7
+BISECTION_STEPS = 10
+FOLD_REASON = "the skin would fold"
+
+
+def _normals(corners: np.ndarray) -> np.ndarray:
+    return np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+
+
+def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vector: np.ndarray, specs,
+                 numbers) -> np.ndarray:
+    """(68, 2) per FAP the values (FAP units) at its slider's lower and upper ends up to which the FAP
+    alone folds no skin triangle; ±inf where it holds to the slider's end or is not a translation.
+
+    rest (n, 3) mm; skin_triangles (m, 3); matrix (3n, 68) mm per FAP unit before ``fapu_vector``."""
+    limits = np.array([[-np.inf, np.inf]] * len(specs))
+    rest_normals = _normals(rest[skin_triangles])
+    area = np.linalg.norm(rest_normals, axis=1)
+    # Slivers have no direction to turn (same threshold as core.mesh_quality).
+    measurable = area > 1e-6 * max(float(np.median(area)), 1e-12)
+    columns = matrix.tocsc()
+    for number in numbers:
+        spec = specs[number - 1]
+        if spec.is_rotation or not np.isfinite(spec.minimum) or not np.isfinite(spec.maximum):
+            continue
+        column = columns[:, number - 1]
+        moved = np.zeros(len(rest), dtype=bool)
+        moved[np.unique(column.indices // 3)] = True
+        tris = np.flatnonzero(moved[skin_triangles].any(axis=1) & measurable)
+        if not len(tris):
+            continue
+        corners = skin_triangles[tris]
+        field = column.toarray().reshape(-1, 3) * fapu_vector[number - 1]
+        base, step, normals = rest[corners], field[corners], rest_normals[tris]
+
+        def folds(value: float) -> bool:
+            return bool((np.einsum("ij,ij->i", _normals(base + step * value), normals) < 0).any())
+
+        for side, end in enumerate((spec.minimum, spec.maximum)):
+            if end == 0 or not folds(end):   # whole to the slider's end: no limit at all
+                continue
+            good, bad = 0.0, 1.0
+            for _ in range(BISECTION_STEPS):
+                mid = (good + bad) / 2
+                good, bad = (good, mid) if folds(end * mid) else (mid, bad)
+            limits[number - 1, side] = end * good
+    return limits
+
+
+def keeping(limits: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(68, 2) ``limits`` widened so that every row of ``values`` (k, 68) passes :func:`soft_limit`
+    unchanged: the presets are authored poses and must read as authored (open_jaw folds a few
+    corner triangles from 174 MNS on the default face, while viseme aa opens it 600)."""
+    out = limits.copy()
+    out[:, 0] = np.minimum(out[:, 0], values.min(axis=0, initial=0.0) / EASE_START)
+    out[:, 1] = np.maximum(out[:, 1], values.max(axis=0, initial=0.0) / EASE_START)
+    return out
+
+
+def soft_limit(values: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """(68,) ``values`` eased into ``limits`` (68, 2): unchanged within EASE_START of a limit, then
+    ``start + room * tanh((v - start) / room)`` (slope 1 where it begins, the limit never reached)."""
+    values = np.asarray(values, dtype=float)
+    ease = EASE_START * limits
+    if not ((values > ease[:, 1]).any() or (values < ease[:, 0]).any()):
+        return values          # the common case, every tick: nothing near a limit
+    out = values.copy()
+    for side, sign in ((1, 1.0), (0, -1.0)):
+        limit = sign * limits[:, side]                     # both ends as positive magnitudes
+        beyond = sign * out > EASE_START * limit           # never true where the limit is inf
+        if beyond.any():
+            start = EASE_START * limit[beyond]
+            room = np.maximum(limit[beyond] - start, 1e-12)
+            out[beyond] = sign * (start + room * np.tanh((sign * out[beyond] - start) / room))
+    return out
