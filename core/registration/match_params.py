@@ -31,6 +31,7 @@ class MatchParams:
     mouth_opening : put inner-lip points on the edges of a visible mouth opening (depth steps).
     steep_prediction : points on steep sides follow the confident matches (see the module docstring).
     lid_depth : a doubtful upper-lid point goes to the foot of the lid's depth fall (module docstring).
+    outliers : a weak point far from where the confident matches put it follows them (``outlier_pass``).
     """
 
     lam: float = 0.0     # sweep on 3 synthetic people (evaluate_landmarks): best over all tests at 0.0
@@ -52,6 +53,7 @@ class MatchParams:
     mouth_opening: bool = True
     steep_prediction: bool = True
     lid_depth: bool = True
+    outliers: bool = True
 
     def __post_init__(self):
         for name in ("lam", "lam_a", "lam_s", "position_weight", "pull"):

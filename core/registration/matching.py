@@ -10,7 +10,8 @@ lip, mouth opening, lip order), ``surface_points`` (pixels onto the scan surface
 
 Order of the passes: greedy -> patch search round 1 and 2 -> lower lip -> mouth opening -> lip
 order (in the scan's frontal raster) -> onto the surface -> closest-point snap -> confidence ->
-upper lid -> steep sides (each followed by the confidence again) -> fixed points' confidence 1.
+upper lid -> steep sides -> outliers (``outlier_pass``; each followed by the confidence again) ->
+fixed points' confidence 1.
 
 The model is a face whose landmarks are known (a template's points); the input is a scan already
 rigidly aligned to it (ICP, done by ``pipeline.detect_landmarks``), so everything here works in
@@ -114,6 +115,7 @@ from core.registration.surface_points import pixels_to_surface, snap_to_surface
 from core.registration.confidence import match_confidence
 from core.registration.lid_pass import upper_lid_pass
 from core.registration.steep_pass import steep_pass, steep_points  # noqa: F401 - re-exported
+from core.registration.outlier_pass import outlier_pass
 
 
 def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchParams, *, rays,
@@ -172,6 +174,8 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
         surface_passes.append(upper_lid_pass)
     if used.steep_prediction and used.refine:
         surface_passes.append(steep_pass)
+    if used.outliers and used.refine:
+        surface_passes.append(outlier_pass)
     for surface_pass in surface_passes:
         moves = surface_pass(mctx, state, confidence)
         if len(moves):

@@ -60,8 +60,15 @@ def steep_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> 
     if not (steep.any() and anchor.sum() >= 3):
         return SurfaceMoves.none()
     pred = propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)
+    return predictions_on_scan(ctx, np.nonzero(steep)[0], pred, outline)
+
+
+def predictions_on_scan(ctx: MatchContext, points, pred: np.ndarray, outline: np.ndarray) -> SurfaceMoves:
+    """Moves putting each of ``points`` at its prediction ``pred`` (P, 3) on the scan: outline points
+    (``outline`` (P,) bool) at the closest scan point, the others at the surface seen at the
+    prediction's frontal pixel (the closest point where none is); source "prediction", evidence 0."""
     index, tri, bary, pos = [], [], [], []
-    for i in np.nonzero(steep)[0]:
+    for i in points:
         hit = None if outline[i] else raster_hit(ctx.scan_raster, pred[i])
         if hit is None:
             t, b, p = ctx.closest(pred[i][None])

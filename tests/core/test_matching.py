@@ -247,3 +247,40 @@ def test_moves_are_applied_to_a_copy_and_results_are_read_only():
             a[0] = 1.0
     est = PixelEstimates.empty(3).apply(PixelMoves.take(np.ones((3, 2)), np.full(3, 0.8), [2]))
     assert np.isnan(est.pixel[:2]).all() and list(est.pixel[2]) == [1.0, 1.0] and list(est.peak) == [0, 0, 0.8]
+
+
+
+def test_a_weak_point_far_from_the_confident_ones_follows_them(model):
+    """The scan is the model itself; 3.7 was matched 15 mm away with confidence 0.2: it goes back to
+    its place (the anchors did not move, so their prediction is the model's point), as a
+    "prediction" with evidence 0. A point as far but with confidence 0.45 (some evidence), a weak
+    one only 3 mm off, and a fixed one stay where they are."""
+    from types import SimpleNamespace
+
+    from core.registration.greedy import graph_distances
+    from core.registration.outlier_pass import outlier_pass
+    from core.registration.pass_results import MatchState
+    from core.registration.pipeline import get_model_context
+
+    m = get_model_context(model, "mpeg4_80", MatchParams())
+    names = list(m.template.detected)
+    P = len(names)
+    truth = m.side.points.copy()
+    positions = truth.copy()
+    confidence = np.full(P, 0.9)
+    far_weak, far_doubtful, near_weak, fixed_far = (names.index(n) for n in ("3.7", "3.12", "4.4", "9.15"))
+    positions[[far_weak, far_doubtful, fixed_far]] += (0.0, 15.0, 0.0)
+    positions[near_weak] += (0.0, 3.0, 0.0)
+    confidence[[far_weak, near_weak, fixed_far]] = 0.2
+    confidence[far_doubtful] = 0.45
+    fixed = np.zeros(P, bool)
+    fixed[fixed_far] = True
+    ctx = SimpleNamespace(model=m, params=MatchParams(), gdist=graph_distances(m.template, m.side.points),
+                          fixed=fixed, scan_raster=None,
+                          closest=lambda p: (np.zeros(len(p), int), np.tile([1.0, 0.0, 0.0], (len(p), 1)), p))
+    state = MatchState(positions, np.zeros(P, int), np.tile([1.0, 0.0, 0.0], (P, 1)), ["refined"] * P, np.ones(P))
+    moves = outlier_pass(ctx, state, confidence)
+    assert list(moves.index) == [far_weak]
+    after = state.apply(moves)
+    np.testing.assert_allclose(after.positions[far_weak], truth[far_weak], atol=1e-6)
+    assert after.source[far_weak] == "prediction" and after.evidence[far_weak] == 0.0

@@ -1,0 +1,46 @@
+"""Outlier pass: a point the evidence does not support, far from where the confident matches put
+it, follows them.
+
+Without texture (the geometry-only path) the patch search compares shape alone, and a featureless
+point such as an outer eye corner can latch onto the brow ridge or the temple 12-20 mm away (SFM
+virtual scans, untextured: 3.7/3.12 at confidence 0.18-0.3). Such a point is re-predicted from the
+anchors (the steep pass's propagation of the confident matches' displacements along the template
+graph) and put on the scan; its source becomes "prediction" and its evidence 0, so it stays low
+confidence and the picker lists it for checking."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from core.registration.greedy import propagated
+from core.registration.pass_results import MatchState, SurfaceMoves
+from core.registration.steep_pass import ANCHOR_CONFIDENCE, predictions_on_scan, steep_points
+
+if TYPE_CHECKING:
+    from core.registration.match_context import MatchContext
+
+OUTLIER_CONFIDENCE = 0.3   # below this a point's evidence is weak (its confidence is a mean of NCC and distance terms)
+OUTLIER_DISTANCE = 0.1     # x face scale: farther than this from its prediction (the evaluation's tolerance)
+
+
+def outlier_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> SurfaceMoves:
+    """Points (not fixed, not steep: the steep pass places those) with confidence (P,) below
+    OUTLIER_CONFIDENCE and more than OUTLIER_DISTANCE x scale from their prediction by the anchors
+    (confidence > ANCHOR_CONFIDENCE, refined / seed / fixed) go to that prediction on the scan.
+    No moves with fewer than 3 anchors."""
+    m = ctx.model
+    names = m.template.detected
+    steep = steep_points(m)
+    outline = np.array([n in m.template.base.outline for n in names])
+    anchor = (confidence > ANCHOR_CONFIDENCE) & ~steep & ~outline & np.array(
+        [s in ("refined", "seed", "fixed") for s in state.source])
+    if anchor.sum() < 3:
+        return SurfaceMoves.none()
+    pred = propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)
+    far = np.linalg.norm(state.positions - pred, axis=1) > OUTLIER_DISTANCE * m.scale
+    weak = (confidence < OUTLIER_CONFIDENCE) & far & ~steep & ~anchor & ~ctx.fixed
+    if not weak.any():
+        return SurfaceMoves.none()
+    return predictions_on_scan(ctx, np.nonzero(weak)[0], pred, outline)
