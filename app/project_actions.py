@@ -105,6 +105,7 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         # An opened project's face loads (with its rig) in the background; a newer open supersedes it.
         self._loads = JobRunner(self, supersede=True)
         self._pending: tuple | None = None
+        self._accepted_face: str | None = None   # a face path outside the project the user agreed to open
         self._pending_values: dict[str, float] = {}  # opened values of layers not built yet
         self._closed = False
         self._had_face = document.face is not None
@@ -322,6 +323,18 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         except cp.ProjectError as exc:
             self._warn(f"Could not open {path.name}", str(exc))
             return False
+        outside = cp.face_outside_folder(project, path)
+        if outside is not None and QMessageBox.question(
+                self.window, "Face file outside the project's folder",
+                f"{path.name} uses a face file outside its own folder:\n\n{outside}\n\nOpen the project with "
+                "this face? (Choose No if you did not expect this path; the open project stays.)",
+                QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
+                QMessageBox.StandardButton.No) != QMessageBox.StandardButton.Yes:
+            return False
+        if outside is not None:   # asked and answered: no note repeating it after the open
+            drop = str(outside)
+            project.notes[:] = [n for n in project.notes if drop not in n]
+            self._accepted_face = drop
         self.window.settings.setValue("projectDirectory", str(path.resolve().parent))
         return self._apply_project(project, path, offer_recovery=True)
 
@@ -419,6 +432,8 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
     def _finish_open(self, project: cp.Project, path: Path | None, notes: list[str], *, dirty: bool,
                      offer_recovery: bool) -> None:
         c, w = self.c, self.window
+        accepted, self._accepted_face = self._accepted_face, None
+        notes = [n for n in notes if not (accepted and accepted in n)]
         time = 0.0
         tview = project.view.get("timeline") if isinstance(project.view, dict) else None
         if isinstance(tview, dict) and isinstance(tview.get("time"), (int, float)):

@@ -398,6 +398,15 @@ def _inside(path: Path, folder: Path) -> bool:
     return True
 
 
+def face_outside_folder(project: "Project", project_path: Path) -> Path | None:
+    """The project's face file when it lies outside the folder of ``project_path`` (the window asks
+    before opening such a project: a file written by someone else may point anywhere); else None."""
+    path = project.face.path
+    if path is None or _inside(Path(path), Path(project_path).parent):
+        return None
+    return Path(path)
+
+
 def _read_face(f: _Field, base: Path, notes: list[str] | None = None) -> FaceRef:
     """The face reference; a face file outside the project's folder is used as written, with a note
     naming where it is (the project file, not the user, chose that place)."""
@@ -687,6 +696,6 @@ def discard_autosave(project_path: str | os.PathLike | None = None, *, untitled_
 __all__ = [
     "FORMAT_NAME", "FORMAT_VERSION", "SUFFIX", "ProjectError", "ProjectVersionError", "FaceRef", "RigSettings",
     "SpeechClip", "Project", "embed_face", "to_document", "save_project", "read_document", "load_project",
-    "open_face", "file_sha256", "autosave_path", "write_autosave", "find_autosave", "untitled_autosaves",
+    "open_face", "face_outside_folder", "file_sha256", "autosave_path", "write_autosave", "find_autosave", "untitled_autosaves",
     "discard_autosave", "default_state_dir",
 ]

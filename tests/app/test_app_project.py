@@ -398,3 +398,31 @@ def test_a_project_with_another_face_opens_it_in_the_background(qtbot, settings,
     qtbot.waitUntil(lambda: bool(error_boxes), timeout=20000)
     assert "first.mimica" in error_boxes[-1][0] and w.face.n_vertices == 20 * 30
     w.close()
+
+
+def test_a_face_outside_the_projects_folder_is_opened_only_when_the_user_agrees(qtbot, win, c, tmp_path, answers,
+                                                                                 error_boxes, monkeypatch):
+    """A project whose face file lies outside its folder: the window names the path and asks; No leaves
+    the open project as it was, Yes opens it without a note repeating the path."""
+    from core.formats.mesh_io import save_face
+    from tests.core.conftest import make_grid_face
+
+    faces, projects = tmp_path / "faces", tmp_path / "projects"
+    faces.mkdir(), projects.mkdir()
+    save_face(make_grid_face(), faces / "anna.ply")
+    doc = {"format": cp.FORMAT_NAME, "version": cp.FORMAT_VERSION, "face": {"path": "../faces/anna.ply"},
+           "landmarks": None, "rig": {"values": {}}, "timeline": {"duration": 10.0, "fps": 30, "tracks": []},
+           "speech": [], "view": {}}
+    (projects / "p.mimica").write_text(json.dumps(doc), encoding="utf-8")
+    face_before = win.document.face
+    infos = []
+    monkeypatch.setattr(QMessageBox, "information", lambda *a, **k: infos.append(a[2]))
+    answers.next = QMessageBox.StandardButton.No
+    assert c.project.open_project(projects / "p.mimica", ask=False) is False
+    assert len(answers.calls) == 1 and str((faces / "anna.ply").resolve()) in answers.calls[0][1]
+    assert win.document.face is face_before and c.project.path is None
+    answers.next = QMessageBox.StandardButton.Yes
+    c.project.open_project(projects / "p.mimica", ask=False)
+    qtbot.waitUntil(lambda: c.project.path == projects / "p.mimica", timeout=60_000)
+    assert win.document.face is not face_before
+    assert not any("outside the project's folder" in text for text in infos)
