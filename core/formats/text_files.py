@@ -45,6 +45,14 @@ MAX_JSON_DEPTH = 64
 UTF16_NOTE = "The file is UTF-16 text; it was read, but other programs may need UTF-8 or ASCII."
 
 
+
+def _a(kind: str) -> str:
+    """The article for a format's name as read aloud: "an EPC", "an .fap"... "a DPC", "a project"."""
+    word = kind.split()[0] if kind.split() else ""
+    spoken = word[:1].upper()
+    acronym = word.isupper()   # read letter by letter: "an EPC", "an MTL"; words: "a Mimica project"
+    return "an" if spoken and (spoken in "AEIOU" or (acronym and spoken in "FHLMNRSX")) else "a"
+
 def size_text(n: int) -> str:
     """``n`` bytes for a message: '512 MB', '16 MB', '900 KB'."""
     if n >= 2**30 and n % 2**30 == 0:
@@ -121,7 +129,7 @@ def reading(error: type[Exception], source: str, kind: str):
                     "damaged.") from None
     except (OverflowError, TypeError, ValueError, UnicodeError, KeyError, IndexError, AttributeError) as exc:
         detail = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else "it cannot be read"
-        raise error(f"{source}: the {kind} data is damaged or not a {kind} file ({detail}). Save it again from "
+        raise error(f"{source}: the {kind} data is damaged or not {_a(kind)} file ({detail}). Save it again from "
                     "the program that made it, or open a backup.") from None
 
 
@@ -163,14 +171,14 @@ def parse_json(text: str, source: str, error: type[Exception], kind: str, *, hin
     """The JSON document in ``text``: no NaN/Infinity, numbers that fit a float, at most
     ``MAX_JSON_DEPTH`` levels; ``error`` naming ``source`` and the line otherwise."""
     if not _json_depth_ok(text, MAX_JSON_DEPTH):
-        raise error(f"{source} is not a {kind} file: its JSON nests more than {MAX_JSON_DEPTH} levels deep.")
+        raise error(f"{source} is not {_a(kind)} file: its JSON nests more than {MAX_JSON_DEPTH} levels deep.")
     try:
         return json.loads(text, parse_constant=_reject_constant, parse_float=_parse_float, parse_int=_parse_int)
     except json.JSONDecodeError as exc:
         raise error(f"{source} is not valid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}."
                     + (f" {hint}" if hint else "")) from None
     except RecursionError:
-        raise error(f"{source} is not a {kind} file: its JSON nests too deeply.") from None
+        raise error(f"{source} is not {_a(kind)} file: its JSON nests too deeply.") from None
     except (ValueError, OverflowError) as exc:
         raise error(f"{source} is not a valid {kind} file: {exc}.") from None
 
