@@ -261,7 +261,9 @@ def _obj_texture(text: str, obj_path: Path, notes: list[str]) -> np.ndarray | No
                          "does not follow it (copy the material file next to the OBJ to use it).")
             continue
         if not mtl_path.is_file():
-            notes.append(f"The material file '{lib}' was not found next to the OBJ, so the face is shown without texture.")
+            notes.append(f"The material file '{lib}' "
+                         + ("is not a regular file (a pipe, device or folder)" if mtl_path.exists() else
+                            "was not found next to the OBJ") + ", so the face is shown without texture.")
             continue
         from core.formats.text_files import MAX_BYTES
 
@@ -319,10 +321,9 @@ def _read_texture(path: Path, notes: list[str], folder: Path | None = None) -> n
     if not path.is_file() and folder is not None and (folder / path.name).is_file():
         path = folder / path.name
     if not path.is_file():
-        notes.append(
-            f"The texture image '{path.name}' was not found (looked in '{path.parent}'); "
-            "the face is shown with plain shading, without texture."
-        )
+        why = ("is not a regular file (a pipe, device or folder)" if path.exists() else
+               f"was not found (looked in '{path.parent}')")
+        notes.append(f"The texture image '{path.name}' {why}; the face is shown with plain shading, without texture.")
         return None
     from core.formats.text_files import check_file
 

@@ -271,12 +271,14 @@ def test_obj_material_and_texture_that_are_named_pipes_do_not_block(tmp_path):
     os.mkfifo(tmp_path / "m.mtl")
     obj = _obj_with_material(tmp_path, "m.mtl")
     outcome = _returns_quickly(lambda: load_face(obj))
-    assert outcome["value"].texture is None and any("m.mtl" in n for n in outcome["value"].metadata.notes)
+    notes = outcome["value"].metadata.notes
+    assert outcome["value"].texture is None and any("m.mtl" in n and "not a regular file" in n for n in notes)
     os.unlink(tmp_path / "m.mtl")
     os.mkfifo(tmp_path / "skin.png")
     obj = _obj_with_material(tmp_path, "m.mtl", "newmtl skin\nmap_Kd skin.png\n")
     outcome = _returns_quickly(lambda: load_face(obj))
-    assert outcome["value"].texture is None and any("skin.png" in n for n in outcome["value"].metadata.notes)
+    notes = outcome["value"].metadata.notes
+    assert outcome["value"].texture is None and any("skin.png" in n and "not a regular file" in n for n in notes)
 
 
 def test_a_dpc_longer_than_24_hours_does_not_reach_the_timeline():
