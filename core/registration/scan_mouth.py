@@ -137,7 +137,8 @@ def _rigid(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def _mouth_interior(scan: Face, canonical: Face, template_name: str) -> np.ndarray:
     """(T,) bool: triangles of the scan's own mouth interior (LeePerrySmith has one): every corner
-    more than INTERIOR_MM behind the canonical face where it is within INTERIOR_RINGS of the lips.
+    more than INTERIOR_MM behind the canonical face where it is within INTERIOR_RINGS of the lips,
+    and facing away from it.
     Bound to the lips, they would be dragged across the opened mouth as a curtain in front of the
     teeth; the added cavity replaces them."""
     zone = np.nonzero(lip_labels(canonical.triangles, template_name, INTERIOR_RINGS) != 0)[0]
@@ -147,11 +148,15 @@ def _mouth_interior(scan: Face, canonical: Face, template_name: str) -> np.ndarr
     box_high = canonical.vertices[zone].max(axis=0) + INTERIOR_REACH_MM
     near = np.nonzero(((scan.vertices >= box_low) & (scan.vertices <= box_high)).all(axis=1))[0]
     inside = np.zeros(scan.n_vertices, bool)
+    facing = np.ones(scan.n_vertices)
     if len(near):
         closest, tri, _ = TriangleSet(canonical.vertices, canonical.triangles).closest(scan.vertices[near])
         depth = np.einsum("kd,kd->k", closest - scan.vertices[near], canonical.face_normals[tri])
         inside[near] = in_zone[canonical.triangles[tri]].any(axis=1) & (depth > INTERIOR_MM)
-    return inside[scan.triangles].all(axis=1)
+        facing[near] = np.einsum("kd,kd->k", scan.vertex_normals[near], canonical.face_normals[tri])
+    # Facing away from the canonical face as well: where the fit holds the canonical mouth corners
+    # off a fold of the scan, the scan's own outer skin there lies behind it too (it must stay).
+    return inside[scan.triangles].all(axis=1) & (facing[scan.triangles].sum(axis=1) < 0)
 
 
 def _cut_lips(scan: Face, matrix: scipy.sparse.csr_matrix, canonical_labels: np.ndarray):
@@ -197,7 +202,7 @@ def _mouth_parts(skin: Face, scan_points: np.ndarray, donor: Face, donor_points:
     vertices = _behind(skin, vertices, teeth, forward)
     parts = {name: local[donor.parts[name]] for name in MOUTH_PARTS if name in donor.parts}
     uv = None if donor.uv is None else donor.uv[ids]
-    return vertices, triangles, uv, parts
+    return vertices, triangles, uv, parts, forward
 
 
 def _depth_below(skin: Face, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -223,6 +228,20 @@ def _behind(skin: Face, points: np.ndarray, teeth: np.ndarray, forward: np.ndarr
     shallow = depth < BEHIND_SKIN_MM
     points[shallow] = closest[shallow] - BEHIND_SKIN_MM * normal[shallow]
     return points
+
+
+def _seen_from_the_front(skin_vertices, skin_triangles, points, forward) -> np.ndarray:
+    """(k,) bool: points whose ray towards the face's front leaves without crossing the skin — a few
+    cavity-rim points pushed behind a crease of the canonical face can still be in front of the scan
+    (a dark dot by a nostril); their triangles are left out. All False without Embree."""
+    from core.registration.correspondence import SurfaceRays
+
+    rays = SurfaceRays(skin_vertices, skin_triangles)
+    if rays.engine != "embree" or not len(points):
+        return np.zeros(len(points), bool)
+    direction = np.tile(forward, (len(points), 1))
+    _, _, hit = rays.first_hits(points, direction)
+    return ~hit
 
 
 def _stacked_texture(scan_texture: np.ndarray, donor_texture: np.ndarray) -> tuple[np.ndarray, float]:
@@ -257,11 +276,12 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
     present = [p for p in MOUTH_POINTS if p in canonical.landmarks and p in donor.landmarks]
     has_mouth = not any(name in scan.parts for name in MOUTH_PARTS) and len(present) >= 4
     if has_mouth:
-        part_vertices, part_triangles, part_uv, part_ids = _mouth_parts(
+        part_vertices, part_triangles, part_uv, part_ids, forward = _mouth_parts(
             canonical, canonical.landmark_positions(present), donor, donor.landmark_positions(present))
         offset = n_scan + n_copies
         vertices.append(part_vertices)
-        all_triangles.append(part_triangles + offset)
+        seen = _seen_from_the_front(np.concatenate(vertices[:2]), triangles, part_vertices, forward)
+        all_triangles.append(part_triangles[~seen[part_triangles].any(axis=1)] + offset)
         parts.update({name: idx + offset for name, idx in part_ids.items()})
         if skin_uv is not None and texture is not None and part_uv is not None and donor.texture is not None:
             texture, share = _stacked_texture(scan.texture, donor.texture)
