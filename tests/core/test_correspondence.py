@@ -183,3 +183,21 @@ def test_the_regularised_fit_turns_fewer_triangles_over_than_projection_alone(mo
     monkeypatch.setattr(C, "FIT_STIFFNESS", ())
     projected = quality(register_scan(other, other.landmarks).face)
     assert fitted[0] < projected[0] and fitted[1] <= projected[1], (fitted, projected)
+
+
+def test_swapped_lid_points_are_put_back_in_order_so_the_face_animates(scan):
+    """A detection that swapped an eye's upper and lower lid (SFM p2 neutral, p3 anger) gave a
+    canonical face with a negative IRISD0 that the rig refused."""
+    from core.registration.pipeline import lids_in_order
+    from core.rig import FaceRig
+
+    landmarks = dict(scan.landmarks)
+    landmarks["3.1"], landmarks["3.3"] = landmarks["3.3"], landmarks["3.1"]
+    registration = register_scan(scan, landmarks, template="mpeg4_80")
+    assert any("upper lid point 3.1 lay below its lower lid point 3.3" in line for line in registration.report)
+    rig = FaceRig(registration.face)
+    rig.set_expression("joy", 0.8)
+    assert np.abs(rig.vertices() - registration.face.vertices).max() > 1.0
+    truth = {n: scan.landmark_position(n) for n in ("3.1", "3.3", "3.7", "3.12", "8.3", "8.4")}
+    unchanged, notes = lids_in_order(truth)
+    assert notes == [] and all(np.array_equal(unchanged[n], truth[n]) for n in truth)
