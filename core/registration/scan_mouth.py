@@ -42,6 +42,7 @@ MOUTH_PARTS = ("mouth_cavity", "teeth_upper", "teeth_lower")
 #: How far behind the scan's skin the placed mouth parts must stay, mm (a scan's upper lip can sit
 #: further back than the donor's, and the cavity's rim would show through it as dark slits).
 BEHIND_SKIN_MM = 1.0
+PUSH_ROUNDS = 4
 #: A scan's own mouth interior: its triangles more than INTERIOR_MM behind the canonical lips (within
 #: INTERIOR_REACH_MM of them) are hidden.
 INTERIOR_MM = 1.5
@@ -224,9 +225,12 @@ def _behind(skin: Face, points: np.ndarray, teeth: np.ndarray, forward: np.ndarr
     needed = float(np.percentile(BEHIND_SKIN_MM - depth, 99)) if len(depth) else 0.0
     if needed > 0:
         points -= needed * forward
-    depth, closest, normal = _depth_below(skin, points)
-    shallow = depth < BEHIND_SKIN_MM
-    points[shallow] = closest[shallow] - BEHIND_SKIN_MM * normal[shallow]
+    for _ in range(PUSH_ROUNDS):   # a pushed point can come nearer another triangle (a crease): again
+        depth, closest, normal = _depth_below(skin, points)
+        shallow = depth < BEHIND_SKIN_MM - 1e-6
+        if not shallow.any():
+            break
+        points[shallow] = closest[shallow] - BEHIND_SKIN_MM * normal[shallow]
     return points
 
 
