@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse
 
 from core.face import Face
-from core.registration.correspondence import Registration, _adjacency, _similarity
+from core.registration.correspondence import Registration, _adjacency, _similarity, boundary_loops
 from core.registration.templates import get_template
 from core.surface_query import TriangleSet
 
@@ -59,16 +59,11 @@ def inner_lip_halves(triangles: np.ndarray, template_name: str) -> tuple[np.ndar
     base = get_template(template_name).base
     upper_mid, lower_mid = base.index("2.2"), base.index("2.3")
     corners = {base.index("2.4"), base.index("2.5")}
-    directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    n = int(triangles.max()) + 1
-    edges = scipy.sparse.csr_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(n, n))
-    boundary = directed[np.asarray(edges[directed[:, 1], directed[:, 0]]).ravel() == 0]
-    following = dict(zip(boundary[:, 0].tolist(), boundary[:, 1].tolist()))
-    if upper_mid not in following:
+    found = [loop for loop in boundary_loops(triangles) if upper_mid in loop]
+    if not found:
         raise ScanMouthError("the canonical face has no mouth opening (its inner-lip loop is closed)")
-    loop = [upper_mid]
-    while following.get(loop[-1], upper_mid) != upper_mid and len(loop) <= len(following):
-        loop.append(following[loop[-1]])
+    loop = found[0].tolist()
+    loop = loop[loop.index(upper_mid):] + loop[:loop.index(upper_mid)]
     cut = [i for i, v in enumerate(loop) if v in corners]
     if len(cut) != 2 or lower_mid not in loop:
         raise ScanMouthError("the canonical face's mouth opening does not pass both inner lip corners (2.4, 2.5)")
