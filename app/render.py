@@ -32,8 +32,9 @@ def _prefer_egl_without_display() -> None:
 
 
 def render_face_image(face: Face, *, view: str = "front", size: tuple[int, int] = DEFAULT_SIZE,
-                      mode: str = "textured", show_landmarks: bool = False) -> np.ndarray:
-    """Render ``face`` off screen and return the (h, w, 3) uint8 RGB image."""
+                      mode: str = "textured", show_landmarks: bool = False, frame_points=None) -> np.ndarray:
+    """Render ``face`` off screen and return the (h, w, 3) uint8 RGB image. ``frame_points`` (k, 3) mm:
+    what the camera frames (default: the whole face; e.g. only the face of a head-and-shoulders scan)."""
     import pyvista as pv
 
     from app import scene
@@ -48,7 +49,7 @@ def render_face_image(face: Face, *, view: str = "front", size: tuple[int, int] 
     try:
         scene.setup_stage(plotter)
         actor = scene.add_face_actor(plotter, face, mode, show_landmarks=show_landmarks)
-        scene.set_camera_view(plotter, view, actor.mesh.points)
+        scene.set_camera_view(plotter, view, actor.mesh.points if frame_points is None else np.asarray(frame_points))
         image = plotter.screenshot(None, return_img=True)
     finally:
         plotter.close()

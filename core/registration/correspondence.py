@@ -330,6 +330,102 @@ def untangle(scan: Face, projection: Projection, template_name: str) -> tuple[Pr
             len(moved), int(bad.sum()))
 
 
+def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
+    """The boundary of a triangle mesh as ordered vertex loops, each following the triangles'
+    orientation (a boundary edge is a directed edge whose reverse no triangle has)."""
+    directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    n = int(triangles.max()) + 1
+    edges = scipy.sparse.csr_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(n, n))
+    boundary = directed[np.asarray(edges[directed[:, 1], directed[:, 0]]).ravel() == 0]
+    following = dict(zip(boundary[:, 0].tolist(), boundary[:, 1].tolist()))
+    loops, seen = [], set()
+    for start in following:            # a few hundred boundary vertices, once per registration
+        if start in seen:
+            continue
+        loop = [start]
+        seen.add(start)
+        while following.get(loop[-1], start) != start and following[loop[-1]] not in seen:
+            loop.append(following[loop[-1]])
+            seen.add(loop[-1])
+        loops.append(np.array(loop, np.int64))
+    return loops
+
+
+def _catmull_rom(p0, p1, p2, p3, fraction: np.ndarray) -> np.ndarray:
+    """(k, 3) points of the centripetal Catmull-Rom segment p1 -> p2 at ``fraction`` (k,) in [0, 1]."""
+    t1 = np.linalg.norm(p1 - p0) ** 0.5 + 1e-9
+    t2 = t1 + np.linalg.norm(p2 - p1) ** 0.5 + 1e-9
+    t3 = t2 + np.linalg.norm(p3 - p2) ** 0.5 + 1e-9
+    t = (t1 + fraction * (t2 - t1))[:, None]
+    a1 = ((t1 - t) * p0 + t * p1) / t1
+    a2 = ((t2 - t) * p1 + (t - t1) * p2) / (t2 - t1)
+    a3 = ((t3 - t) * p2 + (t - t2) * p3) / (t3 - t2)
+    b1 = ((t2 - t) * a1 + t * a2) / t2
+    b2 = ((t3 - t) * a2 + (t - t1) * a3) / (t3 - t1)
+    return ((t2 - t) * b1 + (t - t1) * b2) / (t2 - t1)
+
+
+def _forehead_arc(v: np.ndarray, top: int, sides: set[int], start: int, end: int,
+                  fraction: np.ndarray) -> np.ndarray:
+    """(k, 3) points of the quarter ellipse between a hairline side point (11.2 / 11.3) and its top
+    (11.1): rising straight up from the side, level at the top, like a forehead (a spline through
+    the three points still peaks at 11.1, whose neighbours sit low at the temples)."""
+    left, right = (v[i] for i in sorted(sides))
+    up = v[top] - (left + right) / 2.0
+    up /= max(float(np.linalg.norm(up)), 1e-12)
+    side = v[start] if start != top else v[end]
+    rise = float(np.dot(v[top] - side, up)) * up
+    centre = v[top] - rise                                  # level with the side point, under the top
+    angle = (fraction if start != top else 1.0 - fraction)[:, None] * (np.pi / 2)
+    return centre + (side - centre) * np.cos(angle) + rise * np.sin(angle)
+
+
+def rounded_outline(scan: Face, projection: Projection, template_name: str) -> dict[int, np.ndarray]:
+    """{canonical vertex: (3,) mm on the scan}: the canonical face's outer outline as a smooth curve
+    through the template's outline landmarks (centripetal Catmull-Rom, each vertex at its arc-length
+    fraction between its two landmarks), snapped onto the scan. The template's outline is straight
+    between its landmarks, so every registered face had a pointed forehead at 11.1 (and corners at
+    the temples and the jaw); the fit (:func:`regularise`) holds these positions."""
+    v = np.asarray(projection.dense.vertices, float)
+    n_base = len(get_template(template_name).base.points)
+    loops = boundary_loops(np.asarray(projection.dense.triangles))
+    if not loops:
+        return {}
+    outline = max(loops, key=len)
+    at = np.nonzero(outline < n_base)[0]              # the outline's landmarks, in loop order
+    if len(at) < 4:
+        return {}
+    chord = np.linalg.norm(v[np.roll(outline, -1)] - v[outline], axis=1)
+    base = get_template(template_name).base
+    names = set(base.points)
+    top = base.index("11.1") if "11.1" in names else None
+    sides = {base.index(p) for p in ("11.2", "11.3") if p in names}
+    if len(sides) != 2:
+        top = None
+    targets: dict[int, np.ndarray] = {}
+    for k in range(len(at)):
+        i, j = at[k], at[(k + 1) % len(at)]
+        between = (np.arange(i + 1, j) if j > i else np.arange(i + 1, j + len(outline))) % len(outline)
+        if not len(between):
+            continue
+        steps = chord[np.concatenate([[i], between])]
+        walked = np.cumsum(steps)
+        fraction = walked[:-1] / max(walked[-1], 1e-12)      # arc length from landmark i, over i -> j
+        p0, p1, p2, p3 = (v[outline[at[(k + d) % len(at)]]] for d in (-1, 0, 1, 2))
+        ends = {int(outline[i]), int(outline[j])}
+        if top is not None and top in ends and ends & sides:
+            curve = _forehead_arc(v, top, sides, int(outline[i]), int(outline[j]), fraction)
+        else:
+            curve = _catmull_rom(p0, p1, p2, p3, fraction)
+        for vertex, point in zip(outline[between].tolist(), curve):
+            targets[vertex] = point
+    if not targets:
+        return {}
+    ids = list(targets)
+    snapped, _, _ = TriangleSet(scan.vertices, scan.triangles).closest(np.array([targets[i] for i in ids]))
+    return dict(zip(ids, snapped))
+
+
 # The regularised fit (see :func:`regularise`): stiffness per round, from stiff to close to the scan
 # (units: a vertex's Laplacian-coordinate error in mm weighs this much against its distance to the scan).
 FIT_STIFFNESS = (8.0, 3.0, 1.0, 0.4)
@@ -385,14 +481,16 @@ def _similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarr
     return scale, rotation, mt - scale * ms @ rotation.T
 
 
-def regularise(scan: Face, projection: Projection, template_name: str) -> tuple[Projection, int, int]:
+def regularise(scan: Face, projection: Projection, template_name: str,
+               held: dict[int, np.ndarray] | None = None) -> tuple[Projection, int, int]:
     """(projection, triangles turned over before, after) after a regularised non-rigid fit: the canonical
     mesh is pulled onto the scan (its closest points) while keeping the local shape of the same
     mesh on Mimica's default face (Laplacian coordinates of the reference, aligned by a similarity on
     the landmarks), over rounds of decreasing stiffness; landmarks stay put. Projection alone folds
     the mesh where rays cross (concave mouth corners, nostrils, a scan's own creases); this keeps the
     triangles the way they face on a face; at the end each vertex within ``SNAP_MM`` of the scan goes
-    onto it (uv and colour come from the closest scan point in any case)."""
+    onto it (uv and colour come from the closest scan point in any case). ``held``: {vertex: (3,)
+    position} kept like the landmarks (the rounded outline, :func:`rounded_outline`)."""
     v = np.array(projection.dense.vertices, float)
     t = projection.dense.triangles
     n_base = len(get_template(template_name).base.points)
@@ -411,8 +509,16 @@ def regularise(scan: Face, projection: Projection, template_name: str) -> tuple[
         return int((np.einsum("kd,kd->k", normals, ref_normals) < 0).sum())
 
     before = turned(v)
+    fixed = np.zeros(len(v), bool)
+    fixed[:n_base] = True
+    v = v.copy()
+    if held:
+        ids = np.fromiter(held, np.int64, len(held))
+        fixed[ids] = True
+        v[ids] = np.array([held[i] for i in ids.tolist()])
+    free = np.nonzero(~fixed)[0]
     weights = np.ones(len(v))
-    weights[:n_base] = LANDMARK_WEIGHT
+    weights[fixed] = LANDMARK_WEIGHT
     anchors = v.copy()          # data term: where the projection put each vertex, then its closest scan point
     surface = TriangleSet(scan.vertices, scan.triangles)
     scan_normals = scan.face_normals
@@ -424,17 +530,17 @@ def regularise(scan: Face, projection: Projection, template_name: str) -> tuple[
         rhs = weights[:, None] * anchors + stiffness * (lap.T @ target)
         x = np.column_stack([solve(rhs[:, k]) for k in range(3)])
         # Near-surface points: the nearest centroids hold the answer (no widening pass; 5x faster).
-        closest, tri, _ = surface.closest(x[n_base:], k=12, widen=False)
+        closest, tri, _ = surface.closest(x[free], k=12, widen=False)
         anchors = anchors.copy()
-        anchors[n_base:] = closest
+        anchors[free] = closest
         # Robust (Cauchy) data weights: a vertex far from its closest scan point — beyond the scan's
         # border, over a hole — follows the prior instead of piling onto the border; and a closest
         # point whose surface faces another way (the outer lip for the template's inner lip, the far
         # side of a nostril) is no correspondence at all.
-        gap = np.linalg.norm(closest - x[n_base:], axis=1)
-        facing = np.einsum("kd,kd->k", scan_normals[tri], vertex_normals(x, t)[n_base:])
-        weights[n_base:] = (facing > MIN_FACING) / (1.0 + (gap / ROBUST_GAP_MM) ** 2)
-    x[:n_base] = v[:n_base]
+        gap = np.linalg.norm(closest - x[free], axis=1)
+        facing = np.einsum("kd,kd->k", scan_normals[tri], vertex_normals(x, t)[free])
+        weights[free] = (facing > MIN_FACING) / (1.0 + (gap / ROBUST_GAP_MM) ** 2)
+    x[fixed] = v[fixed]
     # Onto the scan where the fit is within SNAP_MM of it (most vertices: median 0.03 mm on
     # LeePerrySmith); farther, the prior held a vertex off a crease or a hole of the scan, and
     # snapping it would fold the mesh again (LeePerrySmith's self-intersections: projection alone
@@ -553,7 +659,7 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
         raise CorrespondenceError("the scan has no triangles")
     proj = project_template(scan, template, positions, rays=rays)
     proj, untangled, left = untangle(scan, proj, template)
-    proj, turned_before, turned_after = regularise(scan, proj, template)
+    proj, turned_before, turned_after = regularise(scan, proj, template, rounded_outline(scan, proj, template))
     face = canonical_face(scan, proj, template)
     total = int(sum(proj.fallbacks))
     report = [f"dense correspondence ({template}): {face.n_vertices} vertices, {face.n_triangles} triangles; "

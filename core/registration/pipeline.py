@@ -315,5 +315,32 @@ def register_scan(scan: Face, landmarks: Mapping, *, template: str = "mpeg4_80",
             if isinstance(p, SurfacePoint):
                 src.set_landmark(n, p)
         positions.update({k: v for k, v in template_positions(src, "a48").items() if k not in positions})
+    positions, notes = lids_in_order(positions)
     surfaces = (rays, rays) if rays is not None and not scan.parts else None
-    return dense_correspondence(scan, positions, template=template, rays=surfaces)
+    registration = dense_correspondence(scan, positions, template=template, rays=surfaces)
+    registration.report.extend(notes)
+    return registration
+
+
+#: (upper lid, lower lid) of each eye (MPEG-4 3.1 / 3.3 left, 3.2 / 3.4 right).
+LID_PAIRS = (("3.1", "3.3", "left"), ("3.2", "3.4", "right"))
+
+
+def lids_in_order(positions: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], list[str]]:
+    """(positions, notes): an eye whose upper lid point lies below its lower one (a detection that
+    swapped them — on a closed or narrow eye they are a few millimetres apart) gets the two swapped
+    back, with a note. Left as they were, the canonical face's eye triangles turn over and its FAP
+    unit IRISD0 (upper minus lower lid) is negative, so the registered face cannot animate. "Up" is
+    from the mouth to the eyes (the lip corners 8.3 / 8.4 to the outer eye corners 3.7 / 3.12)."""
+    needed = ("8.3", "8.4", "3.7", "3.12")
+    if any(name not in positions for name in needed):
+        return positions, []
+    up = (positions["3.7"] + positions["3.12"] - positions["8.3"] - positions["8.4"]) / 2.0
+    up /= max(float(np.linalg.norm(up)), 1e-12)
+    out, notes = dict(positions), []
+    for upper, lower, side in LID_PAIRS:
+        if upper in out and lower in out and float(np.dot(out[upper] - out[lower], up)) < 0:
+            out[upper], out[lower] = positions[lower], positions[upper]
+            notes.append(f"the {side} eye's upper lid point {upper} lay below its lower lid point {lower}; "
+                         "they were swapped so the face animates — check both with the landmark picker")
+    return out, notes

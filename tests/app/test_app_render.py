@@ -41,3 +41,12 @@ def test_render_rejects_bad_arguments(synthetic_face, tmp_path):
         render_face_png(synthetic_face, tmp_path / "x.png", mode="toon", size=(64, 64))
     with pytest.raises(ValueError, match="too small"):
         render_face_png(synthetic_face, tmp_path / "x.png", size=(4, 4))
+
+
+def test_frame_points_choose_what_the_camera_frames(synthetic_face):
+    whole = render_face_image(synthetic_face, size=(160, 120))
+    same = render_face_image(synthetic_face, size=(160, 120), frame_points=synthetic_face.vertices)
+    corner = synthetic_face.vertices[synthetic_face.vertices[:, 0] > np.percentile(synthetic_face.vertices[:, 0], 80)]
+    framed = render_face_image(synthetic_face, size=(160, 120), frame_points=corner)
+    assert np.array_equal(whole, same)
+    assert image_difference(whole, framed) > 3

@@ -183,3 +183,46 @@ def test_the_regularised_fit_turns_fewer_triangles_over_than_projection_alone(mo
     monkeypatch.setattr(C, "FIT_STIFFNESS", ())
     projected = quality(register_scan(other, other.landmarks).face)
     assert fitted[0] < projected[0] and fitted[1] <= projected[1], (fitted, projected)
+
+
+def test_swapped_lid_points_are_put_back_in_order_so_the_face_animates(scan):
+    """A detection that swapped an eye's upper and lower lid (SFM p2 neutral, p3 anger) gave a
+    canonical face with a negative IRISD0 that the rig refused."""
+    from core.registration.pipeline import lids_in_order
+    from core.rig import FaceRig
+
+    landmarks = dict(scan.landmarks)
+    landmarks["3.1"], landmarks["3.3"] = landmarks["3.3"], landmarks["3.1"]
+    registration = register_scan(scan, landmarks, template="mpeg4_80")
+    assert any("upper lid point 3.1 lay below its lower lid point 3.3" in line for line in registration.report)
+    rig = FaceRig(registration.face)
+    rig.set_expression("joy", 0.8)
+    assert np.abs(rig.vertices() - registration.face.vertices).max() > 1.0
+    truth = {n: scan.landmark_position(n) for n in ("3.1", "3.3", "3.7", "3.12", "8.3", "8.4")}
+    unchanged, notes = lids_in_order(truth)
+    assert notes == [] and all(np.array_equal(unchanged[n], truth[n]) for n in truth)
+
+
+def test_the_outline_is_round_at_the_forehead_not_pointed_at_11_1(scan, registration, monkeypatch):
+    """The template's outline is straight between its landmarks: every registered face had a corner
+    at 11.1 (on LeePerrySmith, whose hairline point sits high, a diamond-shaped forehead). Measured
+    as the angle between the outline's edges on either side of 11.1, seen from the front (+z)."""
+    import core.registration.correspondence as C
+    from core.registration.templates import get_template
+
+    top = get_template("mpeg4_80").base.index("11.1")
+
+    def angle_at_top(face):
+        outline = max(C.boundary_loops(face.triangles), key=len)
+        k = int(np.nonzero(outline == top)[0][0])
+        before, after = ((face.vertices[outline[(k + d) % len(outline)]] - face.vertices[top])[:2] for d in (-1, 1))
+        cosine = np.dot(before, after) / (np.linalg.norm(before) * np.linalg.norm(after))
+        return float(np.degrees(np.arccos(np.clip(cosine, -1, 1))))
+
+    rounded = angle_at_top(registration.face)
+    monkeypatch.setattr(C, "rounded_outline", lambda *args: {})
+    pointed = angle_at_top(register_scan(scan, scan.landmarks, template="mpeg4_80").face)
+    assert pointed < 172 and rounded > 176, (pointed, rounded)       # 169 deg -> 178.5 deg
+    outline = max(C.boundary_loops(registration.face.triangles), key=len)
+    on_scan = TriangleSet(scan.vertices, scan.triangles).closest(registration.face.vertices[outline])[0]
+    assert np.linalg.norm(on_scan - registration.face.vertices[outline], axis=1).max() < 0.01
