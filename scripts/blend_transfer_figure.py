@@ -31,8 +31,9 @@ METHODS = ("deformation", "bbox")
 VIEWS = ("front", "three-quarter")
 
 
-def registered_face(data: Path, report=print):
-    """The canonical face of LeePerrySmith through the pipeline (landmarks, scale, registration)."""
+def registration(data: Path, report=print):
+    """LeePerrySmith's Registration through the pipeline (landmarks, scale, registration); also used
+    by scripts/scan_animation_figure.py."""
     from app.cli.common import load_face_or_default, with_texture
     from core.registration.pipeline import detect_landmarks, register_scan
 
@@ -46,7 +47,12 @@ def registered_face(data: Path, report=print):
         scan = scan.scaled(scale)          # surface points survive scaling
     reg = register_scan(scan, det.landmarks)
     report(f"registered: {reg.face.n_vertices} vertices, {reg.fallbacks} took the closest point")
-    return reg.face
+    return reg
+
+
+def registered_face(data: Path, report=print):
+    """The canonical face of LeePerrySmith through the pipeline (:func:`registration`)."""
+    return registration(data, report).face
 
 
 def posed_images(face, method: str) -> list[list[np.ndarray]]:

@@ -16,32 +16,19 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 from PIL import Image, ImageDraw
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
+
+from blend_transfer_figure import registration  # noqa: E402 - the same LeePerrySmith pipeline
 
 TILE = (420, 420)
 POSES = (("neutral", {}, None), ("jaw open (FAP 3 = 500)", {"fap:3": 500.0}, None), ("joy 80 %", {}, "joy"))
 VIEWS = ("front", "three-quarter")
-
-
-def registration(data: Path, report=print):
-    """LeePerrySmith's Registration through the pipeline (landmarks, scale, registration)."""
-    from app.cli.common import load_face_or_default, with_texture
-    from core.registration.pipeline import detect_landmarks, register_scan
-
-    scan = with_texture(load_face_or_default(str(data / "LeePerrySmith.glb")),
-                        SimpleNamespace(texture=str(data / "color.jpg"), flip_texture=False))
-    det = detect_landmarks(scan)
-    scale = det.scale_hint or 1.0
-    report(f"landmarks: {len(det.landmarks)} found; scale {scale:.3g} to millimetres")
-    if scale != 1.0:
-        scan = scan.scaled(scale)          # surface points survive scaling
-    return register_scan(scan, det.landmarks)
 
 
 def sheet(data: Path, out: Path, report=print) -> Path:
