@@ -108,7 +108,8 @@ class FapDeformer:
         self._eyes = self._eyeball_pivots()
         self._lid_guards = self._lid_guards_over_eyeballs()
         self._eye_rims = self._eye_rims_of_skin()
-        self._teeth_guard = TeethGuard(face, np.nonzero(~self._in_any_part())[0])
+        skin = ~self._in_any_part()
+        self._teeth_guard = TeethGuard(face, np.nonzero(skin)[0])
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
         if self._eyes:
@@ -116,7 +117,7 @@ class FapDeformer:
         animated += [48, 49, 50]
         self.animated_faps = tuple(sorted(animated))
         report(0.97, "Finding where each FAP would break the surface…")
-        skin_triangles = face.triangles[~self._in_any_part()[face.triangles].any(axis=1)]
+        skin_triangles = face.triangles[skin[face.triangles].all(axis=1)]
         presets = np.concatenate([tables.expression_table(), tables.viseme_table()])
         # The lids are not limited: they must close completely at 1024 IRISD, and their ends are
         # shaped by lid contact and the lid guard, which a linear fold check does not see.
@@ -464,7 +465,8 @@ class FapDeformer:
 
     def finish(self, x: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(n, 3) ``x`` (all offsets added) after the FAPs' non-additive steps: upper lids stop on the
-        lower ones and slide over the eyeballs, mouth skin stays outside the teeth, eyeballs rotate (gaze 23-26), the head rotates (48-50)."""
+        lower ones and slide over the eyeballs, mouth skin stays outside the teeth, eyeballs rotate
+        (gaze 23-26), the head rotates (48-50)."""
         values = lid_contact(np.asarray(values, dtype=float))
         x = np.array(x, dtype=float)
         if values[18:22].any():
@@ -516,7 +518,8 @@ def deformer_key(face: Face) -> str:
     import core.surface_query as surface_query
     import core.subdivision as subdivision
 
-    code = source_version(sys.modules[__name__], template_module, teeth_guard_module, limits_module, tables, surface_query, subdivision)
+    code = source_version(sys.modules[__name__], template_module, teeth_guard_module, limits_module, tables,
+                          surface_query, subdivision)
     landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]
