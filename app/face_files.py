@@ -306,16 +306,17 @@ class FaceFilesMixin:
             self.settings.setValue("lastDirectory", str(Path(path).parent))
             self.save_face_file(path)
 
-    def save_face_file(self, path) -> bool:
-        """Save the displayed face; errors become a message box. Returns success."""
-        if self.face is None:
+    def save_face_file(self, path, face=None) -> bool:
+        """Save ``face`` (default: the displayed face); errors become a message box. Returns success."""
+        face = face if face is not None else self.face
+        if face is None:
             return False
         try:
             from core.formats.mesh_io import save_face
 
             QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
             try:
-                save_face(self.face, path)
+                save_face(face, path)
             finally:
                 QApplication.restoreOverrideCursor()
         except Exception as exc:  # noqa: BLE001

@@ -283,6 +283,11 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
             "&Flip texture vertically", self.flip_texture,
             tip="Turn the texture image upside down (for files whose texture coordinates count rows from the "
                 "other end, e.g. a glTF made from an OBJ)")
+        self.save_canonical_action = self._action(
+            "Save &canonical face…", self.save_canonical_face_dialog,
+            tip="Save the 4560-vertex canonical face behind the animated scan (after Build correspondence), "
+                "the same topology for every registered scan")
+        self.tools_menu.addAction(self.save_canonical_action)
         self.tools_menu.addAction(self.scale_face_action)
         self.tools_menu.addAction(self.load_texture_action)
         self.tools_menu.addAction(self.flip_texture_action)

@@ -93,7 +93,8 @@ class ScanToolsMixin:
             self._show_notes(lines, "landmark detection", heading="Landmark detection:")
 
     def build_correspondence(self) -> None:
-        """Register the current face to the MPEG-4 template and switch the view to the canonical face."""
+        """Register the current face to the MPEG-4 template and show the scan itself, animated through
+        its canonical face (``scan_animation``); the canonical face when the scan cannot be cut."""
         if self.face is None:
             return
         face = self.face
@@ -109,15 +110,34 @@ class ScanToolsMixin:
 
             progress(0.1, "Building the dense correspondence…")
             registration = register_scan(face, landmarks)
-            canonical = registration.face
-            kept = set(canonical.landmarks)
-            canonical.metadata = dataclasses.replace(   # a copy: the scan's own metadata stays as it is
-                canonical.metadata, landmark_status={n: s for n, s in status.items() if n in kept},
+            progress(0.5, "Cutting the lips and fitting a mouth behind them…")
+            shown = scan_animation(registration, lambda f, m: progress(0.6 + 0.4 * f, m))
+            kept = set(shown.landmarks)
+            shown.metadata = dataclasses.replace(   # a copy: the scan's own metadata stays as it is
+                shown.metadata, landmark_status={n: s for n, s in status.items() if n in kept},
                 landmark_confidence={n: c for n, c in confidence.items() if n in kept})
-            return canonical
+            self._canonical_of = (shown, registration.face)   # for Tools ▸ Save canonical face
+            return shown
 
         self._fallback_to_default = False
         self._start_load("", loader, "Building the canonical face from the landmarks…")
+
+    def save_canonical_face_dialog(self) -> None:
+        """Save the canonical face behind the shown scan (Build correspondence), for other tools."""
+        shown, canonical = getattr(self, "_canonical_of", None) or (None, None)
+        if canonical is None or shown is not self.face:
+            self.show_error("No canonical face", "A canonical face is made by Landmarks ▸ Build correspondence; "
+                            "this face was not built that way, or it was changed since (scaled, retextured). "
+                            "Build the correspondence again first.")
+            return
+        from app.face_files import SAVE_FILTERS
+
+        default = str(Path(self._last_dir()) / f"{shown.metadata.name or 'face'}.canonical.obj")
+        path, chosen = QFileDialog.getSaveFileName(self, "Save canonical face as", default, ";;".join(SAVE_FILTERS))
+        if path:
+            if Path(path).suffix.lower() not in SAVE_FILTERS.values():
+                path += SAVE_FILTERS.get(chosen, ".obj")
+            self.save_face_file(path, canonical)
 
     def replace_face(self, face, message: str) -> None:
         """Show an edited copy of the current face; its rig is rebuilt in the background."""
@@ -192,4 +212,35 @@ class ScanToolsMixin:
         self.replace_face(self.face, "Rebuilding the animation from the corrected landmarks…")
 
 
-__all__ = ["ScanToolsMixin"]
+def scan_animation(registration, progress=None):
+    """The Face the window shows after Build correspondence: the scan itself with its lips cut, a
+    mouth cavity and teeth (``core.registration.scan_mouth.animated_scan``), its FAP rig built on the
+    registration's fitted template and left in the disk cache, where the window's rig build finds it.
+    Falls back to the canonical face, saying why in its notes, when the scan cannot be cut. The
+    registration's report joins the notes either way."""
+    from core.cache import DiskCache
+    from core.layers.fap.fat import FapDeformer
+    from core.registration.scan_mouth import ScanMouthError, animated_scan
+
+    canonical = registration.face
+    report = [f"Registration: {line}" for line in registration.report]
+    try:
+        animated = animated_scan(registration)
+    except ScanMouthError as exc:
+        notes = [*canonical.metadata.notes, *report,
+                 f"Showing the canonical face ({canonical.n_vertices} vertices), not the scan: {exc}."]
+        canonical.metadata = dataclasses.replace(canonical.metadata, notes=notes)
+        return canonical
+    shown = animated.face
+    n_mouth = shown.n_vertices - animated.n_scan - animated.n_copies
+    notes = [*shown.metadata.notes, *report,
+             f"Animated at full resolution ({animated.n_scan} vertices) through a {canonical.n_vertices}-vertex "
+             f"canonical face; lips cut along the lip line ({animated.n_copies} vertices copied)"
+             + (f", mouth cavity and teeth added ({n_mouth} vertices)." if n_mouth else ".")]
+    shown.metadata = dataclasses.replace(shown.metadata, notes=notes)
+    if animated.dense is not None:
+        FapDeformer.for_face(shown, DiskCache(), progress, dense=animated.dense)
+    return shown
+
+
+__all__ = ["ScanToolsMixin", "scan_animation"]

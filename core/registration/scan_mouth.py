@@ -20,12 +20,14 @@ The texture of the added parts is the default face's, appended below the scan's 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse
 
-from core.face import Face
+from core.face import Face, SurfacePoint
+from core.layers.fap.template import DenseTemplate
 from core.registration.correspondence import Registration, _adjacency, _similarity, boundary_loops
 from core.registration.templates import get_template
 from core.surface_query import TriangleSet
@@ -39,6 +41,8 @@ MOUTH_POINTS = ("8.1", "8.2", "8.3", "8.4", "2.2", "2.3", "2.4", "2.5", "2.10", 
 #: and jaw line: with the chin alone the teeth swing out through the lower lip as the jaw opens).
 JAW_POINTS = ("2.1", "2.10", "2.11", "2.12", "2.13", "2.14")
 MOUTH_PARTS = ("mouth_cavity", "teeth_upper", "teeth_lower")
+#: The registration template whose canonical face is the FAP rig's dense template.
+FAP_TEMPLATE = "mpeg4_80"
 #: How far behind the scan's skin the placed mouth parts must stay, mm (a scan's upper lip can sit
 #: further back than the donor's, and the cavity's rim would show through it as dark slits).
 BEHIND_SKIN_MM = 1.0
@@ -95,9 +99,12 @@ def lip_labels(triangles: np.ndarray, template_name: str, rings: int = LIP_RINGS
 class AnimatedScan:
     """The scan with cut lips and mouth parts, moved by its canonical face.
 
-    face : the scan (n_scan vertices, then ``n_copies`` cut copies, then the mouth parts).
+    face : the scan (n_scan vertices, then ``n_copies`` cut copies, then the mouth parts), with the
+        registration's landmarks on its skin (inner-lip points on their own lip's side of the cut).
     matrix : (n_scan + n_copies, N) sparse binding of the skin vertices to canonical vertices.
     rest_canonical : (N, 3) mm.  jaw_vertices : canonical ids whose rigid motion moves the lower teeth.
+    dense : the FAP template as the registration fitted it on the scan (canonical vertex i is dense
+        vertex i), for ``FapDeformer(face, dense=...)``; None when registered with another template.
     """
 
     face: Face
@@ -106,6 +113,7 @@ class AnimatedScan:
     jaw_vertices: np.ndarray
     n_scan: int
     n_copies: int
+    dense: DenseTemplate | None = None
 
     def vertices(self, canonical_vertices) -> np.ndarray:
         """(n, 3) mm: the face's vertices for canonical vertices (N, 3) (rest -> the scan exactly)."""
@@ -290,13 +298,47 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
             skin_uv = np.concatenate([skin_uv, np.zeros((len(part_vertices), 2))])
         if colours is not None:
             colours = np.concatenate([colours, _part_colours(donor, part_uv, len(part_vertices))])
-    face = Face(np.concatenate(vertices), np.concatenate(all_triangles), uv=skin_uv,
+    skin_matrix = scipy.sparse.vstack([matrix, copy_rows]).tocsr()
+    all_vertices = np.concatenate(vertices)
+    face = Face(all_vertices, np.concatenate(all_triangles), uv=skin_uv,
                 texture=texture if skin_uv is not None else None, vertex_colors=colours,
-                landmarks=scan.landmarks, metadata=scan.metadata, parts=parts)
+                landmarks=_landmarks_on_skin(all_vertices, triangles, skin_matrix, canonical, labels,
+                                             registration.template),
+                metadata=scan.metadata, parts=parts)
     base = get_template(registration.template).base
     jaw = np.union1d([base.index(p) for p in JAW_POINTS if p in base.points], np.nonzero(labels == -1)[0])
-    return AnimatedScan(face, scipy.sparse.vstack([matrix, copy_rows]).tocsr(),
-                        np.array(canonical.vertices, float), jaw, n_scan, n_copies)
+    dense = None
+    if registration.template == FAP_TEMPLATE and registration.projection is not None:
+        fitted = registration.projection.dense
+        if len(fitted.vertices) == canonical.n_vertices and np.array_equal(fitted.triangles, canonical.triangles):
+            dense = dataclasses.replace(fitted, vertices=np.array(canonical.vertices, float))
+    return AnimatedScan(face, skin_matrix, np.array(canonical.vertices, float), jaw, n_scan, n_copies, dense)
+
+
+def _landmarks_on_skin(vertices, skin_triangles, skin_matrix, canonical: Face, canonical_labels,
+                       template_name: str) -> dict[str, SurfacePoint]:
+    """{name: SurfacePoint} of the canonical face's landmarks on the cut scan's skin. The scan's own
+    triangles under an inner-lip point may belong to either lip after the cut (they touch at rest), so
+    upper-lip points are placed only on triangles with no lower-lip corner and the other way round —
+    else the point would ride on the wrong lip when the jaw opens."""
+    total = np.asarray(skin_matrix.sum(axis=1)).ravel()
+    score = (skin_matrix @ canonical_labels.astype(float)) / np.maximum(total, 1e-12)
+    corner = np.where(score > 0.5, 1, np.where(score < -0.5, -1, 0))[skin_triangles]
+    base = get_template(template_name).base
+    names = list(canonical.landmarks)
+    positions = canonical.landmark_positions(names)
+    side_of = np.array([1 if n in base.upper_lip_points else -1 if n in base.lower_lip_points else 0 for n in names])
+    out: dict[str, SurfacePoint] = {}
+    for side in (0, 1, -1):
+        chosen = np.nonzero(side_of == side)[0]
+        if not len(chosen):
+            continue
+        allowed = np.nonzero(~(corner == -side).any(axis=1))[0] if side else np.arange(len(skin_triangles))
+        _, tri, bary = TriangleSet(vertices, skin_triangles[allowed]).closest(positions[chosen])
+        for i, t, b in zip(chosen, tri, bary):
+            b = np.clip(b, 0.0, None)
+            out[names[i]] = SurfacePoint(int(allowed[t]), tuple(b / b.sum()))
+    return out
 
 
 def _part_colours(donor: Face, part_uv, count: int) -> np.ndarray:

@@ -570,9 +570,11 @@ def test_a_loaded_face_shows_before_its_rig_is_built(qtbot, window, tmp_path, mo
     qtbot.waitUntil(lambda: window.landmark_editor.active, timeout=LOAD_TIMEOUT_MS)
 
 
-def test_build_correspondence_keeps_the_points_the_user_edited_and_confirmed(qtbot, window):
-    """Issue 15: after Build correspondence, points the user moved or confirmed are still 'edited' /
-    'confirmed' on the canonical face (its landmarks are those points), the others 'auto'."""
+def test_build_correspondence_shows_the_scan_animated_and_keeps_edited_points(qtbot, window, tmp_path, monkeypatch):
+    """Issue 15: after Build correspondence the window shows the scan itself (every scan vertex where it
+    was, lips cut, a mouth cavity and teeth added) animated by the rig, not the 4560-vertex canonical
+    face; points the user moved or confirmed are still 'edited' / 'confirmed', the others 'auto'; the
+    canonical face can be saved from Tools."""
     from core.landmark_editing import LandmarkStatus
     from core.registration.pipeline import default_model
     from core.registration.virtual_scanner import scan_face
@@ -587,9 +589,35 @@ def test_build_correspondence_keeps_the_points_the_user_edited_and_confirmed(qtb
     with qtbot.waitSignal(window.load_finished, timeout=60000):
         window.build_correspondence()
     qtbot.waitUntil(lambda: window.face is not scan and window.document.landmarks is not model, timeout=60000)
-    canonical = window.document.landmarks
-    assert window.face.n_vertices == 4560
-    assert canonical.status("8.3") == LandmarkStatus.EDITED and canonical.status("9.3") == LandmarkStatus.CONFIRMED
-    others = [n for n in canonical.names if n not in ("8.3", "9.3")]
-    assert others and all(canonical.status(n) == LandmarkStatus.AUTO for n in others)
+    shown = window.face
+    assert shown.n_vertices > scan.n_vertices
+    assert np.array_equal(shown.vertices[:scan.n_vertices], scan.vertices), "the scan's own vertices, unmoved"
+    assert {"mouth_cavity", "teeth_upper", "teeth_lower"} <= set(shown.parts)
+    edited = window.document.landmarks
+    assert edited.status("8.3") == LandmarkStatus.EDITED and edited.status("9.3") == LandmarkStatus.CONFIRMED
+    others = [n for n in edited.names if n not in ("8.3", "9.3")]
+    assert others and all(edited.status(n) == LandmarkStatus.AUTO for n in others)
     assert not scan.metadata.landmark_status, "the scan's own metadata is left as it was"
+    assert any("canonical face" in n for n in shown.metadata.notes)
+    # The rig arrives (built on the registration's fitted template) and the jaw parts the cut lips.
+    qtbot.waitUntil(lambda: window.rig is not None and window.rig.face is shown, timeout=60000)
+    rig = window.rig
+    rig.set_values({"fap:3": 600.0})
+    moved = shown.landmark_positions(["2.2", "2.3"], rig.vertices()) - shown.landmark_positions(["2.2", "2.3"])
+    assert moved[1, 1] < -3.0 and abs(moved[0, 1]) < 1.0, "the lower lip drops, the upper stays"
+    lower = shown.parts["teeth_lower"]
+    assert np.allclose(rig.vertices()[lower] - shown.vertices[lower], rig.vertices()[lower[0]] - shown.vertices[lower[0]])
+    assert np.linalg.norm(rig.vertices()[lower] - shown.vertices[lower], axis=1).min() > 1.0, "the lower teeth go with the jaw"
+    # Tools ▸ Save canonical face writes the 4560-vertex face; after an edit there is none to save.
+    import app.scan_tools
+    from core.formats.mesh_io import load_face
+
+    target = tmp_path / "scan.canonical.ply"
+    monkeypatch.setattr(app.scan_tools.QFileDialog, "getSaveFileName", lambda *a, **k: (str(target), ""))
+    window.save_canonical_action.trigger()
+    assert load_face(target).n_vertices == 4560
+    errors = []
+    monkeypatch.setattr(window, "show_error", lambda title, text: errors.append(title))
+    window._canonical_of = (None, window._canonical_of[1])
+    window.save_canonical_action.trigger()
+    assert errors == ["No canonical face"]

@@ -112,3 +112,40 @@ def test_a_canonical_face_without_a_mouth_opening_is_refused_with_a_reason():
     closed = np.concatenate([triangles, triangles[:, ::-1]])     # every edge paired: no opening anywhere
     with pytest.raises(ScanMouthError, match="no mouth opening"):
         inner_lip_halves(closed, "mpeg4_80")
+
+
+def test_the_animated_scan_carries_the_registrations_landmarks_each_inner_lip_point_on_its_own_lip(
+        registration, animated):
+    canonical, face = registration.face, animated.face
+    names = canonical.landmark_names
+    assert set(face.landmark_names) == set(names)
+    gap = dict(zip(names, np.linalg.norm(face.landmark_positions(names) - canonical.landmark_positions(names), axis=1)))
+    base = get_template("mpeg4_80").base
+    lips = base.upper_lip_points | base.lower_lip_points
+    assert max(g for n, g in gap.items() if n not in lips) < 1e-6, "where the registration put them"
+    # an inner-lip point on a cut triangle kept by the other lip moves to the nearest of its own
+    assert max(g for n, g in gap.items() if n in lips) < 1.0
+    labels = lip_labels(canonical.triangles, "mpeg4_80")
+    n_skin = animated.n_scan + animated.n_copies
+    score = animated.matrix @ labels.astype(float)
+    side = np.where(score > 0.5, 1, np.where(score < -0.5, -1, 0))    # +1 upper lip, -1 lower lip (skin)
+    for name in ("2.2", "2.3", "2.6", "2.9"):
+        corners = face.triangles[face.landmarks[name].triangle]
+        assert (corners < n_skin).all()
+        own = 1 if name in base.upper_lip_points else -1
+        assert not (side[corners] == -own).any(), f"{name} sits on a triangle of the other lip"
+
+
+def test_a_rig_on_the_animated_scan_uses_the_registration_fit_and_opens_the_jaw(registration, animated):
+    from core.layers.fap.fat import FapDeformer
+    from core.rig import FaceRig
+
+    assert animated.dense is not None
+    assert np.array_equal(animated.dense.vertices, registration.face.vertices)
+    deformer = FapDeformer(animated.face, dense=animated.dense)
+    assert deformer.dense is animated.dense
+    rig = FaceRig(animated.face, deformer)
+    rig.set_fap(3, 400)
+    face = animated.face
+    moved = face.landmark_positions(["2.2", "2.3"], rig.vertices()) - face.landmark_positions(["2.2", "2.3"])
+    assert moved[1, 1] < -2.0 and abs(moved[0, 1]) < 0.5 * abs(moved[1, 1])

@@ -83,12 +83,14 @@ class FapDeformer:
     """
 
     def __init__(self, face: Face, template: BaseTemplate | None = None,
-                 progress: Callable[[float, str], None] | None = None):
+                 progress: Callable[[float, str], None] | None = None, dense: DenseTemplate | None = None):
+        """``dense``: the template already fitted on ``face`` (a registration's canonical face, see
+        ``core.registration.scan_mouth.AnimatedScan.dense``) instead of densifying it here."""
         report = progress or (lambda _fraction, _message: None)
         self.face = face
-        self.template = template or load_template()
+        self.template = dense.template if dense is not None else (template or load_template())
         report(0.0, "Placing the FAP template on the face…")
-        self.dense: DenseTemplate = densify(face, self.template)
+        self.dense: DenseTemplate = dense if dense is not None else densify(face, self.template)
         positions = {n: face.landmark_position(n) for n in face.landmark_names}
         self.fapu = tables.measure_fapu(positions)
         self.specs = tables.fap_specs()
@@ -406,22 +408,25 @@ class FapDeformer:
 
     @classmethod
     def for_face(cls, face: Face, cache: DiskCache | None = None,
-                 progress: Callable[[float, str], None] | None = None) -> "FapDeformer":
+                 progress: Callable[[float, str], None] | None = None,
+                 dense: DenseTemplate | None = None) -> "FapDeformer":
         """The deformer of ``face``, read from ``cache`` when built before (else built and stored;
         ``progress(fraction, message)`` hears how the build goes).
 
         Keyed by the face's vertices, triangles, feature points and parts, the template file and
-        the source of the modules that build the table: any change there builds afresh.
+        the source of the modules that build the table: any change there builds afresh. A deformer
+        built on a given ``dense`` template (a registered scan) is stored under the face's key too,
+        so the rig built later for that face (the window's, a project's) finds it.
         """
         if cache is None:
-            return cls(face, progress=progress)
+            return cls(face, progress=progress, dense=dense)
         key = deformer_key(face)
         found = cache.get("fap", key)
-        if isinstance(found, cls):
+        if isinstance(found, cls) and (dense is None or np.array_equal(found.dense.vertices, dense.vertices)):
             found.face = face
             found._rest = face.vertices.ravel()
             return found
-        deformer = cls(face, progress=progress)
+        deformer = cls(face, progress=progress, dense=dense)
         cache.put("fap", key, deformer)
         return deformer
 
