@@ -106,12 +106,14 @@ class ScanToolsMixin:
         confidence = {n: c for n in model.names if (c := model.confidence(n)) is not None} if model is not None else {}
 
         def loader(progress):
+            from core.cache import DiskCache
             from core.registration.pipeline import register_scan
+            from core.registration.scan_mouth import scan_animation
 
             progress(0.1, "Building the dense correspondence…")
             registration = register_scan(face, landmarks)
             progress(0.5, "Cutting the lips and fitting a mouth behind them…")
-            shown = scan_animation(registration, lambda f, m: progress(0.6 + 0.4 * f, m))
+            shown = scan_animation(registration, DiskCache(), lambda f, m: progress(0.6 + 0.4 * f, m))
             kept = set(shown.landmarks)
             shown.metadata = dataclasses.replace(   # a copy: the scan's own metadata stays as it is
                 shown.metadata, landmark_status={n: s for n, s in status.items() if n in kept},
@@ -212,35 +214,4 @@ class ScanToolsMixin:
         self.replace_face(self.face, "Rebuilding the animation from the corrected landmarks…")
 
 
-def scan_animation(registration, progress=None):
-    """The Face the window shows after Build correspondence: the scan itself with its lips cut, a
-    mouth cavity and teeth (``core.registration.scan_mouth.animated_scan``), its FAP rig built on the
-    registration's fitted template and left in the disk cache, where the window's rig build finds it.
-    Falls back to the canonical face, saying why in its notes, when the scan cannot be cut. The
-    registration's report joins the notes either way."""
-    from core.cache import DiskCache
-    from core.layers.fap.fat import FapDeformer
-    from core.registration.scan_mouth import ScanMouthError, animated_scan
-
-    canonical = registration.face
-    report = [f"Registration: {line}" for line in registration.report]
-    try:
-        animated = animated_scan(registration)
-    except ScanMouthError as exc:
-        notes = [*canonical.metadata.notes, *report,
-                 f"Showing the canonical face ({canonical.n_vertices} vertices), not the scan: {exc}."]
-        canonical.metadata = dataclasses.replace(canonical.metadata, notes=notes)
-        return canonical
-    shown = animated.face
-    n_mouth = shown.n_vertices - animated.n_scan - animated.n_copies
-    notes = [*shown.metadata.notes, *report,
-             f"Animated at full resolution ({animated.n_scan} vertices) through a {canonical.n_vertices}-vertex "
-             f"canonical face; lips cut along the lip line ({animated.n_copies} vertices copied)"
-             + (f", mouth cavity and teeth added ({n_mouth} vertices)." if n_mouth else ".")]
-    shown.metadata = dataclasses.replace(shown.metadata, notes=notes)
-    if animated.dense is not None:
-        FapDeformer.for_face(shown, DiskCache(), progress, dense=animated.dense)
-    return shown
-
-
-__all__ = ["ScanToolsMixin", "scan_animation"]
+__all__ = ["ScanToolsMixin"]

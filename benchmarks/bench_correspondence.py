@@ -47,7 +47,6 @@ def measure(scan, landmarks, folder: Path, label: str, reference: np.ndarray):
     from core.registration.correspondence import load_face_or_canonical
     from core.registration.pipeline import register_scan
     from core.rig import FaceRig
-    from core.surface_query import TriangleSet
 
     t0 = time.perf_counter()
     registration = register_scan(scan, landmarks)
@@ -56,10 +55,7 @@ def measure(scan, landmarks, folder: Path, label: str, reference: np.ndarray):
     normal = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
     area = np.linalg.norm(normal, axis=1)
     collapsed = area < 1e-3 * np.median(area)
-    surface = TriangleSet(scan.vertices, scan.triangles)
-    centroids = c.mean(axis=1)
-    closest, _, _ = surface.closest(centroids)
-    distance = np.linalg.norm(closest - centroids, axis=1)
+    distance = registration.distances_to_scan()
     flipped = (np.einsum("kd,kd->k", normal, reference) < 0) & ~collapsed
     path = folder / f"{label}.obj"
     save_face(face, path)

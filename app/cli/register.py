@@ -35,9 +35,8 @@ def register_one(path: Path, options) -> ScanResult:
         save_face(registration.face, target)
     except MeshSaveError as exc:
         raise CliError(str(exc)) from None
-    face = registration.face
-    return ScanResult(f"{face.n_vertices} vertices / {face.n_triangles} triangles -> {target}; "
-                      f"{registration.fallbacks} vertices took the closest point (normal ray missed)")
+    notes = "".join(f"\n  note: {line}" for line in registration.report[1:])   # [0] repeats the summary
+    return ScanResult(f"{registration.summary()} -> {target}{notes}")
 
 
 def run(args: argparse.Namespace) -> int:

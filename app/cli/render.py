@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.cli.common import MODES, VIEWS, CliError, checked_value, load_face_or_default, parse_size, rig_values
+from app.cli.common import (MODES, VIEWS, CliError, add_texture_options, checked_value, load_face_or_default,
+                            parse_size, positive_factor, rig_values, with_texture)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -19,12 +20,14 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"--out must end in .png or .jpg, got {args.out!r}")
     if out.parent and not out.parent.exists():
         raise CliError(f"output folder does not exist: {out.parent}")
-    face = load_face_or_default(args.face)
+    values = {**rig_values(args), **blend_values(args)}    # option errors before the slow work
+    face = with_texture(load_face_or_default(args.face), args)
+    if args.register:
+        face = registered_scan(face, args)
     for note in getattr(face.metadata, "notes", []) or []:
         print(f"note: {note}", file=sys.stderr)
     from app.render import render_face_png
 
-    values = {**rig_values(args), **blend_values(args)}
     if values:
         face = face.with_vertices(posed_vertices(face, values))
     try:
@@ -58,15 +61,37 @@ def blend_values(args) -> dict[str, float]:
     return values
 
 
+def registered_scan(scan, args):
+    """The scan itself, registered with the landmarks of ``--register`` (scaled by ``--scale``) and
+    made animatable: lips cut, a mouth cavity and teeth (as the window's Build correspondence)."""
+    from core.cache import DiskCache
+    from core.formats.landmarks_io import LandmarkFileError, load_landmarks
+    from core.registration.pipeline import register_scan
+    from core.registration.scan_mouth import scan_animation
+
+    if args.face is None:
+        raise CliError("--register needs a FACE: the scan the landmark file was made for")
+    try:
+        landmarks = load_landmarks(Path(args.register), scan)
+        if args.scale is not None:   # surface points survive scaling
+            scan = scan.scaled(args.scale)
+        registration = register_scan(scan, landmarks)
+    except (LandmarkFileError, ValueError) as exc:
+        raise CliError(f"--register {args.register}: {exc}") from None
+    return scan_animation(registration, DiskCache())
+
+
 def posed_vertices(face, values: dict[str, float]) -> np.ndarray:
     """(n, 3) mm: ``face`` posed by parameter ``values`` (the muscle model is built and settled when
-    muscle forces or the jaw are given)."""
+    muscle forces or the jaw are given). The FAP table comes from the disk cache when this face was
+    animated before (a registered scan's is put there by ``registered_scan``)."""
+    from core.cache import DiskCache
     from core.layers.fap.template import TemplateError
     from core.layers.muscles import SolverDiverged
     from core.rig import FaceRig
 
     try:
-        rig = FaceRig(face)
+        rig = FaceRig(face, cache=DiskCache())
     except (TemplateError, ValueError) as exc:
         raise CliError(f"cannot animate this face: {exc}") from None
     try:
@@ -118,6 +143,14 @@ def add_parser(sub) -> None:
                    help="image size in pixels (default: 1200x900)")
     p.add_argument("--mode", choices=MODES, default="textured", help="display mode (default: textured)")
     p.add_argument("--landmarks", action="store_true", help="draw landmarks with their labels")
+    add_texture_options(p)
+    scan = p.add_argument_group("a scan animated at its own resolution (as the window's Build correspondence)")
+    scan.add_argument("--register", metavar="L.json",
+                      help="register FACE with this landmark file ('mimica landmarks' writes it) and animate the "
+                           "scan itself: lips cut along the lip line, a mouth cavity and teeth behind them")
+    scan.add_argument("--scale", type=positive_factor, metavar="FACTOR",
+                      help="with --register: multiply the scan's coordinates by FACTOR first ('mimica landmarks' "
+                           "prints the factor it suggests for a scan in other units)")
     anim = p.add_argument_group("MPEG-4 animation (the face needs the 64 feature points of the template)")
     anim.add_argument("--fap", action="append", default=[], metavar="NAME=VALUE",
                       help="low-level FAP by name or number, in FAP units, e.g. open_jaw=400 or 19=1024 "

@@ -341,6 +341,35 @@ def _landmarks_on_skin(vertices, skin_triangles, skin_matrix, canonical: Face, c
     return out
 
 
+def scan_animation(registration: Registration, cache=None, progress=None) -> Face:
+    """The Face to show and animate for a registered scan: :func:`animated_scan`'s face, with the
+    registration's report and what was done in its notes. Its FAP deformer is built on the
+    registration's fitted template and stored in ``cache`` (a ``core.cache.DiskCache``), where a
+    rig built later for this face finds it (without a cache the rig densifies the template itself).
+    Falls back to the canonical face, saying why in its notes, when the scan cannot be cut."""
+    canonical = registration.face
+    report = [f"Registration: {line}" for line in registration.report]
+    try:
+        animated = animated_scan(registration)
+    except ScanMouthError as exc:
+        notes = [*canonical.metadata.notes, *report,
+                 f"Showing the canonical face ({canonical.n_vertices} vertices), not the scan: {exc}."]
+        canonical.metadata = dataclasses.replace(canonical.metadata, notes=notes)
+        return canonical
+    shown = animated.face
+    n_mouth = shown.n_vertices - animated.n_scan - animated.n_copies
+    notes = [*shown.metadata.notes, *report,
+             f"Animated at full resolution ({animated.n_scan} vertices) through a {canonical.n_vertices}-vertex "
+             f"canonical face; lips cut along the lip line ({animated.n_copies} vertices copied)"
+             + (f", mouth cavity and teeth added ({n_mouth} vertices)." if n_mouth else ".")]
+    shown.metadata = dataclasses.replace(shown.metadata, notes=notes)
+    if animated.dense is not None and cache is not None:
+        from core.layers.fap.fat import FapDeformer
+
+        FapDeformer.for_face(shown, cache, progress, dense=animated.dense)
+    return shown
+
+
 def _part_colours(donor: Face, part_uv, count: int) -> np.ndarray:
     """(count, 3) uint8 colours of the donor's mouth parts for a scan coloured per vertex."""
     if donor.texture is None or part_uv is None:
@@ -351,4 +380,4 @@ def _part_colours(donor: Face, part_uv, count: int) -> np.ndarray:
     return donor.texture[row, col]
 
 
-__all__ = ["AnimatedScan", "ScanMouthError", "animated_scan", "inner_lip_halves", "lip_labels"]
+__all__ = ["AnimatedScan", "ScanMouthError", "animated_scan", "inner_lip_halves", "lip_labels", "scan_animation"]

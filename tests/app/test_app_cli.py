@@ -143,8 +143,34 @@ def test_landmarks_then_register_a_scan_in_other_units(tmp_path, capsys):
     assert "not millimetres" in out.err and "--scale 2" in out.out, out
     canonical = tmp_path / "half.obj"
     assert cli.main(["register", str(scan_path), "-l", str(landmarks), "--scale", "2", "-o", str(canonical)]) == 0
+    printed = capsys.readouterr().out
+    mean_mm = float(printed.split("distance to the scan mean ")[1].split(" mm")[0])
+    assert 0.0 <= mean_mm < 0.5, printed          # the fit's closeness to the scan, per scan
     face = load_face(canonical)
     assert face.n_vertices == 4560
+    # The scan itself animated (lips cut, mouth behind them): the jaw opens the scan's own mouth.
+    scan_open, scan_rest = tmp_path / "scan_open.png", tmp_path / "scan_rest.png"
+    for out, extra in ((scan_rest, []), (scan_open, ["--fap", "open_jaw=500"])):
+        assert cli.main(["render", str(scan_path), "--register", str(landmarks), "--scale", "2", *extra,
+                         "-o", str(out), "--size", "240x240"]) == 0
+    assert "Animated at full resolution" in capsys.readouterr().err
+    assert image_variance(np.asarray(Image.open(scan_open))) > 0
+    from types import SimpleNamespace
+
+    from app.cli.render import posed_vertices, registered_scan
+
+    shown = registered_scan(load_face(scan_path), SimpleNamespace(face=str(scan_path), register=str(landmarks), scale=2.0))
+    assert np.array_equal(shown.vertices[:scan.n_vertices], load_face(scan_path).scaled(2.0).vertices)
+    moved = np.linalg.norm(posed_vertices(shown, {"fap:3": 500.0}) - shown.vertices, axis=1)
+    lips = shown.landmark_positions(["2.2", "2.3"])
+    above_nose = shown.vertices[:, 1] > shown.landmark_position("9.15")[1] + 5.0
+    assert moved[above_nose].max() < 0.01 and moved[shown.parts["teeth_lower"]].min() > 1.0
+    low = np.linalg.norm(shown.vertices - lips[1], axis=1).argmin()
+    assert moved[low] > 3.0, "the lower lip goes down with the jaw"
+    assert cli.main(["render", "--register", str(landmarks), "-o", str(scan_open)]) == 1
+    assert "--register needs a FACE" in capsys.readouterr().err
+    assert cli.main(["render", str(scan_path), "--register", str(tmp_path / "none.json"), "-o", str(scan_open)]) == 1
+    assert "--register" in capsys.readouterr().err
     # The OBJ has no landmarks, but Mimica recognises a canonical face and can animate it.
     joy = tmp_path / "joy.png"
     assert cli.main(["render", str(canonical), "--expression", "joy:80", "-o", str(joy), "--size", "200x150"]) == 0
