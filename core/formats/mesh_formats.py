@@ -30,9 +30,12 @@ class RawMesh:
     vertex_colors : (n, 3) uint8 or None
     notes : list of str, conversions already made by the reader
     n_short : int, faces with fewer than 3 corners (already dropped)
+    parts : {name: (k,) vertex indices} named parts (eyeballs, teeth, a mouth cavity) a Mimica PLY keeps
+    exact : bool, the file is Mimica's own copy of a face it held (its PLY): kept exactly as written
     """
 
-    def __init__(self, vertices, triangles, uv=None, texture=None, vertex_colors=None, notes=(), n_short=0):
+    def __init__(self, vertices, triangles, uv=None, texture=None, vertex_colors=None, notes=(), n_short=0,
+                 parts=None, exact=False):
         self.vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         self.triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
         self.uv = uv
@@ -40,6 +43,8 @@ class RawMesh:
         self.vertex_colors = vertex_colors
         self.notes = list(notes)
         self.n_short = n_short
+        self.parts = dict(parts or {})
+        self.exact = exact
 
 
 def reason(exc: BaseException) -> str:
@@ -382,9 +387,10 @@ def read_ply(path: Path) -> RawMesh:
         colors = _colors_from_float(colors)
     uv = next((np.column_stack([vdata[c] for c in st]).astype(np.float64) for st in _PLY_UV_NAMES if set(st) <= names), None)
     vertices, triangles = np.asarray(loaded.vertices), np.asarray(loaded.faces)
+    parts = _ply_parts(path, vdata[PLY_PART_PROPERTY]) if PLY_PART_PROPERTY in names else {}
     if uv is None and getattr(loaded.visual, "uv", None) is not None:  # per-corner texcoord: let trimesh split seams
         loaded = trimesh.load(str(path), file_type="ply", process=False, fix_texture=True, skip_materials=True)
-        vertices, triangles, uv, colors = loaded.vertices, loaded.faces, loaded.visual.uv, None
+        vertices, triangles, uv, colors, parts = loaded.vertices, loaded.faces, loaded.visual.uv, None, {}
     texture = None
     texture_name = _ply_texture_name(path)
     if texture_name:
@@ -397,7 +403,27 @@ def read_ply(path: Path) -> RawMesh:
                          "does not follow it, so the face is shown without texture (copy the image next to the "
                          "PLY, or use Tools ▸ Load texture image…).")
     n_short = 0 if counts is None else int((counts < 3).sum())
-    return RawMesh(vertices, triangles, uv, texture, colors, notes, n_short=n_short)
+    exact = PLY_MIMICA_COMMENT in _ply_header(path) and n_short == 0
+    return RawMesh(vertices, triangles, uv, texture, colors, notes, n_short=n_short, parts=parts, exact=exact)
+
+
+#: The first comment of every PLY Mimica writes: such a file is a face Mimica held (a project's embedded
+#: face, a saved canonical face or scan) and is read back exactly, degenerate triangles and all.
+PLY_MIMICA_COMMENT = "comment Written by Mimica"
+#: The vertex property and header comments in which Mimica's PLY keeps a face's named parts:
+#: ``property ushort mimica_part`` (0 = skin, k = the part of ``comment MimicaPart k NAME``).
+PLY_PART_PROPERTY = "mimica_part"
+PLY_PART_COMMENT = "MimicaPart"
+
+
+def _ply_parts(path: Path, labels) -> dict[str, np.ndarray]:
+    """{name: vertex indices} from the ``mimica_part`` labels and the header's part names; labels
+    without a name are skin."""
+    header = _ply_header(path)
+    names = {int(k): name for k, name in re.findall(rf"^comment\s+{PLY_PART_COMMENT}\s+(\d+)\s+(\S+)\s*$",
+                                                     header, re.MULTILINE)}
+    labels = np.asarray(labels, dtype=np.int64)
+    return {name: np.nonzero(labels == k)[0] for k, name in sorted(names.items()) if (labels == k).any()}
 
 
 def _ply_face_sizes(face_data) -> np.ndarray | None:
@@ -416,10 +442,15 @@ def _ply_face_sizes(face_data) -> np.ndarray | None:
     return None if lists is None else np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
 
 
+def _ply_header(path: Path) -> str:
+    """The PLY's header text (up to ``end_header``, at most 64 KiB)."""
+    with open(path, "rb") as fh:
+        return fh.read(1 << 16).split(b"end_header", 1)[0].decode("latin-1")
+
+
 def _ply_texture_name(path: Path) -> str | None:
     """File named by a ``comment TextureFile`` header line, if any."""
-    with open(path, "rb") as fh:
-        header = fh.read(1 << 16).split(b"end_header", 1)[0].decode("latin-1")
+    header = _ply_header(path)
     match = re.search(r"^comment\s+TextureFile\s+(.+?)\s*$", header, re.MULTILINE)
     return match.group(1) if match else None
 

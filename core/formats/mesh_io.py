@@ -38,7 +38,8 @@ import scipy.sparse.csgraph
 
 from core.face import Face, FaceMetadata
 from core.formats.atomic_files import write_atomic, write_reporting_errors, write_set_atomic  # noqa: F401
-from core.formats.mesh_formats import READERS, RawMesh, _image_to_rgb, plural, reason, weld
+from core.formats.mesh_formats import (PLY_MIMICA_COMMENT, PLY_PART_COMMENT, PLY_PART_PROPERTY, READERS, RawMesh, _image_to_rgb, plural,
+                                      reason, weld)
 from core.formats.text_files import check_file
 
 __all__ = ["MeshLoadError", "MeshSaveError", "load_face", "load_texture_image", "save_face", "LOAD_FORMATS",
@@ -156,6 +157,7 @@ def load_face(path, *, progress: ProgressCallback | None = None, max_triangles: 
         texture=mesh.texture,
         vertex_colors=mesh.vertex_colors,
         metadata=FaceMetadata(source=str(path), units="mm", notes=mesh.notes, name=path.stem),
+        parts=mesh.parts,
     )
     report(1.0, f"Loaded {path.name}")
     return face
@@ -224,6 +226,8 @@ def _repair(mesh: RawMesh, name: str, max_triangles: int,
             "Repair the mesh (e.g. MeshLab: Filters > Cleaning and Repairing) or export it again."
         )
     notes = mesh.notes
+    if mesh.exact:   # Mimica's own copy of a face it held: landmarks and rigs index it as it is
+        return mesh
     canonical = keep_topology(len(v), tri) if keep_topology is not None else None
     repeated = (tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2]) | (tri[:, 2] == tri[:, 0])
     corners = v[tri]
@@ -266,6 +270,7 @@ def _repair(mesh: RawMesh, name: str, max_triangles: int,
         v = v[used]
         mesh.uv = None if mesh.uv is None else mesh.uv[used]
         mesh.vertex_colors = None if mesh.vertex_colors is None else mesh.vertex_colors[used]
+        mesh.parts = {name: new_index[idx[used[idx]]] for name, idx in mesh.parts.items() if used[idx].any()}
     if mesh.uv is not None and not np.isfinite(mesh.uv).all():
         notes.append("The texture coordinates contain invalid numbers, so the texture was not used.")
         mesh.uv = mesh.texture = None
@@ -274,7 +279,7 @@ def _repair(mesh: RawMesh, name: str, max_triangles: int,
         mesh.texture = None
     _, welded = weld(v)  # count parts by position, so that uv seams do not split them
     n_parts = _count_components(welded[tri], int(welded.max()) + 1)
-    if n_parts > 1:
+    if n_parts > 1 and not mesh.parts:   # named parts (eyeballs, teeth) are separate by design
         notes.append(
             f"The mesh has {n_parts} separate parts (connected components); all were kept. Loose parts can be "
             "removed in MeshLab: Filters > Cleaning and Repairing > Remove Isolated pieces."
@@ -386,6 +391,9 @@ def _write_ply(face: Face, path: Path) -> None:
         fields += [("texture_u", "<f8"), ("texture_v", "<f8")]
     if colors is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    part_names = sorted(face.parts)[:65535]
+    if part_names:
+        fields += [(PLY_PART_PROPERTY, "<u2")]
     vertex = np.empty(face.n_vertices, dtype=fields)
     for axis, name in enumerate("xyz"):
         vertex[name] = face.vertices[:, axis]
@@ -393,10 +401,15 @@ def _write_ply(face: Face, path: Path) -> None:
         vertex["texture_u"], vertex["texture_v"] = face.uv[:, 0], face.uv[:, 1]
     if colors is not None:
         vertex["red"], vertex["green"], vertex["blue"] = colors[:, 0], colors[:, 1], colors[:, 2]
+    if part_names:
+        vertex[PLY_PART_PROPERTY] = 0       # skin; a vertex in several parts keeps the last one named
+        for k, name in enumerate(part_names, start=1):
+            vertex[PLY_PART_PROPERTY][np.asarray(face.parts[name], np.int64)] = k
     tri = np.empty(face.n_triangles, dtype=[("n", "u1"), ("i", "<i4", (3,))])
     tri["n"], tri["i"] = 3, face.triangles
-    ply_type = {"<f8": "double", "u1": "uchar"}
-    header = ["ply", "format binary_little_endian 1.0", "comment Written by Mimica; units: millimetres"]
+    ply_type = {"<f8": "double", "u1": "uchar", "<u2": "ushort"}
+    header = ["ply", "format binary_little_endian 1.0", f"{PLY_MIMICA_COMMENT}; units: millimetres"]
+    header += [f"comment {PLY_PART_COMMENT} {k} {name}" for k, name in enumerate(part_names, start=1)]
     companions: dict[Path, bytes] = {}
     if face.texture is not None and face.uv is not None:
         companions[path.with_suffix(".png")] = _png_bytes(face.texture)

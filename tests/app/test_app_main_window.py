@@ -618,6 +618,23 @@ def test_build_correspondence_shows_the_scan_animated_and_keeps_edited_points(qt
     assert load_face(target).n_vertices == 4560
     errors = []
     monkeypatch.setattr(window, "show_error", lambda title, text: errors.append(title))
+    # The session survives a project round trip: the same scan, cut, mouth parts, landmarks with their
+    # statuses, and the rig's values (the FAP table found again in the cache, built on the fitted template).
+    project = window.document.project
+    saved = tmp_path / "session.mimica"
+    assert project.save_project(saved)
+    landmarks_before = {n: shown.landmark_position(n) for n in shown.landmark_names}
+    window.set_face(scan, rig=None, rig_message="not needed here")
+    with qtbot.waitSignal(project.project_opened, timeout=60000):
+        project.open_project(saved, ask=False)
+    qtbot.waitUntil(lambda: window.rig is not None and window.rig.face is window.face, timeout=60000)
+    back = window.face
+    assert np.array_equal(back.vertices, shown.vertices) and np.array_equal(back.triangles, shown.triangles)
+    assert {k: sorted(v) for k, v in back.parts.items()} == {k: sorted(v) for k, v in shown.parts.items()}
+    assert all(np.allclose(back.landmark_position(n), p, atol=1e-9) for n, p in landmarks_before.items())
+    assert window.document.landmarks.status("8.3") == LandmarkStatus.EDITED
+    assert window.rig.value("fap:3") == 600.0
+    assert np.allclose(window.rig.vertices(), rig.vertices()), "the same animation as before saving"
     window._canonical_of = (None, window._canonical_of[1])
     window.save_canonical_action.trigger()
     assert errors == ["No canonical face"]

@@ -64,6 +64,28 @@ def test_ply_round_trip_keeps_vertices_triangles_uv_colours(grid_face, tmp_path)
     assert face.metadata.notes == []
 
 
+def test_a_mimica_ply_keeps_named_parts_and_every_triangle_as_written(grid_face, tmp_path):
+    """A face Mimica held (a project's embedded face: a cut scan with a mouth cavity) comes back exactly:
+    its named parts, a zero-area triangle and an unused vertex included, so landmarks and the rig
+    index it as before. Another program's PLY with the same defects is still repaired, with notes."""
+    v = np.vstack([grid_face.vertices, grid_face.vertices[:1], [[1e3, 1e3, 1e3]]])   # a copy, an unused vertex
+    n = len(grid_face.vertices)
+    flat = [[0, 1, n]]                                                              # zero area (n is on 0)
+    face = Face(v, np.vstack([grid_face.triangles, flat]), parts={"teeth": np.array([2, 3]), "eye": np.array([5])})
+    save_face(face, tmp_path / "held.ply")
+    back = load_face(tmp_path / "held.ply")
+    np.testing.assert_array_equal(back.vertices, face.vertices)
+    np.testing.assert_array_equal(back.triangles, face.triangles)
+    assert {k: list(p) for k, p in back.parts.items()} == {"eye": [5], "teeth": [2, 3]}
+    assert back.metadata.notes == []
+    other = (tmp_path / "held.ply").read_bytes().replace(b"Written by Mimica", b"Written by Other ")
+    (tmp_path / "other.ply").write_bytes(other)
+    repaired = load_face(tmp_path / "other.ply")
+    assert repaired.n_vertices == n and repaired.n_triangles == len(grid_face.triangles)   # both extras unused
+    assert any("zero area" in note for note in repaired.metadata.notes)
+    assert sorted(repaired.parts) == ["eye", "teeth"], "the parts still follow the vertices left"
+
+
 def test_ply_vertex_colours_survive_without_texture(grid_face, tmp_path):
     coloured = Face(grid_face.vertices, grid_face.triangles, vertex_colors=grid_face.vertex_colors)
     save_face(coloured, tmp_path / "c.ply")
