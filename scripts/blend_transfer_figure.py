@@ -8,8 +8,10 @@ rendered contact sheet ``docs/blend_transfer_lps.png``. The scan goes through th
 pipeline (automatic landmarks -> the unit scale they suggest -> registration, as ``mimica
 landmarks`` / ``mimica register`` do), the built-in library is transferred onto the registered face
 by both methods (``builtin_library_for``: deformation transfer and the thesis's bounding-box
-scaling), and joy, surprise, sadness and anger are rendered front and three-quarter.
-``--save-face OBJ`` also writes the registered face (to try ``mimica render OBJ --blend joy:80``).
+scaling), and joy, surprise, sadness and anger are rendered front and three-quarter on the scan
+itself at its full resolution (``scan_animation``: lips cut, a mouth cavity and teeth, as the
+window shows it after Build correspondence).
+``--save-face OBJ`` also writes the canonical face (to try ``mimica render OBJ --blend joy:80``).
 """
 
 from __future__ import annotations
@@ -50,19 +52,15 @@ def registration(data: Path, report=print):
     return reg
 
 
-def registered_face(data: Path, report=print):
-    """The canonical face of LeePerrySmith through the pipeline (:func:`registration`)."""
-    return registration(data, report).face
-
-
-def posed_images(face, method: str) -> list[list[np.ndarray]]:
-    """[[front, three-quarter] per pose] of ``face`` with the built-in library moved on by ``method``."""
+def posed_images(face, method: str, cache=None, frame=None) -> list[list[np.ndarray]]:
+    """[[front, three-quarter] per pose] of ``face`` with the built-in library moved on by ``method``
+    (its FAP table from ``cache`` when there; the camera frames ``frame`` points, default the face)."""
     from app.render import render_face_image
     from core.layers.blend.builtin import builtin_library_for
     from core.layers.blend.layer import BlendLayer
     from core.rig import FaceRig
 
-    rig = FaceRig(face)
+    rig = FaceRig(face, cache=cache)
     found = builtin_library_for(face, rig.deformer, method)
     if found is None:
         raise SystemExit("the built-in library does not fit this face (no mpeg4_80 FAP rig)")
@@ -75,7 +73,7 @@ def posed_images(face, method: str) -> list[list[np.ndarray]]:
         if percent:
             rig.set_values({f"blend:{pose}": percent})
         posed = face.with_vertices(rig.vertices())
-        out.append([render_face_image(posed, view=v, size=(2 * TILE, 2 * TILE)) for v in VIEWS])
+        out.append([render_face_image(posed, view=v, size=(2 * TILE, 2 * TILE), frame_points=frame) for v in VIEWS])
     rig.remove_layer(layer.name)
     return out
 
@@ -106,15 +104,20 @@ def main(argv=None) -> int:
     if not (data / "LeePerrySmith.glb").is_file():
         print(f"no LeePerrySmith.glb in {data}", file=sys.stderr)
         return 1
-    face = registered_face(data)
+    from core.cache import DiskCache
+    from core.registration.scan_mouth import scan_animation
+
+    reg = registration(data)
     if args.save_face:
         from core.formats.mesh_io import save_face
 
-        save_face(face, args.save_face)
+        save_face(reg.face, args.save_face)
         print(f"wrote {args.save_face}")
+    cache = DiskCache()
+    face = scan_animation(reg, cache)
     rows = []
     for method in METHODS:
-        images = posed_images(face, method)
+        images = posed_images(face, method, cache, frame=reg.face.vertices)
         for k, view in enumerate(VIEWS):
             rows.append((f"{method}, {view}", [pair[k] for pair in images]))
     columns = [name if not p else f"{name} {p:.0f} %" for name, p in POSES]
