@@ -83,9 +83,12 @@ def test_rows_groups_labels_units_and_tooltips(dock, rig):
     for needle in ("open_jaw", "2.1", "Bottom of the chin", "down", f"1 MNS unit = {mm:.3f} mm on this face"):
         assert needle in tip, needle
     assert "FAP 7" in dock.row(6).toolTip()  # the mirror FAP is named
-    # A slider end that would fold this face's skin is eased, and the tooltip says from where.
-    limit = rig.deformer.clean_limits[15 - 1, 1]
-    assert np.isfinite(limit) and f"beyond {limit:.0f} the skin would fold: eased" in dock.row(15).toolTip()
+    # A slider end that would fold this face's skin or smear its texture is eased, and the tooltip
+    # says from where and why.
+    limit = rig.deformer.clean_limits[3 - 1, 1]
+    assert np.isfinite(limit) and f"beyond {limit:.0f} the skin would fold: eased" in dock.row(3).toolTip()
+    low, high = rig.deformer.clean_limits[15 - 1]
+    assert f"beyond {low:.0f} and {high:.0f} the skin's texture would smear" in dock.row(15).toolTip()
     assert "eased" not in dock.row(19).toolTip()   # the lids close all the way: never eased
     # Labels are never cut: every label is as wide as its text needs.
     for row in dock.rows.values():

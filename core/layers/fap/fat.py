@@ -124,9 +124,9 @@ class FapDeformer:
         # The lids are not limited: they must close completely at 1024 IRISD, and their ends are
         # shaped by lid contact and the lid guard, which a linear fold check does not see.
         lids = {n for pair in LID_PAIRS for n in pair}
-        self.clean_limits = keeping(clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
-                                                 self.specs, [n for n in self.animated_faps if n not in lids]),
-                                    presets)
+        limits, self.limit_reasons = clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
+                                                  self.specs, [n for n in self.animated_faps if n not in lids])
+        self.clean_limits = keeping(limits, presets)
         assert self.matrix.shape == (3 * n, N_FAPS)
 
     # ------------------------------------------------------------ building
@@ -459,9 +459,13 @@ class FapDeformer:
 
     def limit_note(self, number: int) -> str | None:
         """"beyond 240 the skin would fold: eased" for each slider end of FAP ``number`` that is
-        limited on this face (joined by "; "), None when it is not."""
-        limits = [v for v in self.clean_limits[number - 1] if np.isfinite(v)]
-        return "; ".join(f"beyond {v:.0f} {FOLD_REASON}: eased" for v in limits) or None
+        limited on this face, with its reason (fold or texture smear; joined by "; "), None when
+        it is not."""
+        ends: dict[str, list[str]] = {}
+        for value, why in zip(self.clean_limits[number - 1], self.limit_reasons[number - 1]):
+            if np.isfinite(value):
+                ends.setdefault(why or FOLD_REASON, []).append(f"{value:.0f}")
+        return "; ".join(f"beyond {' and '.join(values)} {why}: eased" for why, values in ends.items()) or None
 
     def displacement(self, values: np.ndarray) -> np.ndarray:
         """(n, 3) mm: the FAT's offsets for (68,) effective FAP values (FAP units), lids in contact."""

@@ -1,16 +1,18 @@
-"""How far each FAP can go on one face before the skin folds, and a soft limit that eases into it.
+"""How far each FAP can go on one face before its skin breaks, and a soft limit that eases into it.
 
 A FAP's displacement is linear in its value, so "where does it break" is a bisection along one
 line per slider end: the value where the first skin triangle moved by the FAP turns its normal
 more than 90 degrees (a fold; slivers with no direction are not counted, as in
-``core.mesh_quality``).
+``core.mesh_quality``), or stretches or squeezes its texture beyond ``core.mesh_quality``'s bounds
+(a smear: a principal stretch above MAX_STRETCH or below MIN_STRETCH). Each end's reason is kept
+for the slider's tooltip.
 
-Only folds limit, and never below what a preset (expression or viseme at 100 %) asks of a FAP
-(:func:`keeping`): the presets' own folds are theirs to fix, a limit would only mute them. Texture stretch is a smear, not a break, and capping every FAP at its stretch
-limit would mute the presets (viseme aa's jaw 600 MNS against a stretch limit near 170); the teeth
-are kept outside by ``teeth_guard`` at any value; lips crossing is left to the combined pose (a lip
-FAP alone crosses a closed mouth's lips at once, while the visemes that use it open the jaw with it,
-so a per-FAP crossing limit would mute speech).
+Never below what a preset (expression or viseme at 100 %) asks of a FAP (:func:`keeping`): the
+presets are authored poses, a limit would only mute them (viseme aa opens the jaw 600 MNS where
+the default face's corner texture stretches twice from 320). The teeth are kept outside by
+``teeth_guard`` at any value; lips crossing is left to the combined pose (a lip FAP alone crosses a
+closed mouth's lips at once, while the visemes that use it open the jaw with it, so a per-FAP
+crossing limit would mute speech).
 
 :func:`soft_limit` is the identity up to ``EASE_START`` of a limit and then eases toward it (C1,
 never reaching it, never a hard clamp), applied per FAP to the effective values (user + presets).
@@ -20,10 +22,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from core.mesh_quality import MAX_STRETCH, MIN_STRETCH, _local_frames, principal_stretches
+
 # Where easing begins, as a share of the limit: well inside, so ordinary values pass unchanged.
 EASE_START = 0.7
 BISECTION_STEPS = 10
 FOLD_REASON = "the skin would fold"
+SMEAR_REASON = f"the skin's texture would smear (stretch over {MAX_STRETCH:g}x)"
 
 
 def _normals(corners: np.ndarray) -> np.ndarray:
@@ -31,13 +36,17 @@ def _normals(corners: np.ndarray) -> np.ndarray:
 
 
 def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vector: np.ndarray, specs,
-                 numbers) -> np.ndarray:
-    """(68, 2) per FAP the values (FAP units) at its slider's lower and upper ends up to which the FAP
-    alone folds no skin triangle; ±inf where it holds to the slider's end or is not a translation.
+                 numbers) -> tuple[np.ndarray, np.ndarray]:
+    """(limits, reasons): limits (68, 2) per FAP the values (FAP units) at its slider's lower and upper
+    ends up to which the FAP alone folds no skin triangle and smears no texture; ±inf where it holds
+    to the slider's end or is not a translation. reasons (68, 2) str: FOLD_REASON or SMEAR_REASON
+    for each finite limit ("" elsewhere).
 
     rest (n, 3) mm; skin_triangles (m, 3); matrix (3n, 68) mm per FAP unit before ``fapu_vector``."""
     limits = np.array([[-np.inf, np.inf]] * len(specs))
+    reasons = np.full((len(specs), 2), "", dtype=object)
     rest_normals = _normals(rest[skin_triangles])
+    rest_frames = _local_frames(rest[skin_triangles])
     area = np.linalg.norm(rest_normals, axis=1)
     # Slivers have no direction to turn (same threshold as core.mesh_quality).
     measurable = area > 1e-6 * max(float(np.median(area)), 1e-12)
@@ -54,20 +63,34 @@ def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vect
             continue
         corners = skin_triangles[tris]
         field = column.toarray().reshape(-1, 3) * fapu_vector[number - 1]
-        base, step, normals = rest[corners], field[corners], rest_normals[tris]
+        base, step, normals, frames = rest[corners], field[corners], rest_normals[tris], rest_frames[tris]
 
-        def folds(value: float) -> bool:
-            return bool((np.einsum("ij,ij->i", _normals(base + step * value), normals) < 0).any())
+        def breaks(value: float, smear: np.ndarray) -> str:
+            """The reason the skin breaks at ``value`` ("" when it holds); the stretch is checked on
+            the triangles ``smear`` only."""
+            posed = base + step * value
+            if (np.einsum("ij,ij->i", _normals(posed), normals) < 0).any():
+                return FOLD_REASON
+            big, small = principal_stretches(frames[smear], posed[smear])
+            return SMEAR_REASON if (big > MAX_STRETCH).any() or (small < MIN_STRETCH).any() else ""
 
         for side, end in enumerate((spec.minimum, spec.maximum)):
-            if end == 0 or not folds(end):   # whole to the slider's end: no limit at all
+            if end == 0:
+                continue
+            # The largest stretch of a linear map is convex along the line and 1 at rest, so only
+            # triangles that smear at the slider's end can smear before it (the smallest is taken
+            # alike): the bisection measures those alone.
+            big, small = principal_stretches(frames, base + step * end)
+            smear = np.flatnonzero((big > MAX_STRETCH) | (small < MIN_STRETCH))
+            if not breaks(end, smear):   # whole to the slider's end: no limit at all
                 continue
             good, bad = 0.0, 1.0
             for _ in range(BISECTION_STEPS):
                 mid = (good + bad) / 2
-                good, bad = (good, mid) if folds(end * mid) else (mid, bad)
+                good, bad = (good, mid) if breaks(end * mid, smear) else (mid, bad)
             limits[number - 1, side] = end * good
-    return limits
+            reasons[number - 1, side] = breaks(end * bad, smear)
+    return limits, reasons
 
 
 def keeping(limits: np.ndarray, values: np.ndarray) -> np.ndarray:
