@@ -372,9 +372,13 @@ def test_expression_intensity_scales_the_displacement(rig):
     full = rig.vertices() - rig.face.vertices
     rig.set_expression("joy", 0.5)
     half = rig.vertices() - rig.face.vertices
-    # Closing lids slide over the eyeballs (a projection, not linear): compare everything else.
+    # Closing lids slide over the eyeballs and lips pressed together give way (contacts, not
+    # linear): compare everything else.
     lids = np.any([rig.fap_influence(n) > 0 for n in (19, 20, 21, 22)], axis=0)
-    skin = ~lids
+    contact = rig.deformer._lip_contact
+    lips = np.zeros(rig.face.n_vertices, bool)
+    lips[contact.upper], lips[contact.lower] = True, True
+    skin = ~lids & ~lips
     assert skin.sum() > 0.9 * rig.face.n_vertices
     assert np.abs(full).max() > 5
     assert np.allclose(half[skin], full[skin] / 2, atol=1e-9)
@@ -382,6 +386,29 @@ def test_expression_intensity_scales_the_displacement(rig):
     assert rig.expression == (1, 1.0)
     assert np.allclose(rig.vertices() - rig.face.vertices, full)
     rig.set_expression(None)
+
+
+def test_lips_pressed_into_each_other_meet_instead_of_crossing(rig):
+    """Raising the lower lip of a closed mouth (FAP 5 raise_b_midlip) would lift its rim ~6 mm
+    through the upper lip: both give way by half, the rims end touching (no lip triangle passes
+    through another), the upper lip is pushed up; at rest nothing moves."""
+    from core.mesh_quality import FaceQualityProbe
+
+    contact = rig.deformer._lip_contact
+    assert contact.active
+    rig.reset()
+    assert np.array_equal(rig.vertices(), rig.face.vertices)
+    rig.set_fap(5, 800)
+    values = rig.deformer.limited(rig.effective_fap_values())
+    linear = rig.face.vertices + rig.deformer.displacement(values)
+    assert contact._overlap(linear).max() > 3.0                      # the FAT alone crosses the lips
+    posed = rig.vertices()
+    assert contact._overlap(posed).max() <= contact.rest_overlap.max() + 1e-9
+    probe = FaceQualityProbe(rig.face)
+    assert probe.measure(linear).lip_intersections > 0 and probe.measure(posed).lip_intersections == 0
+    up = posed[contact.upper_rim, 1] - rig.face.vertices[contact.upper_rim, 1]
+    assert up.max() > 1.0, "the upper lip gives way too"
+    rig.reset()
 
 
 def test_fap1_blends_two_visemes(rig):

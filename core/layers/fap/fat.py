@@ -29,8 +29,9 @@ Then ``x = rest + F · (fap_values ∘ fapu)`` with F of shape (3n, 68), mm per 
 Several FAPs on one point add their displacements. The exception is lid contact: when an upper
 and a lower lid of one eye together close more than the opening (close_t + close_b > 1024 IRISD),
 both are scaled down so that they meet (``lid_contact``); the slider values are kept. After every
-layer's offset, skin that ended inside a row of teeth is pushed back out over it
-(``teeth_guard.TeethGuard``: the teeth move rigidly with the jaw, the skin only part way).
+layer's offset, lips moved into each other press on each other instead (``lip_contact.LipContact``:
+both give way by half the overlap), and skin that ended inside a row of teeth is pushed back out
+over it (``teeth_guard.TeethGuard``: the teeth move rigidly with the jaw, the skin only part way).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import tables
 from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
+from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.teeth_guard import TeethGuard
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
@@ -112,6 +114,7 @@ class FapDeformer:
         self._eye_rims = self._eye_rims_of_skin()
         skin = ~self._in_any_part()
         self._teeth_guard = TeethGuard(face, np.nonzero(skin)[0])
+        self._lip_contact = LipContact(face, np.nonzero(skin)[0])
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
         if self._eyes:
@@ -497,6 +500,8 @@ class FapDeformer:
                     sel = lid[inside]
                     planar = (r[inside, :2] ** 2).sum(axis=1)
                     x[sel, 2] = centre[2] + np.sqrt(np.maximum(need[inside] ** 2 - planar, 0.0))
+        # Lips that were moved into each other press on each other instead (both give way).
+        self._lip_contact.apply(x)
         # Teeth move rigidly, the skin around them only partly (and some lip FAPs drive it straight
         # at them): skin that ended inside a row of teeth goes back out over it.
         self._teeth_guard.apply(x)
@@ -523,12 +528,13 @@ def deformer_key(face: Face) -> str:
     """The cache key of ``face``'s FapDeformer (see :meth:`FapDeformer.for_face`)."""
     import core.layers.fap.template as template_module
     import core.layers.fap.limits as limits_module
+    import core.layers.fap.lip_contact as lip_contact_module
     import core.layers.fap.teeth_guard as teeth_guard_module
     import core.surface_query as surface_query
     import core.subdivision as subdivision
 
-    code = source_version(sys.modules[__name__], template_module, teeth_guard_module, limits_module, tables,
-                          surface_query, subdivision)
+    code = source_version(sys.modules[__name__], template_module, teeth_guard_module, lip_contact_module,
+                          limits_module, tables, surface_query, subdivision)
     landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]

@@ -1,0 +1,108 @@
+"""Lips that press on each other instead of passing through.
+
+At rest a closed mouth's inner lip rims touch. A FAP that raises the lower lip (5 raise_b_midlip,
+10/11, 52, 57/58) or lowers the upper one (4, 8/9, 51, 55/56) alone, or a mix of presets, moves a
+rim past the other and the lips cut through each other. :class:`LipContact` is the lips' version of
+the lids' contact: after all offsets, wherever the lower rim is above the upper rim, both lips give
+way by half of the overlap each, the upper lip up and the lower lip down, fading with the distance
+from the rim, so the rims meet and the lips bulge a little, as pressed lips do.
+
+The rims are the skin's boundary vertices along the mouth opening (the side of each from its own
+triangles, ``core.layers.fap.template.mouth_side``); "up" is the face's +y and the rims are
+compared along x, as the FAP tables assume.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from core.face import Face
+from core.layers.fap.template import mouth_side
+
+# How far from its rim a lip gives way (mm): a Gaussian of this width, about half a lip's height.
+GIVE_WIDTH_MM = 4.0
+# Beyond this from the rim (mm) nothing moves (the Gaussian is below 0.2 % there).
+GIVE_REACH_MM = 10.0
+# A rim needs this many vertices to be a lip line.
+MIN_RIM_VERTICES = 4
+# Overlaps below this (mm) are rounding, not lips passing through each other.
+TOLERANCE_MM = 1e-6
+
+
+class LipContact:
+    """The contact of the upper and lower lip of one face (no-op when the face has no mouth rims).
+
+    face : the rest face; skin : (k,) indices of its skin vertices (not in a part).
+    """
+
+    def __init__(self, face: Face, skin: np.ndarray):
+        from core.subdivision import boundary_edges
+
+        self.active = False
+        side = np.zeros(face.n_vertices, np.int64)
+        side[skin] = mouth_side(face, skin)
+        if not side.any():
+            return
+        on_rim = np.zeros(face.n_vertices, bool)
+        on_rim[boundary_edges(face.triangles).ravel()] = True
+        y_line = _lip_line(face)
+        x, y = face.vertices[:, 0], face.vertices[:, 1]
+        near_line = np.abs(y - np.interp(x, *y_line)) < 3.0
+        self.upper_rim = np.flatnonzero(on_rim & near_line & (side == 1))
+        self.lower_rim = np.flatnonzero(on_rim & near_line & (side == -1))
+        if min(len(self.upper_rim), len(self.lower_rim)) < MIN_RIM_VERTICES:
+            return
+        self.upper, self.upper_weight = _zone(face.vertices, side == 1, self.upper_rim)
+        self.lower, self.lower_weight = _zone(face.vertices, side == -1, self.lower_rim)
+        # What overlap the rest face has (two polylines of different vertices touch only roughly):
+        # only what a pose adds to it is resolved, so the rest face stays exactly as it is.
+        self.rest_overlap = np.maximum(self._overlap(face.vertices), 0.0) + TOLERANCE_MM
+        self.active = True
+
+    def _overlap(self, x: np.ndarray) -> np.ndarray:
+        """(len(lower_rim),) mm: how far each lower-rim vertex is above the upper rim at its x."""
+        upper = x[self.upper_rim]
+        order = np.argsort(upper[:, 0])
+        lower = x[self.lower_rim]
+        return lower[:, 1] - np.interp(lower[:, 0], upper[order, 0], upper[order, 1])
+
+    def apply(self, x: np.ndarray) -> None:
+        """Resolve the lips' overlap in ``x`` (n, 3) mm, in place."""
+        if not self.active:
+            return
+        lower = x[self.lower_rim]
+        overlap = self._overlap(x)
+        pressed = overlap > self.rest_overlap
+        if not pressed.any():
+            return                      # the common case: lips apart or just touching
+        # Where a pose pressed the lips into each other, all of the overlap goes (the rims end exactly
+        # touching: a rest-sized sliver left would still cut the seam's triangles through each other).
+        order = np.argsort(lower[:, 0])
+        along, depth = lower[order, 0], np.where(pressed, overlap, 0.0)[order]
+        half_up = 0.5 * np.interp(x[self.upper, 0], along, depth, left=0.0, right=0.0) * self.upper_weight
+        half_down = 0.5 * np.interp(x[self.lower, 0], along, depth, left=0.0, right=0.0) * self.lower_weight
+        x[self.upper, 1] += half_up
+        x[self.lower, 1] -= half_down
+
+
+def _lip_line(face: Face) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) of the line between the lips at rest: midway between the inner-lip points, by x."""
+    up = np.array([face.landmark_position(p) for p in ("2.5", "2.7", "2.2", "2.6", "2.4")])
+    lo = np.array([face.landmark_position(p) for p in ("2.5", "2.9", "2.3", "2.8", "2.4")])
+    line = (up + lo) / 2
+    order = np.argsort(line[:, 0])
+    return line[order, 0], line[order, 1]
+
+
+def _zone(vertices: np.ndarray, lip: np.ndarray, rim: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ids, weights): the ``lip`` vertices within GIVE_REACH_MM of the ``rim``, and how much each
+    gives way (1 on the rim, a Gaussian of the distance)."""
+    ids = np.flatnonzero(lip)
+    distance, _ = cKDTree(vertices[rim]).query(vertices[ids], distance_upper_bound=GIVE_REACH_MM)
+    near = np.isfinite(distance)
+    ids, distance = ids[near], distance[near]
+    return ids, np.exp(-(distance / GIVE_WIDTH_MM) ** 2)
+
+
+__all__ = ["LipContact"]
