@@ -12,9 +12,10 @@ height alone and point forward at the incisors and sideways at the molars, along
 The lower row's current place comes from its vertices (a rigid fit of a few anchors), so the guard
 follows whatever layer moved the jaw.
 
-A tick tests only the skin that can have entered a row: each guarded vertex keeps its rest slack (its
-distance from the region the guard pushes out of, in the row's frame), and a vertex that moved less
-than that relative to the row cannot be inside it. The result is exactly the unfiltered guard's.
+A tick looks up the table (its arctan2 is the dearest step) only for skin that can have entered a
+row: each guarded vertex keeps its rest slack (its distance from the region the guard pushes out of,
+in the row's frame), and a vertex that moved less than that relative to the row cannot be inside it.
+The result is exactly the unfiltered guard's (``apply(x, slack_filter=False)``).
 """
 
 from __future__ import annotations
