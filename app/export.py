@@ -174,6 +174,9 @@ class _FaceRenderer:
     (``vtkCamera.SetWindowCenter``), so the face's pixels are those of a full frame except for
     rounding; the gradient's dither noise inside the strip differs by at most one level. Its place
     is a function of the frame's vertices only, so serial and parallel exports give the same pixels.
+
+    Unless ``settings.full_detail``, a face whose triangles are a few pixels on screen is drawn as its
+    export level of detail (:mod:`app.export_lod`; ``lod_triangles`` overrides its triangle budget).
     """
 
     #: Pixels between the face and the strip's edges (FXAA samples a few pixels around an edge).
@@ -184,7 +187,8 @@ class _FaceRenderer:
     #: Drawing a strip wider than this share of the frame would save too little: the whole frame is drawn.
     STRIP_MAX_SHARE = 0.8
 
-    def __init__(self, face: Face, settings: ExportSettings, size: tuple[int, int], *, strip: bool = True):
+    def __init__(self, face: Face, settings: ExportSettings, size: tuple[int, int], *, strip: bool = True,
+                 lod_triangles: int | None = None):
         import pyvista as pv
         from vtkmodules.vtkCommonCore import vtkUnsignedCharArray
 
@@ -212,9 +216,40 @@ class _FaceRenderer:
             self.plotter.show(auto_close=False)  # realises the window; later frames use render()
             if strip:
                 self._plan_strip(np.asarray(face.vertices, dtype=np.float64))
+            #: Triangles of the decimated face drawn instead of the full one; 0: the full face.
+            self.lod_triangles = 0
+            if not settings.full_detail:
+                self._use_lod(face, lod_triangles)
         except BaseException:
             self.plotter.close()
             raise
+
+    # ------------------------------------------------------------ level of detail
+    def _use_lod(self, face: Face, target: int | None) -> None:
+        """Draw the export's decimated face (:mod:`app.export_lod`, about ``target`` triangles) when the
+        full face's triangles are at most ``LOD_MAX_PIXELS_PER_TRIANGLE`` pixels in this frame."""
+        from app.export_lod import EXPORT_LOD_TRIANGLES, LOD_MAX_PIXELS_PER_TRIANGLE, export_lod
+
+        if self.pixels_per_triangle(face) > LOD_MAX_PIXELS_PER_TRIANGLE:
+            return
+        lod = export_lod(face, target or EXPORT_LOD_TRIANGLES)
+        if lod is None:
+            return
+        self.actor.set_preview(lod)
+        if self.actor.use_preview(True):       # textured and shaded only: wireframes are drawn in full
+            self.lod_triangles = lod.n_triangles
+        else:
+            self.actor.set_preview(None)
+
+    def pixels_per_triangle(self, face: Face) -> float:
+        """Median screen area (pixels) of ``face``'s triangles at rest in a full frame of this camera."""
+        from app.export_lod import pixels_per_triangle
+
+        width, height = self.size
+        m = self.plotter.camera.GetCompositeProjectionTransformMatrix(width / height, -1.0, 1.0)
+        projection = np.array([[m.GetElement(i, j) for j in range(4)] for i in range(4)])
+        return pixels_per_triangle(np.asarray(face.vertices, dtype=np.float64), np.asarray(face.triangles),
+                                   projection, self.size)
 
     # ------------------------------------------------------------ the strip
     def _plan_strip(self, rest: np.ndarray) -> None:
@@ -482,6 +517,8 @@ def _save_face_npz(face: Face, path: Path) -> None:
         arrays["texture"] = np.asarray(face.texture, np.uint8)
     if face.vertex_colors is not None:
         arrays["vertex_colors"] = np.asarray(face.vertex_colors, np.uint8)
+    for name, idx in face.parts.items():     # the export's level of detail keeps the parts whole
+        arrays[f"part:{name}"] = np.asarray(idx, np.int64)
     np.savez(path, **arrays)
 
 
@@ -490,7 +527,8 @@ def _load_face_npz(path: Path) -> Face:
         return Face(data["vertices"], data["triangles"],
                     uv=data["uv"] if "uv" in data.files else None,
                     texture=data["texture"] if "texture" in data.files else None,
-                    vertex_colors=data["vertex_colors"] if "vertex_colors" in data.files else None)
+                    vertex_colors=data["vertex_colors"] if "vertex_colors" in data.files else None,
+                    parts={k[len("part:"):]: data[k] for k in data.files if k.startswith("part:")})
 
 
 def _project_root() -> Path:

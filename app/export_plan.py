@@ -86,6 +86,9 @@ class ExportSettings:
         Render processes working in parallel (1..:data:`MAX_WORKERS`); default (None): one per
         core (:func:`default_workers`), fewer for short exports (:func:`planned_workers`).
         1 renders in the exporting process itself.
+    full_detail : bool
+        Draw the full face in every frame. Default (False): where the face's triangles are a few
+        pixels on screen, a decimated face that gives the same picture (:mod:`app.export_lod`).
     """
 
     path: Path
@@ -100,6 +103,7 @@ class ExportSettings:
     quality: int = 80
     format: str | None = None
     workers: int | None = None
+    full_detail: bool = False
 
     def to_json(self) -> dict:
         data = asdict(self)

@@ -315,16 +315,17 @@ def stop_on_signals():
 
 
 def export_video(face, frame_vertices, out: Path, *, size, fps: float, duration: float, audio: Path | None,
-                 workers: int | None = None) -> None:
+                 workers: int | None = None, full_detail: bool = False) -> None:
     """Render ``frame_vertices(t)`` for 0..duration to ``out`` (MP4/GIF/AVI/PNG/JPG) with progress on stderr.
 
     ``workers`` render processes work in parallel (default: one per core, fewer for short
-    animations). Prints what was written and, last, ``exported N frames in S s (F fps, W workers)``.
+    animations); ``full_detail`` turns the export's level of detail off. Prints what was written and, last, ``exported N frames in S s (F fps, W workers)``.
     Call it inside :func:`stop_on_signals` so SIGTERM/SIGHUP stop it cleanly.
     """
     from app.export import ExportError, ExportSettings, export
 
-    settings = ExportSettings(path=out, end_s=duration, size=size, fps=fps, audio_path=audio, workers=workers)
+    settings = ExportSettings(path=out, end_s=duration, size=size, fps=fps, audio_path=audio, workers=workers,
+                              full_detail=full_detail)
     total = [0]
 
     def progress(done: int, n: int) -> None:

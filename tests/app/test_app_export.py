@@ -710,3 +710,73 @@ def test_strip_frames_match_whole_frames_and_the_workers(tmp_path, face):
     two = export(face, source, ExportSettings(tmp_path / "two", end_s=0.5, size=(480, 270), fps=10, workers=2))
     for a, b in zip(one.files, two.files):
         assert np.array_equal(read_png(a), read_png(b)), a.name
+
+
+# ------------------------------------------------------------------ level of detail
+def test_pixels_per_triangle_known_answer():
+    """A 10 mm right triangle through a projection of 100 mm across a 200x100 frame is 20 x 10 px,
+    100 px^2; a triangle behind the camera does not count."""
+    from app.export_lod import pixels_per_triangle
+
+    # x_ndc = x / 50, y_ndc = y / 50, w = 1 - z / 100 (z = 200 is behind the camera).
+    projection = np.array([[0.02, 0, 0, 0], [0, 0.02, 0, 0], [0, 0, 1, 0], [0, 0, -0.01, 1]])
+    vertices = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 200], [50, 0, 200], [0, 50, 200]], float)
+    triangles = np.array([[0, 1, 2], [3, 4, 5]])
+    assert pixels_per_triangle(vertices, triangles, projection, (200, 100)) == pytest.approx(100.0)
+    assert pixels_per_triangle(vertices, triangles[1:], projection, (200, 100)) == np.inf
+
+
+def test_export_lod_gives_the_full_faces_picture_where_triangles_are_small(tmp_path):
+    """The default face at 320x180: the export draws its decimated copy (its triangles are 0.13 px),
+    and the frame is the full face's within PSNR 38 dB over the face's region; "full detail" draws
+    the full face; a close camera (triangles of many pixels) draws the full face too. The render
+    processes get the face's parts with it, so they find the same decimation."""
+    import dataclasses
+
+    from app.export_lod import LOD_MAX_PIXELS_PER_TRIANGLE, export_lod
+    from core.default_face import load_default_face
+
+    face = load_default_face()
+    settings = ExportSettings(tmp_path / "x.mp4", end_s=1.0, size=(320, 180))
+    full = ex._FaceRenderer(face, dataclasses.replace(settings, full_detail=True), settings.size)
+    lod = ex._FaceRenderer(face, settings, settings.size)
+    try:
+        assert full.lod_triangles == 0 and 0 < lod.lod_triangles < len(face.triangles) / 2
+        v = opening_mouth(face, 10.0)(0.5)
+        a, b = full.render(v).astype(float), lod.render(v).astype(float)
+        drawn = (np.abs(a - full._background).max(axis=2) > 0)
+        rows, cols = np.flatnonzero(drawn.any(axis=1)), np.flatnonzero(drawn.any(axis=0))
+        region = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+        mse = np.mean((a[region] - b[region]) ** 2)
+        assert 0 < mse and 10 * np.log10(255 ** 2 / mse) > 38.0
+    finally:
+        full.close()
+        lod.close()
+    centre = face.vertices.mean(axis=0)
+    close_up = {"position": list(centre + [0, 0, 40]), "focal_point": list(centre), "view_up": [0, 1, 0],
+                "view_angle": 30}
+    near = ex._FaceRenderer(face, dataclasses.replace(settings, camera=close_up), settings.size, strip=False)
+    try:
+        assert near.pixels_per_triangle(face) > LOD_MAX_PIXELS_PER_TRIANGLE and near.lod_triangles == 0
+    finally:
+        near.close()
+    copy = tmp_path / "face.npz"
+    ex._save_face_npz(face, copy)
+    loaded = ex._load_face_npz(copy)
+    assert {k: list(v) for k, v in loaded.parts.items()} == {k: list(v) for k, v in face.parts.items()}
+    assert np.array_equal(export_lod(loaded).triangles, export_lod(face).triangles)
+
+
+def test_full_detail_from_the_dialog_and_the_command_line(qtbot, tmp_path):
+    from app.cli import build_parser
+    from app.export_dialog import ExportDialog
+
+    dialog = ExportDialog(None, duration_s=4.0, fps=25, default_path=tmp_path / "take.mp4", has_audio=False)
+    qtbot.addWidget(dialog)
+    assert dialog.settings().full_detail is False and "decimated" in dialog.full_detail_check.toolTip()
+    dialog.full_detail_check.setChecked(True)
+    assert dialog.settings().full_detail is True
+    assert ExportSettings.from_json(dialog.settings().to_json()).full_detail is True
+    parser = build_parser()
+    assert parser.parse_args(["export", "p.mimica", "-o", "x.mp4", "--full-detail"]).full_detail is True
+    assert parser.parse_args(["export", "p.mimica", "-o", "x.mp4"]).full_detail is False

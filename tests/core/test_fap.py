@@ -295,6 +295,56 @@ def test_the_teeth_guard_follows_the_lower_teeth_wherever_a_layer_moved_them():
     assert local[2] > 0.0                                      # in front of the row's front face again
 
 
+def test_the_teeth_guard_slack_filter_changes_nothing_at_extremes(rig):
+    """A tick tests only skin that moved past its rest slack: on random FAP vectors at their slider
+    ends (the teeth pushed into the skin in most of them) the filtered guard gives exactly the
+    unfiltered one's vertices, and it does filter (each row's slack is millimetres, not 0)."""
+    from core.layers.fap import tables
+
+    deformer, guard = rig.deformer, rig.deformer._teeth_guard
+    assert all(np.sqrt(row.slack_squared).min() > 1.0 for row in guard.rows)
+    rng = np.random.default_rng(7)
+    faps = [n for n in rig.animated_faps if n not in (48, 49, 50)]
+    pushed = 0
+    for _ in range(60):
+        values = np.zeros(tables.N_FAPS)
+        for number in rng.choice(faps, int(rng.integers(1, 8)), replace=False):
+            p = rig.describe(f"fap:{number}")
+            values[number - 1] = rng.choice([p.minimum, p.maximum]) * rng.uniform(0.6, 1.0)
+        x = rig.face.vertices + deformer.displacement(values)
+        filtered, unfiltered = guard.apply(x.copy()), guard.apply(x.copy(), slack_filter=False)
+        assert np.abs(filtered - unfiltered).max() <= 1e-9
+        pushed += not np.array_equal(unfiltered, x)
+    assert pushed >= 10       # the comparison covers real pushes, not only untouched skin
+
+
+def test_the_teeth_guard_slack_is_a_lower_bound_of_the_distance_to_the_teeth():
+    """A point's rest slack is never more than its distance to any point the guard would push (inside
+    a cell's radius + the clearance), and close to the nearest such point of a dense sample."""
+    from scipy.spatial import cKDTree
+
+    from core.layers.fap.teeth_guard import TeethRowHull
+
+    rng = np.random.default_rng(3)
+    # A "row": points on a half-cylinder of radius 20 mm, 8 mm high, its axis 20 mm behind z = 0.
+    angle = rng.uniform(-np.pi / 2, np.pi / 2, 4000)
+    row = np.stack([20 * np.sin(angle), rng.uniform(0, 8, 4000), 20 * np.cos(angle) - 20], axis=1)
+    hull = TeethRowHull(row)
+    points = np.stack([rng.uniform(-30, 30, 300), rng.uniform(-6, 14, 300), rng.uniform(-30, 20, 300)], axis=1)
+    # A dense sample of the box around the row, and the guard's own inside test on it.
+    probe = np.stack([rng.uniform(-25, 25, 400_000), rng.uniform(-3, 11, 400_000),
+                      rng.uniform(-45, 5, 400_000)], axis=1)
+    radius, outer, _dx, _dz = hull.outer_radius(probe)
+    point_radius, point_outer, _dx, _dz = hull.outer_radius(points)
+    for clearance in (0.0, 0.5):
+        nearest = cKDTree(probe[radius < outer + clearance]).query(points)[0]
+        slack = hull.distance_to_pushed_region(points, np.full(len(points), clearance))
+        assert (slack <= nearest + 1e-9).all()
+        inside = point_radius < point_outer + clearance
+        assert 10 < inside.sum() < 100 and (slack[inside] == 0).all() and (slack[~inside] > 0).all()
+        assert np.median(nearest - slack) < 0.3      # tight: about the sample's spacing
+
+
 def test_jaw_moves_the_mouth_corners_part_way_and_the_upper_lip_stays(rig):
     f = rig.face
     rig.reset_faps()
