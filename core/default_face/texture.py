@@ -72,10 +72,13 @@ def atlas_map(local, local_rect, atlas_rect) -> np.ndarray:
     return np.column_stack([ax + (local[:, 0] - lx) / lw * aw, ay + (local[:, 1] - ly) / lh * ah])
 
 
-def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None) -> np.ndarray:
+def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None, rim_crease: bool = True) -> np.ndarray:
     """(H, W, 3) uint8 image for the frame (x0, y0, width, height) in mm; size = (W, H) pixels.
 
     ``mouth`` = (MouthInterior, upper TeethRow, lower TeethRow, atlas rects) paints the mouth atlas.
+    ``rim_crease=False`` fades the crease darkening out toward the scan's outline, where the depth
+    steps off the scan and paints a dark line (the front-only face keeps it, a full head does not:
+    its outline is where the head shell joins on).
     """
     p = layout.p
     W, H = size
@@ -98,6 +101,11 @@ def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None) -> np.ndar
     z = np.where(inside, z, np.nanmin(np.where(inside, z, np.nan)))
     curvature = ndimage.gaussian_laplace(z, sigma=2.0 / px) * (1.0 / px) ** 0  # mm/px^2 scale irrelevant: normalised
     crease = np.clip(_unit_pos(curvature), 0, 3)
+    if not rim_crease:
+        from core.default_face.shape import OUTLINE_T
+
+        crease *= _smoothstep(OUTLINE_T - 0.02, OUTLINE_T - 0.12, shape.outline_t(X, Y))
+        crease *= _smoothstep(layout.menton_y + 1.0, layout.menton_y + 8.0, Y)
     img *= (1.0 - 0.06 * crease)[..., None]
     under_eye = _gauss(AX, Y, layout.pupil_x - 2, layout.eye_line_y - 9, 11, 4)
     img += under_eye[..., None] * np.array([-10.0, -14.0, -4.0])
