@@ -14,6 +14,8 @@ Beyond a raw scan, the mesh is cut where a face opens:
   (see mouth.py), so that parted lips show the inside of a mouth.
 Components, in vertex order: skin, left (+x) eyeball, right eyeball, mouth
 cavity, upper teeth, lower teeth; all but the skin are named ``Face.parts``.
+With ``full_head`` (the default) the head shell (skin, stitched to the front's
+outer rim) and the ears (parts ``ear_l`` / ``ear_r``) follow (``with_head``).
 The MPEG-4 feature points on the front of the face (and the teeth points on
 the built-in teeth) are placed by construction as surface points of this mesh
 (ground truth for landmarking).
@@ -113,7 +115,7 @@ def generate_face(params: FaceParameters | None = None, *, grid_spacing: float =
     )
     if full_head:
         texture = paint_texture(layout, shape, frame, TEXTURE_SIZE, mouth=(mouth, upper, lower, rects),
-                                rim_crease=False)
+                                full_head=True)
         face = with_head(face, layout, n_skin_tris, texture)
     return face
 
@@ -165,7 +167,10 @@ def with_head(face: Face, layout: FaceLayout, n_skin_tris: int, front_texture: n
     hair = np.array([52.0, 36.0, 26.0]) * (1 - 0.4 * p.skin_tone)
     # Next to the seam the atlas takes the face texture's colour at the nearest rim vertex, so the
     # colour is continuous across the seam (the two sides have different texture coordinates).
-    rim_colour = _sample(front_texture, face.uv[loop])
+    # (Smoothed along the rim: each texel copies its nearest rim vertex, so rim noise would become streaks.)
+    from scipy.ndimage import gaussian_filter1d
+
+    rim_colour = gaussian_filter1d(_sample(front_texture, face.uv[loop]), 8.0, axis=0, mode="wrap")
     atlas = paint_head_atlas(layout, builder, q_box, base, hair, p.texture_seed,
                              seam=(shell_px[:len(loop)], rim_colour))
     texture = np.concatenate([front_texture, atlas], axis=1)

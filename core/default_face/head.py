@@ -231,8 +231,6 @@ class HeadBuilder:
         tangent = np.roll(seam_q, -1, axis=0) - np.roll(seam_q, 1, axis=0)
         normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
         normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-        if _inside_polygon(seam_q[:1] + 1e-4 * normal[:1], seam_q)[0] is False:
-            normal = -normal
         probe = seam_q + 1e-3 * normal
         if _inside_polygon(probe, seam_q).mean() < 0.5:
             normal = -normal
@@ -342,7 +340,8 @@ class HeadBuilder:
         right = left * [-1, 1, 1]
         n = len(local)
         verts = np.concatenate([left, right])
-        tris_all = np.concatenate([tris, tris[:, [0, 2, 1]] + n])
+        # Outward (counter-clockwise from outside) on the left ear; mirroring turns the right one over.
+        tris_all = np.concatenate([tris[:, [0, 2, 1]], tris + n])
         return verts, tris_all, np.concatenate([tex, tex])
 
     def scale_factors(self):
@@ -425,6 +424,6 @@ def paint_head_atlas(layout: FaceLayout, builder: HeadBuilder, q_box, base_rgb: 
     v = (py[patch] - ey) / eh - 0.5
     rho = np.sqrt((u / 0.5) ** 2 + (v / 0.5) ** 2)
     ear = base_rgb * np.array([1.02, 0.94, 0.93])
-    shade = 1.0 - 0.35 * np.exp(-((rho / 0.35) ** 2))
+    shade = 1.0 - 0.15 * np.exp(-((rho / 0.3) ** 2))
     img[patch] = ear[None] * shade[:, None]
     return np.clip(img, 0, 255).astype(np.uint8)

@@ -112,6 +112,12 @@ def test_the_shell_faces_outward(head, front):
     centre = np.array([0.0, head.vertices[:, 1].mean(), -100.0])
     outward = (normal * (corners.mean(axis=1) - centre)).sum(axis=1)
     assert (outward > 0).mean() > 0.99
+    for name in ("ear_l", "ear_r"):
+        idx = head.parts[name]
+        corners = head.vertices[head.triangles[np.isin(head.triangles, idx).all(axis=1)]]
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        away = (normal * (corners.mean(axis=1) - head.vertices[idx].mean(axis=0))).sum(axis=1)
+        assert (away > 0).mean() > 0.7     # a thin, curved shell: most triangles face away from its middle
 
 
 def test_hair_covers_the_top_and_back_but_not_the_face_or_neck():
