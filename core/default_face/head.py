@@ -282,7 +282,7 @@ class HeadBuilder:
         """Both ears: vertices (2k, 3), triangles (2m, 3) local to them, and local texture
         coordinates (2k, 2) in [0, 1] (both ears use the same patch)."""
         L = self.layout
-        sw, sh = self.scale_factors()
+        _, sh = self.scale_factors()
         height, width = 62.0 * sh, 33.0 * sh
         s = np.linspace(0.0, 1.0, EAR_RINGS + 1)[1:]
         t = np.linspace(0.0, 2 * np.pi, EAR_SEGMENTS, endpoint=False)
@@ -301,7 +301,7 @@ class HeadBuilder:
         pts = []
         for side in (out, back):
             grid = np.stack([u, v, side], -1).reshape(-1, 3)
-            pts.append(np.concatenate([[[0.0, 0.0, side[0, 0] if side is out else back[0, 0]]], grid]))
+            pts.append(np.concatenate([[[0.0, 0.0, side[0, 0]]], grid]))   # the centre, then the rings
         n_side = len(pts[0])
         # Close the outline: the two sides share their last ring.
         pts[1][-EAR_SEGMENTS:] = pts[0][-EAR_SEGMENTS:]
@@ -344,7 +344,8 @@ class HeadBuilder:
         tris_all = np.concatenate([tris[:, [0, 2, 1]], tris + n])
         return verts, tris_all, np.concatenate([tex, tex])
 
-    def scale_factors(self):
+    def scale_factors(self) -> tuple[float, float]:
+        """(width, height) of this identity's face relative to the default's."""
         return self.model.scale
 
     def _head_side_x(self, y: float, z: float) -> float:
