@@ -1,7 +1,9 @@
-"""The built-in default face: a procedural human face shaped like a single-view range scan.
+"""The built-in default face: a procedural human head whose front is shaped like a single-view range scan.
 
 ``load_default_face()`` reads the committed copy in ``resources/default_face``
-(fast); ``generate_face(params)`` builds any identity from scratch.
+(fast); ``generate_face(params)`` builds any identity from scratch. Both give
+the full head; ``full_head=False`` gives the front of the face only (the
+scan-like surface the synthetic database and the registration protocol use).
 Regenerate the committed copy with ``python -m core.default_face``.
 """
 

@@ -11,9 +11,10 @@ def main() -> None:
     parser.add_argument("--out", help="NPZ path (default: resources/default_face/default_face.npz)")
     args = parser.parse_args()
     start = time.perf_counter()
-    face = generate_face(FaceParameters())
-    path = save_default_face(face, args.out)
-    print(f"{face} -> {path} in {time.perf_counter() - start:.1f} s")
+    front = generate_face(FaceParameters(), full_head=False)
+    head = generate_face(FaceParameters())
+    path = save_default_face(front, args.out, head=head)
+    print(f"{head} (front: {front}) -> {path} in {time.perf_counter() - start:.1f} s")
 
 
 if __name__ == "__main__":

@@ -72,10 +72,15 @@ def atlas_map(local, local_rect, atlas_rect) -> np.ndarray:
     return np.column_stack([ax + (local[:, 0] - lx) / lw * aw, ay + (local[:, 1] - ly) / lh * ah])
 
 
-def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None) -> np.ndarray:
+def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None, full_head: bool = False) -> np.ndarray:
     """(H, W, 3) uint8 image for the frame (x0, y0, width, height) in mm; size = (W, H) pixels.
 
     ``mouth`` = (MouthInterior, upper TeethRow, lower TeethRow, atlas rects) paints the mouth atlas.
+    ``full_head=True`` paints for a face whose outline is where the head shell joins on: the crease
+    darkening fades out toward the scan's outline (where the depth steps off the scan and paints a
+    dark line), and the band along the outline and under the chin, where the orthographic mapping
+    stretches a texel over millimetres of steep skin (streaks), is blurred. The front-only face
+    keeps the old image.
     """
     p = layout.p
     W, H = size
@@ -98,6 +103,11 @@ def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None) -> np.ndar
     z = np.where(inside, z, np.nanmin(np.where(inside, z, np.nan)))
     curvature = ndimage.gaussian_laplace(z, sigma=2.0 / px) * (1.0 / px) ** 0  # mm/px^2 scale irrelevant: normalised
     crease = np.clip(_unit_pos(curvature), 0, 3)
+    if full_head:
+        from core.default_face.shape import OUTLINE_T
+
+        crease *= _smoothstep(OUTLINE_T - 0.02, OUTLINE_T - 0.12, shape.outline_t(X, Y))
+        crease *= _smoothstep(layout.menton_y + 1.0, layout.menton_y + 8.0, Y)
     img *= (1.0 - 0.06 * crease)[..., None]
     under_eye = _gauss(AX, Y, layout.pupil_x - 2, layout.eye_line_y - 9, 11, 4)
     img += under_eye[..., None] * np.array([-10.0, -14.0, -4.0])
@@ -143,6 +153,12 @@ def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None) -> np.ndar
     # --- nostrils
     nostril = _gauss(AX, Y, layout.alar_half_width * 0.42, layout.subnasale_y + 2.4, 2.6, 1.3)
     img = _blend(img, np.array([60.0, 35.0, 30.0]), np.clip(1.6 * nostril, 0, 1))
+
+    if full_head:
+        steep = np.maximum(_smoothstep(0.80, 0.93, shape.outline_t(X, Y)),
+                           _smoothstep(layout.menton_y + 12.0, layout.menton_y + 2.0, Y))
+        blurred = ndimage.gaussian_filter(img, (12.0, 12.0, 0))   # (the atlases are painted after this)
+        img = img * (1 - steep[..., None]) + blurred * steep[..., None]
 
     # --- eye atlas
     cx, cy = eye_atlas_centre(frame)

@@ -457,7 +457,7 @@ def _reference_mesh(template_name: str) -> tuple[np.ndarray, np.ndarray] | None:
     from core.default_face import load_default_face
     from core.registration.templates import template_positions
 
-    face = load_default_face()
+    face = load_default_face(full_head=False)
     try:
         positions = template_positions(face, template_name)   # a48's derived points from the MPEG-4 ones
         proj = project_template(face, template_name, positions)

@@ -87,11 +87,11 @@ _DEFAULT_MODEL: list = []
 
 
 def default_model() -> Face:
-    """The built-in default face (loaded once)."""
+    """The built-in default face, its front only (loaded once)."""
     if not _DEFAULT_MODEL:
         from core.default_face import load_default_face
 
-        _DEFAULT_MODEL.append(load_default_face())
+        _DEFAULT_MODEL.append(load_default_face(full_head=False))   # the generic model is the front of the face
     return _DEFAULT_MODEL[0]
 
 

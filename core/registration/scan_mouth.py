@@ -266,7 +266,7 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
     if donor is None:
         from core.default_face import load_default_face
 
-        donor = load_default_face()
+        donor = load_default_face(full_head=False)
     scan, canonical = registration.scan, registration.face
     matrix = registration.carry_back().binding.matrix
     labels = lip_labels(canonical.triangles, registration.template)

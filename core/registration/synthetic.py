@@ -4,7 +4,7 @@ The thesis's database (30 people x neutral + Ekman's six expressions, Vivid 910 
 hand-marked landmarks) is not public; this module makes an equivalent one with ground truth:
 
 - **People.** Person 0 is the built-in default face; person p > 0 is
-  ``generate_face(FaceParameters.random(default_rng([seed, p])))``.
+  ``generate_face(FaceParameters.random(default_rng([seed, p])), full_head=False)``.
 - **Poses.** ``POSES`` = "neutral" + the six expressions of ``core.layers.fap.tables.expression_names()``
   (MPEG-4 FAP 2 presets), applied at full intensity with ``FaceRig.set_expression(name, 1.0)``.
 - **Scan.** ``scan_face`` with ``SCAN_SETTINGS`` (0.1 mm depth noise, 2 deg / 3 mm pose jitter, no
@@ -71,10 +71,10 @@ def identity_face(person: int, seed: int = 0) -> Face:
     if person == 0:
         from core.default_face import load_default_face
 
-        return load_default_face()
+        return load_default_face(full_head=False)   # a single-view scan sees the front only
     from core.default_face import FaceParameters, generate_face
 
-    return generate_face(FaceParameters.random(np.random.default_rng([seed, person])))
+    return generate_face(FaceParameters.random(np.random.default_rng([seed, person])), full_head=False)
 
 
 @functools.lru_cache(maxsize=2)

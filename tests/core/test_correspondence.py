@@ -13,7 +13,7 @@ def scan():
     from core.default_face import load_default_face
     from core.registration.virtual_scanner import scan_face
 
-    return scan_face(load_default_face(), n_target=30_000, rng=np.random.default_rng(5)).face
+    return scan_face(load_default_face(full_head=False), n_target=30_000, rng=np.random.default_rng(5)).face
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +167,7 @@ def test_the_regularised_fit_turns_fewer_triangles_over_than_projection_alone(mo
     from core.mesh_quality import count_intersections
     from core.registration.virtual_scanner import scan_face
 
-    other = scan_face(generate_face(FaceParameters.random(np.random.default_rng(3), spread=0.8)),
+    other = scan_face(generate_face(FaceParameters.random(np.random.default_rng(3), spread=0.8), full_head=False),
                       n_target=30_000, rng=np.random.default_rng(4)).face
     reference, triangles = C._reference_mesh("mpeg4_80")
     ref_normals = np.cross(reference[triangles[:, 1]] - reference[triangles[:, 0]],

@@ -15,7 +15,8 @@ PARTS = ("eyeball_l", "eyeball_r", "mouth_cavity", "teeth_upper", "teeth_lower")
 
 @pytest.fixture(scope="module")
 def face():
-    return generate_face()
+    """The front of the face (the scan-like surface; the full head is tested in test_default_head.py)."""
+    return generate_face(full_head=False)
 
 
 @pytest.fixture(scope="module")
@@ -139,12 +140,15 @@ def test_parameters_out_of_range_are_refused():
         FaceParameters(nose_length=90)
 
 
-def test_committed_copy_matches_the_generator(face):
-    stored = load_default_face()
+@pytest.mark.parametrize("full_head", [False, True])
+def test_committed_copy_matches_the_generator(face, full_head):
+    stored = load_default_face(full_head=full_head)
+    face = generate_face(full_head=True) if full_head else face
     assert stored.n_vertices == face.n_vertices
     assert np.array_equal(stored.triangles, face.triangles)
     assert np.allclose(stored.vertices, face.vertices, atol=1e-4)
     assert np.array_equal(stored.texture, face.texture)
+    assert np.allclose(stored.uv, face.uv, atol=1e-6)
     assert stored.landmark_positions() == pytest.approx(face.landmark_positions(), abs=1e-3)
     assert stored.parts.keys() == face.parts.keys()
     assert all(np.array_equal(stored.parts[k], face.parts[k]) for k in face.parts)

@@ -15,7 +15,7 @@ def registration():
     from core.default_face import load_default_face
     from core.registration.virtual_scanner import scan_face
 
-    scan = scan_face(load_default_face(), n_target=30_000, rng=np.random.default_rng(5)).face
+    scan = scan_face(load_default_face(full_head=False), n_target=30_000, rng=np.random.default_rng(5)).face
     return register_scan(scan, scan.landmarks, template="mpeg4_80")
 
 

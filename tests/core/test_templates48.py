@@ -17,7 +17,7 @@ M80_COUNTS = [(80, 140), (300, 560), (1160, 2240), (4560, 8960)]
 def face():
     from core.default_face import load_default_face
 
-    return load_default_face()
+    return load_default_face(full_head=False)   # the registration protocol's generic model
 
 
 @pytest.fixture(scope="module")

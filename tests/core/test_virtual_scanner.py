@@ -20,7 +20,7 @@ GRAZING = {"2.13", "2.14"}  # jaw corners on the steep sides: turned away, their
 
 @pytest.fixture(scope="module")
 def source():
-    return load_default_face()
+    return load_default_face(full_head=False)   # scans are of the front of the face, like the database
 
 
 @pytest.fixture(scope="module")

@@ -220,7 +220,7 @@ def build_builtin_library(*, detect: bool = True, mean_people: int = 8, report=p
     from core.registration.pipeline import register_scan
     from core.rig import FaceRig
 
-    face = load_default_face()
+    face = load_default_face(full_head=False)   # scanned like the synthetic database: the front only
     neutral = register_scan(face, face.landmarks, template=TEMPLATE).face
     rig = FaceRig(face)
     poses = {}

@@ -1,0 +1,203 @@
+"""The default face's full head: the front of the face extended by a head shell and ears, stitched
+without a seam that could open, and the front-only face kept for the scan-like uses."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from core.default_face import FaceLayout, FaceParameters, generate_face, load_default_face
+from core.default_face.head import hair_mask, outer_boundary_loop
+
+MAX_EXTRA_TRIANGLES = 20_000   # the software renderer's cost follows the triangle count
+
+
+@pytest.fixture(scope="module")
+def front():
+    return load_default_face(full_head=False)
+
+
+@pytest.fixture(scope="module")
+def head():
+    return load_default_face()
+
+
+def seam_pairs(head, n_front: int) -> tuple[np.ndarray, np.ndarray]:
+    """(front rim vertices, their shell copies): appended vertices at exactly a front vertex's position."""
+    dist, nearest = cKDTree(head.vertices[:n_front]).query(head.vertices[n_front:], distance_upper_bound=1e-9)
+    copies = np.nonzero(np.isfinite(dist))[0]
+    return nearest[copies], copies + n_front
+
+
+def welded_boundary_loops(face, pairs) -> int:
+    """Number of boundary loops of the skin (no named part) once each shell copy is welded to its rim vertex."""
+    rim, copies = pairs
+    lut = np.arange(face.n_vertices)
+    lut[copies] = rim
+    in_part = np.zeros(face.n_vertices, bool)
+    for idx in face.parts.values():
+        in_part[idx] = True
+    tri = lut[face.triangles[~in_part[face.triangles].any(axis=1)]]
+    directed = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    n = face.n_vertices
+    key, reverse = directed[:, 0] * n + directed[:, 1], directed[:, 1] * n + directed[:, 0]
+    boundary = directed[~np.isin(key, reverse)]
+    nxt = dict(zip(boundary[:, 0].tolist(), boundary[:, 1].tolist()))
+    seen, loops = set(), 0
+    for start in nxt:
+        if start in seen:
+            continue
+        loops += 1
+        v = start
+        while v not in seen:
+            seen.add(v)
+            v = nxt[v]
+    return loops
+
+
+def test_the_head_extends_the_front_of_the_face(front, head):
+    n, m = front.n_vertices, front.n_triangles
+    assert np.array_equal(head.triangles[:m], front.triangles)
+    assert head.landmarks == front.landmarks
+    assert head.landmark_positions() == pytest.approx(front.landmark_positions(), abs=1e-6)
+    moved = np.nonzero((head.vertices[:n] != front.vertices).any(axis=1))[0]
+    # Only the outer rim moves (its staircase smoothed), and by little in x and y.
+    rim = outer_boundary_loop(front.triangles[~np.isin(front.triangles, np.concatenate(list(front.parts.values())))
+                                              .any(axis=1)])
+    assert set(moved.tolist()) <= set(rim.tolist())
+    assert np.abs(head.vertices[moved, :2] - front.vertices[moved, :2]).max() < 1.0
+    assert set(head.parts) == set(front.parts) | {"ear_l", "ear_r"}
+    assert all(np.array_equal(head.parts[k], front.parts[k]) for k in front.parts)
+    assert head.texture.shape[1] > front.texture.shape[1]
+    assert head.uv.min() >= 0 and head.uv.max() <= 1
+
+
+def test_triangle_budget(front, head):
+    extra = head.n_triangles - front.n_triangles
+    assert 4_000 < extra <= MAX_EXTRA_TRIANGLES
+
+
+def test_the_skin_is_closed_but_for_the_eyes_and_the_mouth(front, head):
+    pairs = seam_pairs(head, front.n_vertices)
+    assert len(pairs[0]) > 500
+    # Front only: the outer rim, two eye openings, the mouth. With the head: no outer rim left.
+    assert welded_boundary_loops(front, (np.zeros(0, int), np.zeros(0, int))) == 4
+    assert welded_boundary_loops(head, pairs) == 3
+    # The ears are closed surfaces.
+    for name in ("ear_l", "ear_r"):
+        idx = head.parts[name]
+        tri = head.triangles[np.isin(head.triangles, idx).all(axis=1)]
+        edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+        _, counts = np.unique(edges, axis=0, return_counts=True)
+        assert (counts == 2).all()
+
+
+def test_head_proportions(head, front):
+    lo, hi = head.bounds
+    size = hi - lo
+    assert 140 < size[0] < 200        # ear to ear
+    assert 190 < size[2] < 240        # nose tip to the back of the head
+    top = hi[1] - front.landmark_position("2.1")[1]
+    assert 200 < top < 260            # vertex to menton (adult: about 230 mm)
+    below = front.bounds[0][1] - lo[1]
+    assert 60 < below < 120           # the neck below the chin
+
+
+def test_the_shell_faces_outward(head, front):
+    n = front.n_vertices
+    shell = head.triangles[front.n_triangles:]
+    shell = shell[(shell >= n).all(axis=1) & ~np.isin(shell, head.parts["ear_l"]).any(axis=1)
+                  & ~np.isin(shell, head.parts["ear_r"]).any(axis=1)]
+    corners = head.vertices[shell]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    centre = np.array([0.0, head.vertices[:, 1].mean(), -100.0])
+    outward = (normal * (corners.mean(axis=1) - centre)).sum(axis=1)
+    assert (outward > 0).mean() > 0.99
+    for name in ("ear_l", "ear_r"):
+        idx = head.parts[name]
+        corners = head.vertices[head.triangles[np.isin(head.triangles, idx).all(axis=1)]]
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        away = (normal * (corners.mean(axis=1) - head.vertices[idx].mean(axis=0))).sum(axis=1)
+        assert (away > 0).mean() > 0.7     # a thin, curved shell: most triangles face away from its middle
+
+
+def test_hair_covers_the_top_and_back_but_not_the_face_or_neck():
+    layout = FaceLayout.from_parameters(FaceParameters())
+    points = np.array([[0, 150, -110], [0, 60, -215], [70, 90, -90],      # crown, back, temple above the ear
+                       [0, 0, 0], [0, -150, -60], [0, -150, -170]])       # nose, throat, nape of the neck
+    assert hair_mask(layout, points) == pytest.approx([1, 1, 1, 0, 0, 0], abs=0.01)
+
+
+def test_seam_never_opens_at_any_slider_end_or_preset(default_rig, front):
+    """Every FAP at both ends of its range, every expression and viseme at 100 %, every muscle preset:
+    each shell seam vertex stays exactly on the front's rim vertex it copies."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from face_quality import fap_poses, muscle_poses, preset_poses
+
+    rig = default_rig
+    rim, copies = seam_pairs(rig.face, front.n_vertices)
+    assert len(rim) > 500
+    jaw_moved = False
+    try:
+        poses = list(fap_poses(rig)) + list(preset_poses(rig, mixes=False)) + list(muscle_poses(rig))
+        assert len(poses) > 100
+        for _family, label, apply, _eyes in poses:
+            rig.reset()
+            apply(rig)
+            x = np.asarray(rig.vertices())
+            gap = np.linalg.norm(x[copies] - x[rim], axis=1).max()
+            assert gap == 0.0, f"{label}: the seam opens by {gap:.3g} mm"
+            if label.startswith("fap 3 "):
+                jaw_moved = np.linalg.norm(x[copies] - rig.face.vertices[copies], axis=1).max() > 2.0
+    finally:
+        rig.remove_layer("muscles")
+        rig.reset()
+    assert jaw_moved   # the jaw takes the shell under the chin with it
+
+
+def test_the_shell_stays_still_away_from_the_jaw(default_rig, front):
+    rig = default_rig
+    n = front.n_vertices
+    ears = np.concatenate([rig.face.parts["ear_l"], rig.face.parts["ear_r"]])
+    try:
+        rig.reset()
+        rig.set_fap(3, 1400)   # the jaw wide open
+        moved = np.linalg.norm(np.asarray(rig.vertices()) - rig.face.vertices, axis=1)
+        shell = np.arange(n, rig.face.n_vertices)
+        above_eyes = shell[rig.face.vertices[shell, 1] > 33.0]
+        assert moved[above_eyes].max() < 0.05
+        assert moved[ears].max() == 0.0
+        under_chin = shell[(rig.face.vertices[shell, 1] < -75.0) & (rig.face.vertices[shell, 2] > -90.0)]
+        assert moved[under_chin].max() > 3.0
+        rig.reset()
+        rig.set_fap(49, 20000)   # head yaw: everything turns, ears included
+        moved = np.linalg.norm(np.asarray(rig.vertices()) - rig.face.vertices, axis=1)
+        assert moved[ears].min() > 1.0
+    finally:
+        rig.reset()
+
+
+def test_a_changed_face_gets_its_own_fap_cache_key(front, head):
+    from core.layers.fap.fat import deformer_key
+
+    assert deformer_key(front) != deformer_key(head)
+
+
+def test_registration_and_scans_keep_the_front_only_face(front):
+    from core.registration.pipeline import default_model
+    from core.registration.synthetic import identity_face
+
+    assert default_model().n_vertices == front.n_vertices
+    assert identity_face(0).n_vertices == front.n_vertices
+    other = identity_face(1)
+    assert "ear_l" not in other.parts and other.texture.shape == (480, 640, 3)
+
+
+def test_generated_head_of_another_identity():
+    face = generate_face(FaceParameters.random(np.random.default_rng(3), spread=0.8))
+    front = generate_face(FaceParameters.random(np.random.default_rng(3), spread=0.8), full_head=False)
+    assert face.n_triangles - front.n_triangles <= MAX_EXTRA_TRIANGLES
+    pairs = seam_pairs(face, front.n_vertices)
+    assert welded_boundary_loops(face, pairs) == 3
