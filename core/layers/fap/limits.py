@@ -27,8 +27,10 @@ from core.mesh_quality import MAX_STRETCH, MIN_STRETCH, _local_frames, principal
 # Where easing begins, as a share of the limit: well inside, so ordinary values pass unchanged.
 EASE_START = 0.7
 BISECTION_STEPS = 10
+# Where along a slider's half the texture's squeeze is sampled to pick the triangles to bisect on.
+SMEAR_SAMPLES = (0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0)
 FOLD_REASON = "the skin would fold"
-SMEAR_REASON = f"the skin's texture would smear (stretch over {MAX_STRETCH:g}x)"
+SMEAR_REASON = f"the skin's texture would smear (stretch over {MAX_STRETCH:g}x or shrink under {MIN_STRETCH:g}x)"
 
 
 def _normals(corners: np.ndarray) -> np.ndarray:
@@ -78,10 +80,17 @@ def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vect
             if end == 0:
                 continue
             # The largest stretch of a linear map is convex along the line and 1 at rest, so only
-            # triangles that smear at the slider's end can smear before it (the smallest is taken
-            # alike): the bisection measures those alone.
-            big, small = principal_stretches(frames, base + step * end)
-            smear = np.flatnonzero((big > MAX_STRETCH) | (small < MIN_STRETCH))
+            # triangles that smear at the slider's end can stretch too far before it. The smallest is
+            # not: a triangle that folds over shrinks to nothing on the way and grows again, so the
+            # candidates are those that smear at any of a few samples along the line, or fold at its
+            # end. The bisection measures those alone.
+            candidate = np.zeros(len(tris), bool)
+            for share in SMEAR_SAMPLES:
+                posed = base + step * (end * share)
+                big, small = principal_stretches(frames, posed)
+                candidate |= (big > MAX_STRETCH) | (small < MIN_STRETCH)
+            candidate |= np.einsum("ij,ij->i", _normals(base + step * end), normals) < 0
+            smear = np.flatnonzero(candidate)
             if not breaks(end, smear):   # whole to the slider's end: no limit at all
                 continue
             good, bad = 0.0, 1.0
