@@ -78,6 +78,10 @@ the evaluation showed they are needed to reach the accuracy goals):
   away), the others (brow ends) at the scan surface seen at the prediction's frontal pixel
   (measured on 3 synthetic people: closest point is better for the outline, the frontal ray for
   the brows). Their source is "prediction" and their evidence 0;
+* ``brows`` (``brow_pass``, textured scans): the brow is a band that looks the same along its
+  length, so the patch search slides along it; the band's middle row is followed both ways from
+  the model's place relative to the eye's corners to its ends: the outer end 4.5/4.6 goes to the
+  band's outer end, the top 4.3/4.4 to the model's own fraction of its band's length;
 * no texture: geometry candidates (farthest-point samples) and appearance from HK and shape
   only; the caller reports it.
 
