@@ -146,7 +146,22 @@ def model_band_fraction(model_ctx) -> float | None:
     end), measured on the model's frontal raster exactly as on the scan (so the template's
     convention and the band-end measurement's bias carry over), the mean of the sides where a band
     is found (a texture's two brows are not drawn exactly alike; faces are taken as symmetric);
-    None without a band."""
+    None without a band. Cached per model raster (the model context is cached per model)."""
+    raster = model_ctx.raster
+    hit = _MODEL_FRACTION.get(id(raster))
+    if hit is not None and hit[0] is raster:
+        return hit[1]
+    if len(_MODEL_FRACTION) > 8:
+        _MODEL_FRACTION.clear()
+    fraction = _model_band_fraction(model_ctx)
+    _MODEL_FRACTION[id(raster)] = (raster, fraction)
+    return fraction
+
+
+_MODEL_FRACTION: dict = {}
+
+
+def _model_band_fraction(model_ctx) -> float | None:
     raster = model_ctx.raster
     if raster.channels.shape[-1] < 5:
         return None
