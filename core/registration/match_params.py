@@ -31,6 +31,7 @@ class MatchParams:
     mouth_opening : put inner-lip points on the edges of a visible mouth opening (depth steps).
     steep_prediction : points on steep sides follow the confident matches (see the module docstring).
     lid_depth : a doubtful upper-lid point goes to the foot of the lid's depth fall (module docstring).
+    brows : brow tops and outer ends placed on the brow band or ridge (``brow_pass``).
     outliers : a weak point far from where the confident matches put it follows them (``outlier_pass``).
     """
 
@@ -54,6 +55,7 @@ class MatchParams:
     steep_prediction: bool = True
     lid_depth: bool = True
     outliers: bool = True
+    brows: bool = True
 
     def __post_init__(self):
         for name in ("lam", "lam_a", "lam_s", "position_weight", "pull"):

@@ -284,3 +284,103 @@ def test_a_weak_point_far_from_the_confident_ones_follows_them(model):
     after = state.apply(moves)
     np.testing.assert_allclose(after.positions[far_weak], truth[far_weak], atol=1e-6)
     assert after.source[far_weak] == "prediction" and after.evidence[far_weak] == 0.0
+
+
+
+
+def _brow_case(model, *, textured, band_from=None, band_to=52.0, model_band=True):
+    """The model's own points as the match, with the left brow top 4.3 slid 8 mm outwards along the
+    brow and its outer end 4.5 3 mm out, on a synthetic frontal raster in the model frame (0.75 mm
+    pixels; pixel (row, col) is triangle row * W + col) whose grey channel has, when textured, a
+    dark band 4 mm thick centred 1 mm below the model's brow line (through 4.1, 4.3, 4.5) from
+    x = ``band_from`` (default the model's 4.1) to ``band_to`` mm (the model's 4.5 is at 55.5);
+    the right brow has no band. The model's raster is the same with its band (when ``model_band``)
+    from its 4.1 to x = 52 mm."""
+    from types import SimpleNamespace
+
+    from core.registration.matching import FrontalRaster
+    from core.registration.pass_results import MatchState
+    from core.registration.pipeline import get_model_context
+
+    m = get_model_context(model, "mpeg4_80", MatchParams())
+    names = list(m.template.detected)
+    P = len(names)
+    pts = m.side.points
+    x0, y0, px, H, W = -90.0, 100.0, 0.75, 120, 241
+    cols, rows = np.meshgrid(np.arange(W), np.arange(H))
+    x, y = x0 + cols * px, y0 - rows * px
+    xs, ys = pts[[names.index(n) for n in ("4.1", "4.3", "4.5")], :2].T
+    band_from = xs[0] if band_from is None else band_from
+    line = np.interp(x, xs, ys)
+
+    def raster_with_band(start, stop):
+        channels = np.zeros((H, W, 5), np.float32)
+        if start is not None:
+            band = (np.abs(y - (line - 1.0)) <= 2.0) & (x >= start) & (x <= stop)
+            channels[..., 3] = np.where(band, -3.0, 0.0)
+        return FrontalRaster(x0, y0, px, rows * W + cols, np.tile([1.0, 0.0, 0.0], (H, W, 1)), channels,
+                             np.zeros((H, W)))
+
+    raster = raster_with_band(band_from if textured else None, band_to)
+    m = SimpleNamespace(template=m.template, side=m.side, scale=m.scale,
+                        raster=raster_with_band(xs[0] if model_band else None, 52.0))
+    positions = pts.copy()
+    positions[names.index("4.3")] += (8.0, 0.0, 0.0)
+    positions[names.index("4.5")] += (3.0, 0.0, 0.0)
+    ctx = SimpleNamespace(model=m, fixed=np.zeros(P, bool), textured=textured, scan_raster=raster)
+    state = MatchState(positions, np.zeros(P, int), np.tile([1.0, 0.0, 0.0], (P, 1)), ["refined"] * P, np.ones(P))
+    col_of = lambda x: (x - raster.x0) / raster.pixel          # noqa: E731
+    row_of = lambda y: (raster.y0 - np.interp(y, xs, ys) + 1.0) / raster.pixel   # noqa: E731  band middle at x
+    return ctx, state, names, xs, col_of, row_of, W
+
+
+def _landed(moves, names, name, W):
+    """(row, col) of the raster pixel the move of ``name`` chose."""
+    k = list(moves.index).index(names.index(name))
+    return divmod(int(moves.triangle[k]), W)
+
+
+@pytest.mark.parametrize("band_from, band_to, model_band", [(None, 52.0, True), (20.0, 60.0, True),
+                                                            (20.0, 60.0, False)])
+def test_brow_top_and_end_go_to_the_texture_band(model, band_from, band_to, model_band):
+    """The left brow top slid 8 mm along the brow goes to the band's middle row at the fraction of
+    the band's length (inner to outer end) where the model's 4.3 lies on the model's own band
+    (4.1 .. 52 mm), or, when the model has no band, at its template points' fraction 4.1 -> 4.5;
+    the outer end goes to where the band ends, on its middle row. Also for a brow that starts
+    7 mm farther out and ends 4.5 mm beyond the model's 4.5. The right brow has no band: nothing
+    moves there."""
+    from core.registration.brow_pass import BAND_EVIDENCE, brow_pass
+
+    ctx, state, names, xs, col_of, row_of, W = _brow_case(model, textured=True, band_from=band_from,
+                                                          band_to=band_to, model_band=model_band)
+    moves = brow_pass(ctx, state, np.full(len(names), 0.5))
+    assert {names[i] for i in moves.index} == {"4.3", "4.5"}
+    start = xs[0] if band_from is None else band_from
+    frac = (xs[1] - xs[0]) / ((52.0 if model_band else xs[2]) - xs[0])
+    x_top = start + frac * (band_to - start)
+    r, c = _landed(moves, names, "4.3", W)
+    assert abs(c - col_of(x_top)) <= 1 and abs(r - row_of(x_top)) <= 1
+    r, c = _landed(moves, names, "4.5", W)
+    assert abs(c - col_of(band_to)) <= 1 and abs(r - row_of(band_to)) <= 1
+    assert set(moves.source) == {"refined"} and np.all(moves.evidence == BAND_EVIDENCE)
+    np.testing.assert_array_equal(state.positions[names.index("4.3")], model.landmark_position("4.3") + (
+        8.0, 0, 0))                                                # the pass returns moves, changes nothing
+
+
+def test_brow_pass_leaves_untextured_scans_fixed_points_and_bad_eyes(model):
+    """No texture: nothing moves. A fixed brow top stays (its outer end still moves); a band that
+    does not end within END_WALK x scale outwards (it runs off the face) moves nothing; with the
+    left eye's corners collapsed onto each other the left brow is left alone."""
+    from core.registration.brow_pass import brow_pass
+
+    ctx, state, names, *_ = _brow_case(model, textured=False)
+    assert len(brow_pass(ctx, state, np.full(len(names), 0.5))) == 0
+    ctx, state, names, *_ = _brow_case(model, textured=True, band_to=200.0)
+    assert len(brow_pass(ctx, state, np.full(len(names), 0.5))) == 0
+    ctx, state, names, *_ = _brow_case(model, textured=True)
+    ctx.fixed[names.index("4.3")] = True
+    assert {names[i] for i in brow_pass(ctx, state, np.full(len(names), 0.5)).index} == {"4.5"}
+    ctx.fixed[:] = False
+    positions = state.positions.copy()
+    positions[names.index("3.7")] = positions[names.index("3.11")]
+    assert len(brow_pass(ctx, state.replace(positions=positions), np.full(len(names), 0.5))) == 0
