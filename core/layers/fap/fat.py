@@ -455,6 +455,11 @@ class FapDeformer:
             w[self.face.parts["teeth_lower"]] = 1.0
         return w
 
+    def lip_contact_zone(self) -> np.ndarray:
+        """(n,) bool: vertices lip contact may move after all offsets (there the layers' offsets do
+        not simply add up: lips pressed into each other give way)."""
+        return self._lip_contact.zone(self.face.n_vertices)
+
     def limited(self, values: np.ndarray) -> np.ndarray:
         """(68,) FAP values eased into this face's clean limits (``limits.soft_limit``): unchanged
         well inside them, never past them."""

@@ -26,6 +26,8 @@ GIVE_WIDTH_MM = 4.0
 GIVE_REACH_MM = 10.0
 # A rim needs this many vertices to be a lip line.
 MIN_RIM_VERTICES = 4
+# Next to a mouth corner the overlap fades to nothing over this distance along the mouth (mm).
+CORNER_TAPER_MM = 3.0
 # Overlaps below this (mm) are rounding, not lips passing through each other.
 TOLERANCE_MM = 1e-6
 
@@ -60,12 +62,25 @@ class LipContact:
         self.rest_overlap = np.maximum(self._overlap(face.vertices), 0.0) + TOLERANCE_MM
         self.active = True
 
+    def zone(self, n_vertices: int) -> np.ndarray:
+        """(n_vertices,) bool: the vertices the contact may move (both lips near their rims)."""
+        mask = np.zeros(n_vertices, bool)
+        if self.active:
+            mask[self.upper] = mask[self.lower] = True
+        return mask
+
     def _overlap(self, x: np.ndarray) -> np.ndarray:
-        """(len(lower_rim),) mm: how far each lower-rim vertex is above the upper rim at its x."""
+        """(len(lower_rim),) mm: how far each lower-rim vertex is above the upper rim at its x, tapered
+        to nothing over the CORNER_TAPER_MM next to each mouth corner (there the rims meet and part
+        again, and a corner raised by any layer lifts both: not lips pressed into each other);
+        -inf beyond the upper rim's ends."""
         upper = x[self.upper_rim]
         order = np.argsort(upper[:, 0])
+        ends = upper[order[[0, -1]], 0]
         lower = x[self.lower_rim]
-        return lower[:, 1] - np.interp(lower[:, 0], upper[order, 0], upper[order, 1])
+        above = lower[:, 1] - np.interp(lower[:, 0], upper[order, 0], upper[order, 1], left=np.inf, right=np.inf)
+        taper = np.clip(np.minimum(lower[:, 0] - ends[0], ends[1] - lower[:, 0]) / CORNER_TAPER_MM, 0.0, 1.0)
+        return np.where(np.isfinite(above), above * taper, -np.inf)
 
     def apply(self, x: np.ndarray) -> None:
         """Resolve the lips' overlap in ``x`` (n, 3) mm, in place."""
