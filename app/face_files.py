@@ -296,15 +296,19 @@ class FaceFilesMixin:
             self.load_face_file(path)
 
     def save_face_dialog(self) -> None:
-        if self.face is None:
-            return
-        default = str(Path(self._last_dir()) / f"{self.face.metadata.name}.obj")
-        path, chosen = QFileDialog.getSaveFileName(self, "Save face as", default, ";;".join(SAVE_FILTERS))
+        """File ▸ Save face as…: the displayed face."""
+        if self.face is not None:
+            self.ask_and_save_face(self.face, "Save face as", self.face.metadata.name or "face")
+
+    def ask_and_save_face(self, face, title: str, name: str) -> None:
+        """Ask where to save ``face`` (suggesting ``name``.obj in the last folder) and save it there."""
+        default = str(Path(self._last_dir()) / f"{name}.obj")
+        path, chosen = QFileDialog.getSaveFileName(self, title, default, ";;".join(SAVE_FILTERS))
         if path:
             if Path(path).suffix.lower() not in SAVE_FILTERS.values():
                 path += SAVE_FILTERS.get(chosen, ".obj")
             self.settings.setValue("lastDirectory", str(Path(path).parent))
-            self.save_face_file(path)
+            self.save_face_file(path, face)
 
     def save_face_file(self, path, face=None) -> bool:
         """Save ``face`` (default: the displayed face); errors become a message box. Returns success."""

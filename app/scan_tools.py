@@ -132,14 +132,7 @@ class ScanToolsMixin:
                             "this face was not built that way, or it was changed since (scaled, retextured). "
                             "Build the correspondence again first.")
             return
-        from app.face_files import SAVE_FILTERS
-
-        default = str(Path(self._last_dir()) / f"{shown.metadata.name or 'face'}.canonical.obj")
-        path, chosen = QFileDialog.getSaveFileName(self, "Save canonical face as", default, ";;".join(SAVE_FILTERS))
-        if path:
-            if Path(path).suffix.lower() not in SAVE_FILTERS.values():
-                path += SAVE_FILTERS.get(chosen, ".obj")
-            self.save_face_file(path, canonical)
+        self.ask_and_save_face(canonical, "Save canonical face as", f"{shown.metadata.name or 'face'}.canonical")
 
     def replace_face(self, face, message: str) -> None:
         """Show an edited copy of the current face; its rig is rebuilt in the background."""

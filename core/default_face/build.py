@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from core.face import Face, FaceMetadata, SurfacePoint
 from core.default_face.mouth import MouthInterior
 from core.default_face.params import FaceLayout, FaceParameters
-from core.default_face.shape import OUTLINE_T, FaceShape
+from core.default_face.shape import OUTLINE_T, FaceShape, polar_cap_triangles
 from core.default_face.texture import atlas_map, eye_atlas_centre, mouth_atlas, paint_texture
 
 GRID_SPACING = 0.645  # mm: gives ~50k vertices over the face, like the thesis's scans
@@ -299,13 +299,7 @@ def _eyeballs(shape: FaceShape, offset: int):
     unit = np.column_stack([np.sin(T).ravel() * np.cos(P).ravel(), np.sin(T).ravel() * np.sin(P).ravel(),
                             np.cos(T).ravel()])
     unit = np.concatenate([[[0.0, 0.0, 1.0]], unit])
-    ring = lambda r, s: 1 + r * EYE_SEGMENTS + (s % EYE_SEGMENTS)  # noqa: E731
-    s = np.arange(EYE_SEGMENTS)
-    cap = [np.column_stack([np.zeros(EYE_SEGMENTS, int), ring(0, s), ring(0, s + 1)])]
-    for r in range(EYE_RINGS - 1):
-        cap.append(np.column_stack([ring(r, s), ring(r + 1, s), ring(r + 1, s + 1)]))
-        cap.append(np.column_stack([ring(r, s), ring(r + 1, s + 1), ring(r, s + 1)]))
-    cap = np.concatenate(cap)
+    cap = polar_cap_triangles(EYE_RINGS, EYE_SEGMENTS)
     verts, tris, poles = [], [], []
     radii = shape.eyeball_radii()
     for k, centre in enumerate(shape.eyeball_centres()):

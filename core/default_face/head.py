@@ -31,7 +31,7 @@ import numpy as np
 from scipy.spatial import Delaunay, cKDTree
 
 from core.default_face.params import FaceLayout
-from core.default_face.shape import _smooth_max, _smoothstep
+from core.default_face.shape import _smooth_max, _smoothstep, polar_cap_triangles
 
 SHELL_SPACING = 5.6        # mm, target edge length of the shell away from the face
 SEAM_RINGS = ((1.3, 2), (3.2, 4), (6.0, 8))   # (offset from the seam in mm, every k-th seam vertex) of graded rings
@@ -306,13 +306,7 @@ class HeadBuilder:
         # Close the outline: the two sides share their last ring.
         pts[1][-EAR_SEGMENTS:] = pts[0][-EAR_SEGMENTS:]
         local = np.concatenate(pts)
-        ring = lambda r, k: 1 + r * EAR_SEGMENTS + (k % EAR_SEGMENTS)  # noqa: E731
-        k = np.arange(EAR_SEGMENTS)
-        cap = [np.column_stack([np.zeros(EAR_SEGMENTS, int), ring(0, k), ring(0, k + 1)])]
-        for r in range(EAR_RINGS - 1):
-            cap.append(np.column_stack([ring(r, k), ring(r + 1, k), ring(r + 1, k + 1)]))
-            cap.append(np.column_stack([ring(r, k), ring(r + 1, k + 1), ring(r, k + 1)]))
-        cap = np.concatenate(cap)
+        cap = polar_cap_triangles(EAR_RINGS, EAR_SEGMENTS)
         tris = np.concatenate([cap, cap[:, [0, 2, 1]] + n_side])
         # Weld the shared outline ring of the back side onto the front side's.
         last = np.arange(n_side - EAR_SEGMENTS, n_side)

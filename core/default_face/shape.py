@@ -231,3 +231,18 @@ class FaceShape:
         nose -= 3.0 * nostril
         foot = (y < L.nasion_y + 8) & (y > L.subnasale_y - 5) & (ax < L.alar_half_width + 9)
         return np.where(foot, nose, -np.inf)
+
+
+def polar_cap_triangles(rings: int, segments: int) -> np.ndarray:
+    """(k, 3) triangles of a polar cap: vertex 0 the pole, then ``rings`` rings of ``segments``
+    vertices (ring r, segment s is vertex 1 + r * segments + s), a fan round the pole and two
+    triangles per quad between rings (the eyeballs' caps, the ears' sides)."""
+    def ring(r, k):
+        return 1 + r * segments + (k % segments)
+
+    k = np.arange(segments)
+    cap = [np.column_stack([np.zeros(segments, int), ring(0, k), ring(0, k + 1)])]
+    for r in range(rings - 1):
+        cap.append(np.column_stack([ring(r, k), ring(r + 1, k), ring(r + 1, k + 1)]))
+        cap.append(np.column_stack([ring(r, k), ring(r + 1, k + 1), ring(r, k + 1)]))
+    return np.concatenate(cap)
