@@ -80,7 +80,8 @@ class LipContact:
         lower = x[self.lower_rim]
         above = lower[:, 1] - np.interp(lower[:, 0], upper[order, 0], upper[order, 1], left=np.inf, right=np.inf)
         taper = np.clip(np.minimum(lower[:, 0] - ends[0], ends[1] - lower[:, 0]) / CORNER_TAPER_MM, 0.0, 1.0)
-        return np.where(np.isfinite(above), above * taper, -np.inf)
+        inside = np.isfinite(above)
+        return np.where(inside, np.where(inside, above, 0.0) * taper, -np.inf)
 
     def apply(self, x: np.ndarray) -> None:
         """Resolve the lips' overlap in ``x`` (n, 3) mm, in place."""
