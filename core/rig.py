@@ -6,7 +6,7 @@ Composition order (``FaceRig.vertices``; each layer's offset adds to the result 
     for layer in layers:   x = x + layer.offset(x)       FAPs first (the Facial Animation Table),
                                                           then muscles, then later layers in the
                                                           order they were added
-    for layer in layers:   x = layer.finish(x)           non-additive steps, FAP layer only today:
+    for layer in layers:   x = layer.finish(x)           non-additive steps (in place), FAP layer only today:
                                                           lids stop on each other and slide over the
                                                           eyeballs, lips pressed into each other give
                                                           way, skin stays outside the teeth, eyeballs
@@ -335,17 +335,19 @@ class FaceRig:
     def vertices(self) -> np.ndarray:
         """(n, 3) mm: the current face (read-only array, cached until the next change)."""
         if self._cache is None:
-            x = self.face.vertices
+            # One working array for the whole tick: offsets add into it and the layers' finish steps
+            # edit it in place (a full copy of a 50k-vertex face costs ~0.15 ms, a third of the goal).
+            x = np.array(self.face.vertices, dtype=float)
             layers = self.layers
             for layer in layers:
                 offset = layer.offset(x)
                 if offset is not None:
-                    x = x + offset
+                    x += offset
             for layer in layers:
                 finish: Callable | None = getattr(layer, "finish", None)
                 if finish is not None:
                     x = finish(x)
-            x = np.array(x, dtype=float)
+            x = np.asarray(x, dtype=float)
             x.setflags(write=False)
             self._cache = x
         return self._cache

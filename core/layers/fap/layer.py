@@ -79,7 +79,9 @@ class FapLayer:
         return self.deformer.displacement(self.limited_values())
 
     def finish(self, x: np.ndarray) -> np.ndarray:
-        return self.deformer.finish(x, self.limited_values())
+        """``x`` after the FAPs' non-additive steps, edited in place (the rig passes its own working
+        array; see ``core.rig.FaceRig.vertices``)."""
+        return self.deformer.finish(x, self.limited_values(), in_place=True)
 
     def snapshot(self) -> tuple:
         return (tuple(self._values.tolist()), self._expressions, self._visemes)
