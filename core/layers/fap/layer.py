@@ -165,6 +165,20 @@ class FapLayer:
         raise P.ParameterError(f"{k} is not a FAP, expression or viseme parameter")
 
     def _set_state(self, values: np.ndarray, expressions: Mix, visemes: Mix) -> None:
+        if expressions == self._expressions and visemes == self._visemes:
+            # Only FAP values (a slider tick, a timeline frame): the change names the FAPs that moved,
+            # without listing every non-zero parameter twice.
+            values = np.array(values, dtype=float)
+            moved = np.flatnonzero(values != self._values)
+            if not len(moved):
+                return
+            keys = [f"fap:{n + 1}" for n in moved.tolist()]
+            change = ParameterChange(dict(zip(keys, values[moved].tolist())),
+                                     dict(zip(keys, self._values[moved].tolist())), self.name)
+            self._limited = None
+            self._values = values
+            self.parameters_changed.emit(change)
+            return
         old = self._state_values()
         self._limited = None
         self._values = np.array(values, dtype=float)
