@@ -28,7 +28,7 @@ import numpy as np
 import pyvista as pv
 
 from app.label_layout import LabelLayout
-from core.face import Face, VertexNormals
+from core.face import Face, VertexNormals, coincident_skin_vertices
 
 if TYPE_CHECKING:  # pragma: no cover
     from pyvista.plotting.plotter import BasePlotter
@@ -56,8 +56,9 @@ _LABEL_OFFSET_MM = 2.0
 
 
 # --------------------------------------------------------------------- data
-def face_to_polydata(face: Face) -> pv.PolyData:
-    """A ``pv.PolyData`` with points, triangles, normals, uv and vertex colours.
+def face_to_polydata(face: Face, normals: np.ndarray | None = None) -> pv.PolyData:
+    """A ``pv.PolyData`` with points, triangles, normals (``normals`` (n, 3), default the face's own),
+    uv and vertex colours.
 
     ``uv`` becomes the active texture coordinates; vertex colours (if any) are
     stored as uint8 RGB point data named ``"rgb"``.
@@ -65,7 +66,7 @@ def face_to_polydata(face: Face) -> pv.PolyData:
     tris = np.asarray(face.triangles, dtype=np.int64)
     cells = np.hstack([np.full((len(tris), 1), 3, dtype=np.int64), tris]).ravel()
     mesh = pv.PolyData(np.array(face.vertices, dtype=np.float64), faces=cells)
-    normals = np.array(face.vertex_normals, dtype=np.float32)
+    normals = np.array(face.vertex_normals if normals is None else normals, dtype=np.float32)
     mesh.point_data[_NORMALS_ARRAY] = normals
     mesh.point_data.active_normals_name = _NORMALS_ARRAY
     if face.uv is not None:
@@ -158,7 +159,10 @@ class FaceActor:
         self.plotter = plotter
         self.face = face
         self.name = name
-        self.mesh = face_to_polydata(face)
+        # Skin split on seams (texture seams, the default face's front/head-shell join) shades as one
+        # surface: no crease along the seam.
+        self._normals = VertexNormals(face.triangles, face.n_vertices, welds=coincident_skin_vertices(face))
+        self.mesh = face_to_polydata(face, self._normals(face.vertices))
         self.texture = face_texture(face)
         mapper = pv.DataSetMapper(self.mesh)
         mapper.color_mode = "direct"
@@ -178,7 +182,6 @@ class FaceActor:
         self._landmark_actors: list = []
         self._label_layout: LabelLayout | None = None   # shows only the labels that fit
         self._landmarks_visible = False
-        self._normals = VertexNormals(face.triangles, face.n_vertices)
         self._overlay: dict | None = None  # cmap, title, fmt, clim of the scalars shown
         self._scalar_bar_title: str | None = None
         self.preview = None                # app.preview.PreviewMesh: the draft level of detail

@@ -461,7 +461,7 @@ class VertexNormals:
     cross product per triangle and one precomputed sparse (vertex x triangle) product (~5-10 ms).
     """
 
-    def __init__(self, triangles, n_vertices: int):
+    def __init__(self, triangles, n_vertices: int, welds: tuple[np.ndarray, np.ndarray] | None = None):
         tri = np.asarray(triangles, dtype=np.int64)
         m = len(tri)
         self.n_vertices = int(n_vertices)
@@ -469,12 +469,36 @@ class VertexNormals:
         self._corners = [np.ascontiguousarray(tri[:, k]) for k in range(3)]
         self._incidence = scipy.sparse.csr_matrix(
             (np.ones(3 * m), (tri.ravel(), np.repeat(np.arange(m), 3))), shape=(self.n_vertices, m))
+        self._welds = None
+        if welds is not None and len(welds[0]):
+            members, groups = (np.asarray(a, dtype=np.int64) for a in welds)
+            first = np.full(groups.max() + 1, -1, dtype=np.int64)
+            first[groups[::-1]] = members[::-1]      # each group's first member
+            self._welds = (members, groups, first[groups], len(first))
 
     def __call__(self, vertices) -> np.ndarray:
         v = np.ascontiguousarray(vertices, dtype=np.float64)
         if vertex_normals_into is not None and v.shape == (self.n_vertices, 3):
-            return vertex_normals_into(v, self._triangles, np.empty_like(v))
-        return self.with_numpy(v)
+            out = vertex_normals_into(v, self._triangles, np.empty_like(v))
+        else:
+            out = self.with_numpy(v)
+        if self._welds is not None:
+            self._weld(v, out)
+        return out
+
+    def _weld(self, v: np.ndarray, normals: np.ndarray) -> None:
+        """Give welded vertices that still coincide (within ``WELD_TOLERANCE_MM``) one normal: their
+        sides' normals averaged (in place). Split vertices on a seam (a texture seam, the default
+        face's front/head-shell seam) would otherwise show the seam as a shading crease; cut lips that
+        parted are no longer together and keep their own normals."""
+        members, groups, firsts, n_groups = self._welds
+        apart = np.abs(v[members] - v[firsts]).max(axis=1) > WELD_TOLERANCE_MM
+        groups = np.where(apart, n_groups + np.arange(len(members)), groups)   # apart: a group of its own
+        n = normals[members]
+        summed = np.stack([np.bincount(groups, n[:, k], minlength=n_groups + len(members)) for k in range(3)], axis=1)
+        length = np.linalg.norm(summed, axis=1, keepdims=True)
+        unit = np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
+        normals[members] = unit[groups]
 
     def with_numpy(self, vertices) -> np.ndarray:
         """The same normals without the compiled kernel (the reference)."""
@@ -491,6 +515,38 @@ class VertexNormals:
         out = self._incidence @ cross
         length = np.sqrt(np.einsum("ij,ij->i", out, out))[:, None]
         return np.divide(out, length, out=np.zeros_like(out), where=length > 0)
+
+
+WELD_TOLERANCE_MM = 0.01   # welded vertices farther apart than this shade on their own (a cut that opened)
+WELD_MAX_ANGLE_DEG = 60.0  # coincident vertices whose rest normals differ more are a real crease: not welded
+
+
+def coincident_skin_vertices(face: "Face") -> tuple[np.ndarray, np.ndarray]:
+    """(members (k,), groups (k,)): the vertices that share their rest position with another one, each
+    with the number of its group, among the vertices of no named part (skin: split on texture seams
+    or where two surfaces are joined; rigid parts such as teeth keep their hard edges) and whose rest
+    normals differ by less than ``WELD_MAX_ANGLE_DEG`` from their group's first one (where a lip
+    folds into the mouth the fold is meant to show). For :class:`VertexNormals`' ``welds``."""
+    skin = np.ones(face.n_vertices, dtype=bool)
+    for idx in face.parts.values():
+        skin[np.asarray(idx, dtype=np.int64)] = False
+    ids = np.flatnonzero(skin)
+    if not len(ids):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    _unique, inverse, counts = np.unique(face.vertices[ids], axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    shared = counts[inverse] > 1
+    members, groups = ids[shared], inverse[shared]
+    order = np.argsort(groups, kind="stable")
+    members, groups = members[order], groups[order]
+    first = members[np.searchsorted(groups, groups)]            # each group's first member
+    normals = face.vertex_normals
+    aligned = (normals[members] * normals[first]).sum(axis=1) >= np.cos(np.radians(WELD_MAX_ANGLE_DEG))
+    members, groups = members[aligned], groups[aligned]
+    _labels, groups, counts = np.unique(groups, return_inverse=True, return_counts=True)
+    keep = counts[groups] > 1                                    # a group left alone welds nothing
+    _labels, groups = np.unique(groups[keep], return_inverse=True)    # groups numbered 0..g-1
+    return members[keep], groups.ravel()
 
 
 UV_AGAINST_HEIGHT = -0.3   # correlation of v with height below which a texture reads upside down

@@ -142,9 +142,10 @@ def with_head(face: Face, layout: FaceLayout, n_skin_tris: int, front_texture: n
     front[loop] = smoothed_rim(front[loop], pinned=held[loop])
     builder = HeadBuilder(layout)
     shell = builder.shell(front, loop, guide=guide)
+    shell_vertices = _faired_shell(front, face.triangles[:n_skin_tris], loop, shell, builder.model.centre)
     ear_v, ear_t, ear_tex = builder.ears()
     n_shell = len(shell.vertices)
-    vertices = np.concatenate([front, shell.vertices, ear_v])
+    vertices = np.concatenate([front, shell_vertices, ear_v])
     triangles = np.concatenate([face.triangles, shell.triangles + n0, ear_t + n0 + n_shell])
     n_ear = len(ear_v) // 2
     parts = dict(face.parts)
@@ -181,6 +182,23 @@ def with_head(face: Face, layout: FaceLayout, n_skin_tris: int, front_texture: n
         f"{len(ear_v)} ear vertices appended."
     )
     return head
+
+
+def _faired_shell(front: np.ndarray, skin_triangles: np.ndarray, loop: np.ndarray, shell, centre: np.ndarray) -> np.ndarray:
+    """(k, 3) the shell's vertices with those within ``FAIR_BAND_MM`` of the seam faired into the
+    face's slope (``head.fair_radially`` over the front skin and the shell joined at the seam)."""
+    from core.default_face.head import FAIR_BAND_MM, fair_radially
+
+    n0, n_seam = len(front), len(loop)
+    # Shell vertex k < n_seam is a copy of front vertex loop[k]: join the two meshes there.
+    index = np.concatenate([loop, n0 + np.arange(len(shell.vertices) - n_seam)])
+    joined = np.concatenate([front, shell.vertices[n_seam:]])
+    triangles = np.concatenate([skin_triangles, index[shell.triangles]])
+    near, _ = cKDTree(front[loop]).query(shell.vertices[n_seam:], distance_upper_bound=FAIR_BAND_MM)
+    free = np.zeros(len(joined), bool)
+    free[n0:] = np.isfinite(near)
+    faired = fair_radially(joined, triangles, free, centre)
+    return np.concatenate([shell.vertices[:n_seam], faired[n0:]])
 
 
 def _sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:

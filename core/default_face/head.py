@@ -38,10 +38,44 @@ SEAM_RINGS = ((1.3, 2), (3.2, 4), (6.0, 8))   # (offset from the seam in mm, eve
 CORRECTION_FADE = 26.0     # mm, the seam correction fades out over this distance from the face
 CORRECTION_SIGMA = 0.07    # rad, angular smoothing of the seam correction along the seam
 EAR_RINGS, EAR_SEGMENTS = 10, 40
+FAIR_BAND_MM = 24.0        # shell vertices this close to the seam are faired into the face's slope
 
 
 def _softmin(a, b, k):
     return -_smooth_max(-np.asarray(a, float), -np.asarray(b, float), k)
+
+
+# ---------------------------------------------------------------- a smooth join
+def fair_radially(points: np.ndarray, triangles: np.ndarray, free: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(n, 3) ``points`` with the ``free`` (n,) bool ones moved along their direction from ``centre``
+    so that their distance from it is biharmonic over the mesh (L^2 s = 0, L the graph Laplacian
+    weighted by 1 / edge length), the other points fixed.
+
+    Where the head shell meets the front of the face, the shell matches the face's boundary but not
+    its slope: the join shows as a crease (a step at the temples, a ridge along the jaw). With two
+    rings of the face fixed beside the seam, a biharmonic fill continues the face's slope into the
+    shell. Moving only along the radius keeps every shell vertex's direction, hence its texture
+    coordinates and triangle shapes."""
+    import scipy.sparse
+    import scipy.sparse.linalg
+
+    n = len(points)
+    edges = np.unique(np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]),
+                              axis=1), axis=0)
+    weight = 1.0 / np.maximum(np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1), 1e-9)
+    W = scipy.sparse.coo_matrix((np.concatenate([weight, weight]), (np.concatenate([edges[:, 0], edges[:, 1]]),
+                                 np.concatenate([edges[:, 1], edges[:, 0]]))), shape=(n, n)).tocsr()
+    degree = np.asarray(W.sum(axis=1)).ravel()
+    L = scipy.sparse.diags(1.0 / np.maximum(degree, 1e-12)) @ W - scipy.sparse.identity(n)
+    M = (L @ L).tocsr()
+    r = points - centre
+    s = np.linalg.norm(r, axis=1)
+    fixed = ~free
+    rows = M[free]
+    solved = scipy.sparse.linalg.spsolve(rows[:, free].tocsc(), -rows[:, fixed] @ s[fixed])
+    out = points.copy()
+    out[free] = centre + r[free] / s[free, None] * np.asarray(solved)[:, None]
+    return out
 
 
 # ---------------------------------------------------------------- outer boundary

@@ -6,7 +6,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from core.default_face import FaceLayout, FaceParameters, generate_face, load_default_face
-from core.default_face.head import hair_mask, outer_boundary_loop
+from core.default_face.head import fair_radially, hair_mask, outer_boundary_loop
+from core.face import coincident_skin_vertices
 
 MAX_EXTRA_TRIANGLES = 20_000   # the software renderer's cost follows the triangle count
 
@@ -100,6 +101,32 @@ def test_head_proportions(head, front):
     assert 200 < top < 260            # vertex to menton (adult: about 230 mm)
     below = front.bounds[0][1] - lo[1]
     assert 60 < below < 120           # the neck below the chin
+
+
+def test_radial_fairing_restores_a_sphere_and_keeps_directions():
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=50.0)
+    v, t = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    free = v[:, 2] > 20.0                                   # a cap, bumped radially at random
+    bumped = v.copy()
+    bumped[free] *= np.random.default_rng(0).uniform(0.8, 1.2, free.sum())[:, None]
+    faired = fair_radially(bumped, t, free, np.zeros(3))
+    assert np.abs(np.linalg.norm(faired, axis=1) - 50.0).max() < 1e-6      # the constant radius is the fill
+    assert np.allclose(faired[~free], v[~free])
+    unit = faired / np.linalg.norm(faired, axis=1, keepdims=True)
+    assert np.allclose(unit, v / 50.0)                      # only along the radius
+
+
+def test_the_shell_continues_the_face_slope_across_the_seam(head):
+    """Where the shell meets the front of the face their normals agree (no crease along the seam:
+    before the shell was faired, 1 seam vertex in 10 turned by more than 65 degrees)."""
+    members, groups = coincident_skin_vertices(head)
+    order = np.argsort(groups, kind="stable")
+    a, b = members[order][0::2], members[order][1::2]
+    assert len(a) > 500                                     # the rim seam is found and welded
+    angle = np.degrees(np.arccos(np.clip((head.vertex_normals[a] * head.vertex_normals[b]).sum(axis=1), -1, 1)))
+    assert np.median(angle) < 12.0 and np.percentile(angle, 90) < 30.0
 
 
 def test_the_shell_faces_outward(head, front):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from core.face import Face, SurfacePoint, vertex_normals
+from core.face import Face, SurfacePoint, VertexNormals, coincident_skin_vertices, vertex_normals
 
 
 def unit_square(z=0.0):
@@ -50,6 +50,61 @@ def test_vertex_normals_of_a_sphere_point_outward():
     n = vertex_normals(np.asarray(sphere.vertices), np.asarray(sphere.faces))
     radial = sphere.vertices / np.linalg.norm(sphere.vertices, axis=1, keepdims=True)
     assert np.einsum("ij,ij->i", n, radial).min() > 0.99
+
+
+def split_tent():
+    """A folded sheet (a tent along x = 0) in one piece, the same sheet whose two halves are separate
+    vertices along the ridge, and that one's (left copy, right copy) ridge vertices."""
+    xs, ys = np.linspace(-2, 2, 5), np.linspace(0, 3, 4)
+    grid = np.array([[x, y, 2.0 - 0.5 * abs(x)] for y in ys for x in xs])
+    tri = []
+    for j in range(3):
+        for i in range(4):
+            a = j * 5 + i
+            tri += [[a, a + 1, a + 6], [a, a + 6, a + 5]]
+    whole = Face(grid, np.array(tri))
+    ridge = np.flatnonzero(grid[:, 0] == 0)
+    copies = len(grid) + np.arange(len(ridge))
+    lut = np.arange(len(grid))
+    split_tri = np.array(tri)
+    right = (grid[split_tri].mean(axis=1)[:, 0] > 0)
+    lut_right = lut.copy()
+    lut_right[ridge] = copies
+    split_tri[right] = lut_right[split_tri[right]]
+    split = Face(np.concatenate([grid, grid[ridge]]), split_tri)
+    return whole, split, ridge, copies
+
+
+def test_welded_normals_hide_a_seam_until_it_opens():
+    whole, split, ridge, copies = split_tent()
+    members, groups = coincident_skin_vertices(split)
+    assert set(members.tolist()) == set(ridge.tolist()) | set(copies.tolist())
+    plain = VertexNormals(split.triangles, split.n_vertices)(split.vertices)
+    welded = VertexNormals(split.triangles, split.n_vertices, welds=(members, groups))(split.vertices)
+    # Unwelded, each side of the ridge keeps its own slope (a crease); welded, the ridge is shaded as
+    # the sheet in one piece is: straight up (the two slopes are symmetric).
+    assert np.degrees(np.arccos(np.clip((plain[ridge] * plain[copies]).sum(axis=1), -1, 1))).min() > 40
+    assert np.allclose(welded[ridge], [0, 0, 1]) and np.allclose(welded[copies], [0, 0, 1])
+    others = np.setdiff1d(np.arange(split.n_vertices), members)
+    assert np.array_equal(welded[others], plain[others])
+    # The right half pulled away (a cut that opened): each side shades on its own again.
+    moved = split.vertices.copy()
+    moved[copies, 0] += 0.5
+    opened = VertexNormals(split.triangles, split.n_vertices, welds=(members, groups))(moved)
+    assert np.allclose(opened, VertexNormals(split.triangles, split.n_vertices)(moved))
+
+
+def test_parts_and_sharp_folds_are_not_welded():
+    whole, split, ridge, copies = split_tent()
+    teeth = Face(split.vertices, split.triangles, parts={"teeth_upper": copies})
+    assert len(coincident_skin_vertices(teeth)[0]) == 0
+    # Fold the right half over (a lip turning into the mouth): the copies' normals turn far away.
+    folded = split.vertices.copy()
+    right = folded[:, 0] > 0
+    folded[right, 2] = 2.0 - 0.9 * folded[right, 0]
+    folded[right, 0] *= -0.6                                  # under the left half
+    sharp = Face(folded, split.triangles)
+    assert len(coincident_skin_vertices(sharp)[0]) == 0
 
 
 def test_landmarks_follow_deformation_and_stay_on_surface():
