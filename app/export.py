@@ -110,6 +110,7 @@ from typing import Callable
 import numpy as np
 
 from core.face import Face
+from core.framing import portrait_points
 
 from app.export_plan import (  # noqa: F401 - re-exported
     FORMATS, AUDIO_FORMATS, STILL_FORMATS, ExportError, ExportCancelled, ExportSettings, ExportResult,
@@ -212,7 +213,7 @@ class _FaceRenderer:
             if settings.camera is not None:
                 apply_camera(self.plotter, settings.camera)
             else:
-                scene.set_camera_view(self.plotter, settings.view, face.vertices)
+                scene.set_camera_view(self.plotter, settings.view, portrait_points(face))
             self.plotter.show(auto_close=False)  # realises the window; later frames use render()
             if strip:
                 self._plan_strip(np.asarray(face.vertices, dtype=np.float64))

@@ -145,7 +145,10 @@ class FaceViewMixin:
         if self.face_actor is None:
             return
         self.plotter.camera.view_angle = self._default_view_angle
-        self._scene.set_camera_view(self.plotter, view, self.face_actor.mesh.points)
+        from core.framing import portrait_points
+
+        # The head, not the neck under it: the face fills the view.
+        self._scene.set_camera_view(self.plotter, view, portrait_points(self.face_actor.face, self.face_actor.mesh.points))
         self._render()
 
     # ------------------------------------------------------------ view state (saved in projects)

@@ -34,7 +34,7 @@ def _prefer_egl_without_display() -> None:
 def render_face_image(face: Face, *, view: str = "front", size: tuple[int, int] = DEFAULT_SIZE,
                       mode: str = "textured", show_landmarks: bool = False, frame_points=None) -> np.ndarray:
     """Render ``face`` off screen and return the (h, w, 3) uint8 RGB image. ``frame_points`` (k, 3) mm:
-    what the camera frames (default: the whole face; e.g. only the face of a head-and-shoulders scan)."""
+    what the camera frames (default: the head down to just below the chin, ``core.framing``)."""
     import pyvista as pv
 
     from app import scene
@@ -49,7 +49,11 @@ def render_face_image(face: Face, *, view: str = "front", size: tuple[int, int] 
     try:
         scene.setup_stage(plotter)
         actor = scene.add_face_actor(plotter, face, mode, show_landmarks=show_landmarks)
-        scene.set_camera_view(plotter, view, actor.mesh.points if frame_points is None else np.asarray(frame_points))
+        if frame_points is None:
+            from core.framing import portrait_points
+
+            frame_points = portrait_points(face)
+        scene.set_camera_view(plotter, view, np.asarray(frame_points))
         image = plotter.screenshot(None, return_img=True)
     finally:
         plotter.close()
