@@ -88,6 +88,7 @@ class LabelLayout:
         self.boxes: tuple = ()
         self.shown = np.ones(len(self.names), dtype=bool)
         self.enabled = True
+        self.active = True      # False while the labels are hidden: nothing to lay out
         self._observer = renderer.AddObserver("StartEvent", lambda *_: self.update())
 
     def set_points(self, normals: np.ndarray) -> None:
@@ -107,7 +108,7 @@ class LabelLayout:
 
     def update(self) -> None:
         """Lay the labels out for the renderer's current camera (called before every render)."""
-        if not self.names or self.label_mesh is None:
+        if not self.names or self.label_mesh is None or not self.active:
             return
         anchors = np.asarray(self.label_mesh.points, dtype=float)
         if not self.enabled:

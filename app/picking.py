@@ -431,6 +431,8 @@ class LandmarkMarkers:
             self._markers.SetVisibility(self._visible)
         if self._labels is not None:
             self._labels.SetVisibility(self._visible and self._labels_visible)
+        if self._layout is not None:
+            self._layout.active = self._visible and self._labels_visible   # hidden labels: no layout per render
         if not self._visible:
             for actor in (self._selected_actor, self._hover_actor, self.selected_label, self.hover_label):
                 actor.SetVisibility(False)

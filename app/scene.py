@@ -470,9 +470,21 @@ class FaceActor:
         visible = bool(visible) and bool(self._landmark_names)
         if visible and self.landmark_mesh is None:
             self._build_landmarks()
+        elif visible and not self._landmarks_visible and self.landmark_mesh is not None:
+            # Hidden landmarks do not follow the face (update_vertices skips them): catch up.
+            self._move_landmarks(np.asarray(self.mesh.points, dtype=np.float64),
+                                 np.asarray(self.mesh.point_data[_NORMALS_ARRAY], dtype=np.float64))
         for actor in self._landmark_actors:
             actor.SetVisibility(visible)
+        if self._label_layout is not None:
+            self._label_layout.active = visible     # no label layout before each render while hidden
         self._landmarks_visible = visible
+
+    def _move_landmarks(self, vertices: np.ndarray, normals: np.ndarray) -> None:
+        markers, anchors, point_normals = self._landmark_points(vertices, normals)
+        self.landmark_mesh.points[:] = markers
+        self.label_mesh.points[:] = anchors
+        self._label_layout.set_points(point_normals)
 
     # ----------------------------------------------------------- updates
     def compute_normals(self, vertices) -> np.ndarray:
@@ -497,11 +509,8 @@ class FaceActor:
             # The full face's normals at the kept vertices: the draft is shaded like the face.
             self.preview_mesh.points[:] = vertices[self.preview.index]
             self.preview_mesh.point_data[_NORMALS_ARRAY][:] = np.asarray(normals)[self.preview.index]
-        if self.landmark_mesh is not None:
-            markers, anchors, point_normals = self._landmark_points(vertices, np.asarray(normals, float))
-            self.landmark_mesh.points[:] = markers
-            self.label_mesh.points[:] = anchors
-            self._label_layout.set_points(point_normals)
+        if self.landmark_mesh is not None and self._landmarks_visible:
+            self._move_landmarks(vertices, np.asarray(normals, float))
 
     def remove(self) -> None:
         """Take the face (and its landmarks and scalar bar) off the plotter."""

@@ -121,6 +121,15 @@ def test_landmarks_toggle(plotter, synthetic_face):
     assert list(actor.label_mesh.point_data["landmark"]) == synthetic_face.landmark_names
     actor.set_landmarks_visible(False)
     assert not any(a.GetVisibility() for a in actor._landmark_actors)
+    # Hidden, they cost nothing per frame (no label layout before renders)...
+    assert not actor.label_layout.active
+    moved = synthetic_face.vertices * np.array([1.2, 0.9, 1.0])
+    actor.update_vertices(moved)
+    # ... and shown again they sit on the face where it is now.
+    actor.set_landmarks_visible(True)
+    assert actor.label_layout.active
+    expected = synthetic_face.landmark_positions(synthetic_face.landmark_names, moved)
+    assert np.linalg.norm(actor.landmark_mesh.points - expected, axis=1).max() < 2.0
 
 
 def test_camera_presets(plotter, synthetic_face):
