@@ -216,18 +216,21 @@ class ProjectActions(ProjectRecoveryMixin, QObject):
         autosave) restores exactly what was shown, not the raw file."""
         face = self.document.face
         to_autosave = Path(target).name.endswith(cp.AUTOSAVE_SUFFIX)
+
+        def usable(path) -> bool:
+            # A face embedded for an autosave lives in the state folder and goes when that autosave is
+            # recovered or discarded: a saved project gets its own copy (a recovered session's face is
+            # read from there).
+            return Path(path).is_file() and (to_autosave or not Path(path).name.endswith(cp.AUTOSAVE_SUFFIX + ".face.ply"))
+
         if self._face_ref is not None and self._face_ref[0] == id(face) and (
-                self._face_ref[1].builtin is not None or (
-                    Path(self._face_ref[1].path).is_file()
-                    # a face embedded for an autosave lives in the state folder: a saved project gets its own copy
-                    and (to_autosave or not Path(self._face_ref[1].path).name.endswith(
-                        cp.AUTOSAVE_SUFFIX + ".face.ply")))):
+                self._face_ref[1].builtin is not None or usable(self._face_ref[1].path)):
             return self._face_ref[1]
         source = self.document.face_path
         as_read = self._source_face is not None and self._source_face == (source, _fingerprint(face))
         if as_read and getattr(face.metadata, "source", None) == "built-in":
             ref = cp.FaceRef.default_face()
-        elif as_read and source and Path(source).is_file():
+        elif as_read and source and usable(source):
             ref = cp.FaceRef.for_file(source)
         else:
             ref = cp.embed_face(face, target)

@@ -618,13 +618,41 @@ def test_build_correspondence_shows_the_scan_animated_and_keeps_edited_points(qt
     assert load_face(target).n_vertices == 4560
     errors = []
     monkeypatch.setattr(window, "show_error", lambda title, text: errors.append(title))
+    # Killed right after the build, the next start recovers the session from its autosave exactly: the
+    # scan as cut, its parts, the landmarks with their statuses, the rig's values and pose.
+    import subprocess
+
+    project = window.document.project
+    own = project.autosave_now()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
+    crashed = own.parent / f"untitled-{int(dead.stdout)}-1.mimica.autosave"
+    crashed.write_bytes(own.read_bytes())
+    own.unlink()
+    posed = rig.vertices().copy()
+    window.set_face(scan, rig=None, rig_message="not needed here")     # the next start, on another face
+    asked = []
+    monkeypatch.setattr(QMessageBox, "question", lambda *a, **k: asked.append(a[1]) or QMessageBox.StandardButton.Yes)
+    assert project.check_startup_recovery() and asked == ["Recover unsaved work?"]
+    qtbot.waitUntil(lambda: window.face is not scan and window.rig is not None and window.rig.face is window.face,
+                    timeout=60000)
+    recovered = window.face
+    assert np.array_equal(recovered.vertices, shown.vertices) and np.array_equal(recovered.triangles, shown.triangles)
+    assert {k: sorted(v) for k, v in recovered.parts.items()} == {k: sorted(v) for k, v in shown.parts.items()}
+    assert all(np.allclose(recovered.landmark_position(n), shown.landmark_position(n), atol=1e-9)
+               for n in shown.landmark_names)
+    statuses = window.document.landmarks
+    assert statuses.status("8.3") == LandmarkStatus.EDITED and statuses.status("9.3") == LandmarkStatus.CONFIRMED
+    assert window.rig.value("fap:3") == 600.0 and np.allclose(window.rig.vertices(), posed)
+    shown, rig = recovered, window.rig
     # The session survives a project round trip: the same scan, cut, mouth parts, landmarks with their
     # statuses, and the rig's values (the FAP table found again in the cache, built on the fitted template).
-    project = window.document.project
     saved = tmp_path / "session.mimica"
     assert project.save_project(saved)
     landmarks_before = {n: shown.landmark_position(n) for n in shown.landmark_names}
     window.set_face(scan, rig=None, rig_message="not needed here")
+    # (A recovered session's face is read from the crashed autosave's folder, which recovery empties:
+    # the saved project carries its own copy.)
     with qtbot.waitSignal(project.project_opened, timeout=60000):
         project.open_project(saved, ask=False)
     qtbot.waitUntil(lambda: window.rig is not None and window.rig.face is window.face, timeout=60000)
