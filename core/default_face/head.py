@@ -452,7 +452,10 @@ def paint_head_atlas(layout: FaceLayout, builder: HeadBuilder, q_box, base_rgb: 
     u = (px[patch] - ex) / ew - 0.5
     v = (py[patch] - ey) / eh - 0.5
     rho = np.sqrt((u / 0.5) ** 2 + (v / 0.5) ** 2)
-    ear = base_rgb * np.array([1.02, 0.94, 0.93])
+    # The ears take the skin colour the face has at its rim (the painted face is not the plain base tone:
+    # base-coloured ears stood out, salmon against the face).
+    skin = np.median(seam[1], axis=0) if seam is not None else base_rgb
+    ear = skin * np.array([1.02, 0.96, 0.95])
     shade = 1.0 - 0.15 * np.exp(-((rho / 0.3) ** 2))
     img[patch] = ear[None] * shade[:, None]
     return np.clip(img, 0, 255).astype(np.uint8)
