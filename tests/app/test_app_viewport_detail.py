@@ -80,6 +80,10 @@ def test_a_slider_draws_the_draft_then_the_full_face(qtbot, win):
     qtbot.waitUntil(lambda: _settled(win) and not actor.showing_preview, timeout=TIMEOUT_MS)
     assert actor.actor.GetVisibility() and not actor.preview_actor.GetVisibility()
     assert win.viewport.last_full_ms is not None
+    # The same image, sampled without mipmaps in the draft (cheaper on software GL), with them in full.
+    draft, full = actor.preview_actor.texture, actor.actor.texture
+    assert not draft.mipmap and full.mipmap
+    assert np.array_equal(draft.to_image().point_data.active_scalars, full.to_image().point_data.active_scalars)
 
 
 def test_the_full_frame_after_a_move_equals_a_render_from_scratch(qtbot, win, default_face):
