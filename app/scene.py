@@ -157,7 +157,7 @@ class FaceActor:
     """
 
     def __init__(self, plotter: "BasePlotter", face: Face, mode: str = "textured",
-                 *, show_landmarks: bool = False, name: str = "face"):
+                 *, show_landmarks: bool = False, name: str = "face", mipmap: bool = True):
         self.plotter = plotter
         self.face = face
         self.name = name
@@ -165,7 +165,7 @@ class FaceActor:
         # surface: no crease along the seam.
         self._normals = VertexNormals(face.triangles, face.n_vertices, welds=coincident_skin_vertices(face))
         self.mesh = face_to_polydata(face, self._normals(face.vertices))
-        self.texture = face_texture(face)
+        self.texture = face_texture(face, mipmap=mipmap)
         self._draft_texture: pv.Texture | None = None    # the draft's copy (no mipmaps), made when needed
         mapper = pv.DataSetMapper(self.mesh)
         mapper.color_mode = "direct"
@@ -538,13 +538,14 @@ class FaceActor:
 
 
 def add_face_actor(plotter: "BasePlotter", face: Face, mode: str = "textured",
-                   *, show_landmarks: bool = False, name: str = "face") -> FaceActor:
+                   *, show_landmarks: bool = False, name: str = "face", mipmap: bool = True) -> FaceActor:
     """Add ``face`` to ``plotter`` in display ``mode`` and return its :class:`FaceActor`.
 
     ``name`` keys the actors on the plotter: adding another face under the
-    same name replaces the first one's actor.
+    same name replaces the first one's actor. ``mipmap=False``: bilinear texture
+    sampling without mipmaps (see :func:`face_texture`).
     """
-    return FaceActor(plotter, face, mode, show_landmarks=show_landmarks, name=name)
+    return FaceActor(plotter, face, mode, show_landmarks=show_landmarks, name=name, mipmap=mipmap)
 
 
 # ------------------------------------------------------------------ camera
