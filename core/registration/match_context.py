@@ -35,6 +35,7 @@ class ModelContext:
     raster: FrontalRaster
     surface: list            # per detected point: SurfacePoint on the model
     normals: np.ndarray | None = None   # (P, 3) unit model surface normals at the points
+    can_close_eyes: bool = False        # the model's FAP rig can close its lids (``eye_pass``): the built-in face
 
 
 def model_context(model: Face, template: LandmarkTemplate, params: MatchParams) -> ModelContext:

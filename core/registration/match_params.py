@@ -32,6 +32,7 @@ class MatchParams:
     steep_prediction : points on steep sides follow the confident matches (see the module docstring).
     lid_depth : a doubtful upper-lid point goes to the foot of the lid's depth fall (module docstring).
     brows : brow tops and outer ends placed on the brow band or ridge (``brow_pass``).
+    eyes : each eye found as a whole by its shape; closed eyes' points on the lid line (``eye_pass``).
     outliers : a weak point far from where the confident matches put it follows them (``outlier_pass``).
     """
 
@@ -56,6 +57,7 @@ class MatchParams:
     lid_depth: bool = True
     outliers: bool = True
     brows: bool = True
+    eyes: bool = True
 
     def __post_init__(self):
         for name in ("lam", "lam_a", "lam_s", "position_weight", "pull"):

@@ -10,7 +10,7 @@ lip, mouth opening, lip order), ``surface_points`` (pixels onto the scan surface
 
 Order of the passes: greedy -> patch search round 1 and 2 -> lower lip -> mouth opening -> lip
 order (in the scan's frontal raster) -> onto the surface -> closest-point snap -> confidence ->
-upper lid -> steep sides -> brows (``brow_pass``) -> outliers (``outlier_pass``; each followed by the confidence again) ->
+upper lid -> steep sides -> eyes (``eye_pass``) -> brows (``brow_pass``) -> outliers (``outlier_pass``; each followed by the confidence again) ->
 fixed points' confidence 1.
 
 The model is a face whose landmarks are known (a template's points); the input is a scan already
@@ -78,6 +78,9 @@ the evaluation showed they are needed to reach the accuracy goals):
   away), the others (brow ends) at the scan surface seen at the prediction's frontal pixel
   (measured on 3 synthetic people: closest point is better for the outline, the frontal ray for
   the brows). Their source is "prediction" and their evidence 0;
+* ``eyes`` (``eye_pass``): each eye found as a whole (its box of surface normals, NCC over a few
+  sizes); eye points far from where it puts them go there, and a closed eye (its texture closer
+  to the model's with the lids closed) gets its upper lid on the lid line;
 * ``brows`` (``brow_pass``, textured scans): the brow is a band that looks the same along its
   length, so the patch search slides along it; the band's middle row is followed both ways from
   the model's place relative to the eye's corners to its ends: the outer end 4.5/4.6 goes to the
@@ -121,6 +124,7 @@ from core.registration.lid_pass import upper_lid_pass
 from core.registration.steep_pass import steep_pass, steep_points  # noqa: F401 - re-exported
 from core.registration.outlier_pass import outlier_pass
 from core.registration.brow_pass import brow_pass
+from core.registration.eye_pass import eye_pass
 
 
 def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchParams, *, rays,
@@ -179,6 +183,8 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
         surface_passes.append(upper_lid_pass)
     if used.steep_prediction and used.refine:
         surface_passes.append(steep_pass)
+    if used.eyes and used.refine:
+        surface_passes.append(eye_pass)      # before the brows: the brow pass starts from the eye corners
     if used.brows and used.refine:
         surface_passes.append(brow_pass)
     if used.outliers and used.refine:

@@ -101,6 +101,9 @@ def get_model_context(model: Face, template: str, params: MatchParams) -> ModelC
     if hit is not None and hit[0] is model:
         return hit[1]
     ctx = model_context(model, get_template(template), params)
+    # Only the built-in face has a FAP rig to close its lids with (a given model, e.g. a person's
+    # own scan, is looked at open-eyed).
+    ctx.can_close_eyes = bool(_DEFAULT_MODEL) and model is _DEFAULT_MODEL[0]
     if len(_MODEL_CACHE) > 8:
         _MODEL_CACHE.clear()
     _MODEL_CACHE[key] = (model, ctx)
@@ -322,24 +325,41 @@ def register_scan(scan: Face, landmarks: Mapping, *, template: str = "mpeg4_80",
     return registration
 
 
-#: (upper lid, lower lid) of each eye (MPEG-4 3.1 / 3.3 left, 3.2 / 3.4 right).
-LID_PAIRS = (("3.1", "3.3", "left"), ("3.2", "3.4", "right"))
+#: (upper lid, lower lid, outer corner, inner corner, side) of each eye (MPEG-4: 3.1 / 3.3 left, 3.2 / 3.4 right).
+LID_PAIRS = (("3.1", "3.3", "3.7", "3.11", "left"), ("3.2", "3.4", "3.12", "3.8", "right"))
+# An eye whose upper lid is less than this fraction of the eye's width from its lower one is closed
+# (1.5 mm on a 30 mm eye; an open adult eye: ~0.3-0.4, the built-in face 0.40; a squint ~0.1).
+CLOSED_LID = 0.05
 
 
 def lids_in_order(positions: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], list[str]]:
     """(positions, notes): an eye whose upper lid point lies below its lower one (a detection that
-    swapped them — on a closed or narrow eye they are a few millimetres apart) gets the two swapped
-    back, with a note. Left as they were, the canonical face's eye triangles turn over and its FAP
-    unit IRISD0 (upper minus lower lid) is negative, so the registered face cannot animate. "Up" is
-    from the mouth to the eyes (the lip corners 8.3 / 8.4 to the outer eye corners 3.7 / 3.12)."""
+    swapped them — on a narrow eye they are a few millimetres apart) gets the two swapped back, with
+    a note. Left as they were, the canonical face's eye triangles turn over and its FAP unit IRISD0
+    (upper minus lower lid) is negative, so the registered face cannot animate. A closed eye (upper
+    lid on the lid line, less than ``CLOSED_LID`` x the eye's width from the lower lid) has no
+    IRISD0 either: its upper lid is put ``CLOSED_LID`` x the eye's width above the lower one, with
+    a note, so the rig measures a small IRISD0 and the lid FAPs (units of IRISD0) keep the eye
+    closed. Putting it where an open lid would be (the built-in face's gap, 12 mm on LeePerrySmith)
+    made joy pull a flap of lid skin over the closed eye. "Up" is from the mouth to the eyes (the lip
+    corners 8.3 / 8.4 to the outer eye corners 3.7 / 3.12)."""
     needed = ("8.3", "8.4", "3.7", "3.12")
     if any(name not in positions for name in needed):
         return positions, []
     up = (positions["3.7"] + positions["3.12"] - positions["8.3"] - positions["8.4"]) / 2.0
     up /= max(float(np.linalg.norm(up)), 1e-12)
     out, notes = dict(positions), []
-    for upper, lower, side in LID_PAIRS:
-        if upper in out and lower in out and float(np.dot(out[upper] - out[lower], up)) < 0:
+    for upper, lower, outer, inner, side in LID_PAIRS:
+        if upper not in out or lower not in out:
+            continue
+        gap = float(np.dot(out[upper] - out[lower], up))
+        width = float(np.linalg.norm(out[outer] - out[inner])) if inner in out else 0.0
+        if width > 0 and abs(gap) < CLOSED_LID * width:
+            out[upper] = out[lower] + CLOSED_LID * width * up
+            notes.append(f"the {side} eye is closed (its upper lid {upper} is on the lid line); the registered face "
+                         f"keeps it closed, its upper lid {CLOSED_LID * width:.1f} mm above the lid line so that lid "
+                         "movements stay that small")
+        elif gap < 0:
             out[upper], out[lower] = positions[lower], positions[upper]
             notes.append(f"the {side} eye's upper lid point {upper} lay below its lower lid point {lower}; "
                          "they were swapped so the face animates — check both with the landmark picker")
