@@ -413,6 +413,41 @@ def _forehead_arc(v: np.ndarray, top: int, sides: set[int], start: int, end: int
     return centre + (side - centre) * np.cos(angle) + rise * np.sin(angle)
 
 
+#: The outline passes a landmark next to it (the third corner of an outline template triangle) at
+#: least this fraction of that landmark's distance from the outline on the reference.
+OUTLINE_CLEARANCE = 0.5
+
+
+def _around_inner_landmark(v: np.ndarray, prior: np.ndarray, start: int, end: int, fraction: np.ndarray,
+                           curve: np.ndarray, third: dict) -> np.ndarray:
+    """(k, 3) ``curve`` (the outline from landmark ``start`` to ``end`` at ``fraction``) pushed out
+    where the landmark inside it lies beyond it: on generated faces the brow's outer end 4.5 / 4.6
+    lies 9 mm outside the line from the hairline side 11.3 / 11.2 to the temple 10.9 / 10.10 (the
+    default face has it 3.5 mm inside), so their template triangle turned over and folded. The
+    curve moves outward (in the plane of that triangle on the aligned reference ``prior``) along a
+    smooth bump peaking at the landmark, until the landmark is ``OUTLINE_CLEARANCE`` of its
+    reference distance inside; the caller snaps it onto the scan."""
+    inner = third.get((start, end))
+    if inner is None:
+        return curve
+    chord, chord_ref = v[end] - v[start], prior[end] - prior[start]
+    normal = np.cross(prior[end] - prior[start], prior[inner] - prior[start])     # reference triangle's normal
+    across = np.cross(normal, chord)
+    across /= max(float(np.linalg.norm(across)), 1e-12)                           # in-plane, towards the inside
+    across_ref = np.cross(normal, chord_ref)
+    depth_ref = float(np.dot(prior[inner] - prior[start], across_ref)) / max(float(np.linalg.norm(across_ref)), 1e-12)
+    depth = float(np.dot(v[inner] - v[start], across))
+    at = float(np.clip(np.dot(v[inner] - v[start], chord) / max(float(np.dot(chord, chord)), 1e-12), 0.05, 0.95))
+    offset = (curve - v[start]) @ across                      # where the curve runs across the chord
+    near = int(np.argmin(np.abs(fraction - at)))
+    push = offset[near] - (depth - OUTLINE_CLEARANCE * depth_ref)
+    if depth_ref <= 0 or push <= 0:
+        return curve
+    ramp = np.where(fraction < at, fraction / at, (1.0 - fraction) / (1.0 - at))
+    bump = ramp * ramp * (3.0 - 2.0 * ramp)                   # smoothstep up to the landmark and down again
+    return curve - push * bump[:, None] * across[None, :]
+
+
 def rounded_outline(scan: Face, projection: Projection, template_name: str) -> dict[int, np.ndarray]:
     """{canonical vertex: (3,) mm on the scan}: the canonical face's outer outline as a smooth curve
     through the template's outline landmarks (centripetal Catmull-Rom, each vertex at its arc-length
@@ -431,6 +466,12 @@ def rounded_outline(scan: Face, projection: Projection, template_name: str) -> d
     chord = np.linalg.norm(v[np.roll(outline, -1)] - v[outline], axis=1)
     base = get_template(template_name).base
     names = set(base.points)
+    found = _reference_mesh(template_name)
+    prior = aligned_reference(found[0], v, n_base) if found is not None and len(found[0]) == len(v) else None
+    third = {}        # base outline edge (a, b) -> the third landmark of its base triangle
+    for a, b, c in base.triangles.tolist():
+        for e0, e1, e2 in ((a, b, c), (b, c, a), (c, a, b)):
+            third[(e0, e1)] = third[(e1, e0)] = e2
     top = base.index("11.1") if "11.1" in names else None
     sides = {base.index(p) for p in ("11.2", "11.3") if p in names}
     if len(sides) != 2:
@@ -450,6 +491,8 @@ def rounded_outline(scan: Face, projection: Projection, template_name: str) -> d
             curve = _forehead_arc(v, top, sides, int(outline[i]), int(outline[j]), fraction)
         else:
             curve = _catmull_rom(p0, p1, p2, p3, fraction)
+        if prior is not None:
+            curve = _around_inner_landmark(v, prior, int(outline[i]), int(outline[j]), fraction, curve, third)
         for vertex, point in zip(outline[between].tolist(), curve):
             targets[vertex] = point
     if not targets:
@@ -484,6 +527,15 @@ def _reference_mesh(template_name: str) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     proj, _, _ = untangle(face, proj, template_name)
     v, t = np.array(proj.dense.vertices, float), np.array(proj.dense.triangles)
+    # Projection folds the template even on the default face (167 triangles facing against the
+    # face's surface: nostrils, nose tip, eye corners); as the prior and the measure of folds it
+    # must face the way the face does. Those patches get a harmonic fill, put back on the face
+    # where that keeps them facing like its surface (167 -> 32 left, in the nostrils' sliver
+    # template triangles, 9.5-9.1-9.3 has a 2.6 degree corner).
+    surface = TriangleSet(face.vertices, face.triangles)
+    _, tri, _ = surface.closest(v[t].mean(axis=1))
+    v, _, _, _ = unfold(v, t, None, face.face_normals[tri], _base_mask(len(v), len(get_template(template_name).base.points)),
+                        surface)
     return v, t
 
 
@@ -570,9 +622,8 @@ def regularise(scan: Face, projection: Projection, template_name: str,
     x[near] = snapped[near]
     # Folds the fit left (where the scan's own shape or the landmarks force them): untangled patch
     # by patch, each put back on the scan where that keeps it the right way round.
-    base_triangles = get_template(template_name).base.triangles
-    forced = forced_folds(v, prior, base_triangles, len(t))
-    x, _, _, _ = unfold(x, t, prior, ref_normals, _base_mask(len(x), n_base), surface, forced)
+    # The outline stays where rounded_outline put it (on the scan, around the landmarks next to it).
+    x, _, _, _ = unfold(x, t, prior, ref_normals, fixed, surface)
 
     tri, bary = surface.closest(x, k=24, widen=False)[1:]
     tri[:n_base], bary[:n_base] = projection.scan_triangle[:n_base], projection.scan_bary[:n_base]

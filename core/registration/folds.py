@@ -26,6 +26,8 @@ COLLAPSED_AREA_RATIO = 1e-3
 #: Untangling rounds; the patch around the folds grows by one ring per round from FIRST_RINGS.
 UNFOLD_ROUNDS = 12
 FIRST_RINGS = 1
+#: A vertex whose way back onto the surface refolds a triangle tries half the way, down to this.
+MIN_REACH = 1 / 8
 #: Local/global ARAP iterations per round.
 ARAP_ITERATIONS = 6
 
@@ -78,8 +80,8 @@ def _grow(mask: np.ndarray, adjacency: scipy.sparse.csr_matrix, rings: int) -> n
 def arap_patch(x: np.ndarray, reference: np.ndarray | None, edges: np.ndarray, free: np.ndarray,
                iterations: int = ARAP_ITERATIONS) -> np.ndarray:
     """(N, 3): ``x`` with the vertices ``free`` (bool (N,)) moved so every edge touching them keeps
-    the reference's edge as well as it can after a rotation per vertex (as-rigid-as-possible,
-    uniform weights); the other vertices stay. Starts from the reference's shape on the patch
+    the reference's edge as well as it can after a rotation and a scale per vertex (as-rigid-as-
+    possible with a local scale, uniform weights); the other vertices stay. Starts from the reference's shape on the patch
     (aligned by the similarity of the held ring), so a turned-over start cannot stay turned.
     Without a reference the patch is relaxed to the harmonic (uniform Laplacian) fill of its
     held ring: a membrane, fold-free over a patch whose rim is roughly convex (Tutte)."""
@@ -103,17 +105,24 @@ def arap_patch(x: np.ndarray, reference: np.ndarray | None, edges: np.ndarray, f
         s, r, t = similarity(reference[held], x[held])
         x[ids] = s * reference[ids] @ r.T + t
     d_ref = reference[i] - reference[j]
+    length2 = np.zeros(n)
+    np.add.at(length2, i, (d_ref * d_ref).sum(axis=1))
+    np.add.at(length2, j, (d_ref * d_ref).sum(axis=1))
     for _ in range(iterations):
         d_cur = x[i] - x[j]
         cov = np.zeros((n, 3, 3))
         outer = d_ref[:, :, None] * d_cur[:, None, :]
         np.add.at(cov, i, outer)
         np.add.at(cov, j, outer)
-        u, _, vt = np.linalg.svd(cov[ring])
+        u, sigma, vt = np.linalg.svd(cov[ring])
         flip = np.linalg.det(u @ vt) < 0
         u[flip, :, 2] *= -1
+        sigma[flip, 2] *= -1
+        # A rotation and a scale per vertex (as-similar-as-possible): a patch that is smaller on
+        # the scan than on the reference (a nostril, a raised lip corner) shrinks instead of buckling.
+        scale = np.clip(sigma.sum(axis=1) / np.maximum(length2[ring], 1e-12), 0.2, 5.0)
         rot = np.tile(np.eye(3), (n, 1, 1))
-        rot[ring] = np.transpose(u @ vt, (0, 2, 1))         # R_i: reference edge -> current edge
+        rot[ring] = np.transpose(u @ vt, (0, 2, 1)) * scale[:, None, None]   # s_i R_i: reference edge -> current
         rotated = 0.5 * np.einsum("kab,kb->ka", rot[i] + rot[j], d_ref)
         rhs = np.zeros((n, 3))
         np.add.at(rhs, i, rotated)
@@ -124,22 +133,19 @@ def arap_patch(x: np.ndarray, reference: np.ndarray | None, edges: np.ndarray, f
 
 
 def unfold(x: np.ndarray, triangles: np.ndarray, shape: np.ndarray | None, reference_normals: np.ndarray,
-           held: np.ndarray, surface: TriangleSet, forced: np.ndarray | None = None
-           ) -> tuple[np.ndarray, np.ndarray, int, int]:
+           held: np.ndarray, surface: TriangleSet) -> tuple[np.ndarray, np.ndarray, int, int]:
     """(vertices, on_surface, folded before, folded after): removes folded triangles (see the module).
 
     x : (N, 3) canonical vertices; shape : (N, 3) aligned fold-free reference whose local shape the
     patches take (:func:`aligned_reference`), or None for a harmonic fill; reference_normals :
     (T, 3) how each triangle faces (:func:`folded_triangles`); held : (N,) bool vertices that never
-    move (the landmarks); surface : the surface to go back onto (the scan); forced : (T,) bool
-    triangles that must fold while ``held`` stays (:func:`forced_folds`), not chased.
+    move (the landmarks, the outline); surface : the surface to go back onto (the scan).
     on_surface : (N,) bool, False for the vertices left off the surface to keep their triangles unfolded.
     A round is kept only when it leaves fewer folds; rounds stop after two without progress.
     """
     x = np.array(x, float)
     on_surface = np.ones(len(x), bool)
-    forced = np.zeros(len(triangles), bool) if forced is None else forced
-    bad = folded_triangles(x, triangles, reference_normals) & ~forced
+    bad = folded_triangles(x, triangles, reference_normals)
     before = int(bad.sum())
     if not before:
         return x, on_surface, 0, 0
@@ -157,23 +163,27 @@ def unfold(x: np.ndarray, triangles: np.ndarray, shape: np.ndarray | None, refer
         relaxed = arap_patch(x, shape, edges, free)
         # Back onto the surface where that keeps every triangle the right way round.
         ids = np.nonzero(free)[0]
+        snapped, _, _ = surface.closest(relaxed[ids], k=12, widen=False)
+        step = snapped - relaxed[ids]
+        reach = np.ones(len(ids))        # how far along the way to the surface each vertex goes
         trial = relaxed.copy()
-        trial[ids], _, _ = surface.closest(relaxed[ids], k=12, widen=False)
-        while True:      # each pass puts back at least one vertex: ends within len(ids) passes
-            undo = np.zeros(n, bool)
-            undo[triangles[folded_triangles(trial, triangles, reference_normals)].ravel()] = True
-            undo &= free & np.any(trial != relaxed, axis=1)
+        while True:      # each pass halves the reach of at least one vertex: ends within ~5 len(ids) passes
+            trial[ids] = relaxed[ids] + reach[:, None] * step
+            touching = np.zeros(n, bool)
+            touching[triangles[folded_triangles(trial, triangles, reference_normals)].ravel()] = True
+            undo = touching[ids] & (reach > 0)
             if not undo.any():
                 break
-            trial[undo] = relaxed[undo]
-        now = folded_triangles(trial, triangles, reference_normals) & ~forced
+            # Halfway first: a vertex off a crease of the scan stays as near it as the fold allows.
+            reach[undo] = np.where(reach[undo] > MIN_REACH, reach[undo] / 2, 0.0)
+        now = folded_triangles(trial, triangles, reference_normals)
         if now.sum() >= bad.sum():
             stalled += 1
             if stalled == 2:
                 break
             continue            # the next round tries a wider patch
         stalled = 0
-        on_surface[ids] = np.any(trial[ids] != relaxed[ids], axis=1)
+        on_surface[ids] = reach == 1.0
         x, bad = trial, now
         if not bad.any():
             break
