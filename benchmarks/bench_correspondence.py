@@ -96,7 +96,8 @@ def report(data: str, cases, folder: Path) -> tuple[int, int, int, list[np.ndarr
         ok += animatable
         folds += f
         distances.append(d)
-        print(f"{data} {label}: folds={f} forced={forced} dist_mean_mm={d.mean():.3f} dist_p95_mm={np.percentile(d, 95):.3f} "
+        print(f"{data} {label}: folds={f} forced={forced} dist_mean_mm={d.mean():.3f} "
+              f"dist_p95_mm={np.percentile(d, 95):.3f} "
               f"animatable={'yes' if animatable else 'no'} (register {register_s:.1f} s, {seconds:.1f} s)", flush=True)
     return ok, n, folds, distances
 

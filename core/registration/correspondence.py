@@ -298,8 +298,10 @@ class Registration:
         """One line: canonical size, folded triangles, closeness to the scan, normal rays that missed."""
         d = self.distances_to_scan()
         folded = self.folded()
-        return (f"{self.face.n_vertices} vertices / {self.face.n_triangles} triangles; {int(folded.sum())} "
-                f"folded ({int((folded & self.forced()).sum())} inside template triangles the landmarks turn over); distance to the scan mean {d.mean():.2f} mm, 95th percentile {np.percentile(d, 95):.2f} mm; "
+        forced = int((folded & self.forced()).sum())
+        return (f"{self.face.n_vertices} vertices / {self.face.n_triangles} triangles; {int(folded.sum())} folded "
+                f"({forced} inside template triangles the landmarks turn over); distance to the scan mean "
+                f"{d.mean():.2f} mm, 95th percentile {np.percentile(d, 95):.2f} mm; "
                 f"{self.fallbacks} vertices took the closest point (normal ray missed)")
 
     def carry_back(self, **kwargs) -> "CarryBack":
@@ -534,8 +536,8 @@ def _reference_mesh(template_name: str) -> tuple[np.ndarray, np.ndarray] | None:
     # template triangles, 9.5-9.1-9.3 has a 2.6 degree corner).
     surface = TriangleSet(face.vertices, face.triangles)
     _, tri, _ = surface.closest(v[t].mean(axis=1))
-    v, _, _, _ = unfold(v, t, None, face.face_normals[tri], _base_mask(len(v), len(get_template(template_name).base.points)),
-                        surface)
+    held = _base_mask(len(v), len(get_template(template_name).base.points))
+    v, _, _, _ = unfold(v, t, None, face.face_normals[tri], held, surface)
     return v, t
 
 

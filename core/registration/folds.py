@@ -7,10 +7,14 @@ scan that is merely turned or larger has no folds).
 
 :func:`unfold` removes them after projection and the regularised fit: each round takes the
 folded triangles' vertices and a few rings around them (growing each round), lets that patch
-take the reference's local shape as-rigidly-as-possible (ARAP: per-vertex rotations, the rest of
-the mesh and the landmarks held), then puts each patch vertex back onto its closest scan point
-unless that turns one of its triangles over again (then it stays where ARAP left it, a little off
-the scan — where the scan itself folds, e.g. a nostril's rim or a lip corner's crease).
+take the reference's local shape as-rigidly-as-possible (ARAP with a scale per vertex; the rest
+of the mesh, the landmarks and the outline held), then puts each patch vertex back onto its
+closest scan point unless that turns one of its triangles over again (then half the way, a
+quarter, an eighth, or it stays where ARAP left it, a little off the scan — where the scan
+itself folds, e.g. a nostril's rim or a lip corner's crease). A round is kept only when it leaves
+fewer folds. Folds inside a template triangle whose landmarks are themselves turned over
+(:func:`forced_folds`) cannot all go while the landmarks stay: they are reported, not hidden.
+Without a reference shape (building the reference itself) the patches get a harmonic fill.
 """
 
 from __future__ import annotations
@@ -81,8 +85,9 @@ def arap_patch(x: np.ndarray, reference: np.ndarray | None, edges: np.ndarray, f
                iterations: int = ARAP_ITERATIONS) -> np.ndarray:
     """(N, 3): ``x`` with the vertices ``free`` (bool (N,)) moved so every edge touching them keeps
     the reference's edge as well as it can after a rotation and a scale per vertex (as-rigid-as-
-    possible with a local scale, uniform weights); the other vertices stay. Starts from the reference's shape on the patch
-    (aligned by the similarity of the held ring), so a turned-over start cannot stay turned.
+    possible with a local scale, uniform weights); the other vertices stay. Starts from the
+    reference's shape on the patch (aligned by the similarity of the held ring), so a turned-over
+    start cannot stay turned.
     Without a reference the patch is relaxed to the harmonic (uniform Laplacian) fill of its
     held ring: a membrane, fold-free over a patch whose rim is roughly convex (Tutte)."""
     x = np.array(x, float)
