@@ -4,12 +4,15 @@ For each scan: register it with landmarks taken as given (the synthetic database
 for the Surrey Face Model, whose truth has 21 points, detection steered by those 21), save the
 canonical face as OBJ, reload it as `mimica` does, build its rig and pose joy at 80 %. Prints per scan
 
-    <data> <scan>: folds=<zero-area + flipped triangles> dist_mean_mm=<x> dist_p95_mm=<y> animatable=<yes|no> (<s> s)
+    <data> <scan>: folds=<n> forced=<k> dist_mean_mm=<x> dist_p95_mm=<y> animatable=<yes|no> (register <s> s, <s> s)
 
-where a fold is a collapsed triangle (area < 1e-3 of the median) or one whose normal points against
-the same triangle's on the default face's canonical face (turned over relative to the template), and
-the distance is from the canonical triangles' centroids to the scan surface (how far the canonical
-surface leaves the scan between its vertices); then per data set and overall
+where folds counts the canonical triangles ``Registration.folded()`` reports: collapsed (area < 1e-3
+of the median) or facing against the same triangle of the registration's reference (the template
+registered on the default face, brought onto the scan's landmarks by a similarity; until
+helper/folds it was the FAP rig's densified default face, unaligned); forced of them lie inside a
+template triangle the landmarks themselves turn over (``Registration.forced()``). The distance is
+from the canonical triangles' centroids to the scan surface (how far the canonical surface leaves
+the scan between its vertices); then per data set and overall
 
     animatable=<k>/<n> folds=<total> mean_mm=<x> p95_mm=<y>
 
@@ -31,18 +34,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
-def reference_normals() -> np.ndarray:
-    """(T, 3) unnormalised triangle normals of the default face's canonical face (the FAP rig's dense template)."""
-    from core.default_face import load_default_face
-    from core.rig import FaceRig
-
-    dense = FaceRig(load_default_face()).deformer.dense
-    c = dense.vertices[dense.triangles]
-    return np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-
-
-def measure(scan, landmarks, folder: Path, label: str, reference: np.ndarray):
-    """(folds, centroid distances (T,), animatable, seconds) of one scan's registration."""
+def measure(scan, landmarks, folder: Path, label: str):
+    """(folds, forced folds, centroid distances (T,), animatable, registration seconds, seconds) of one scan."""
     from core.formats.mesh_io import save_face
     from core.registration.correspondence import load_face_or_canonical
     from core.registration.pipeline import register_scan
@@ -50,13 +43,11 @@ def measure(scan, landmarks, folder: Path, label: str, reference: np.ndarray):
 
     t0 = time.perf_counter()
     registration = register_scan(scan, landmarks)
+    register_s = time.perf_counter() - t0
     face = registration.face
-    c = face.vertices[face.triangles]
-    normal = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    area = np.linalg.norm(normal, axis=1)
-    collapsed = area < 1e-3 * np.median(area)
+    folded = registration.folded()
+    folds, forced = int(folded.sum()), int((folded & registration.forced()).sum())
     distance = registration.distances_to_scan()
-    flipped = (np.einsum("kd,kd->k", normal, reference) < 0) & ~collapsed
     path = folder / f"{label}.obj"
     save_face(face, path)
     try:
@@ -65,7 +56,7 @@ def measure(scan, landmarks, folder: Path, label: str, reference: np.ndarray):
         animatable = bool(np.abs(rig.vertices() - rig.face.vertices).max() > 1.0)
     except ValueError:
         animatable = False
-    return int(collapsed.sum() + flipped.sum()), distance, animatable, time.perf_counter() - t0
+    return folds, forced, distance, animatable, register_s, time.perf_counter() - t0
 
 
 def synthetic_cases(people: int):
@@ -91,12 +82,12 @@ def sfm_cases(people: int, sfm_dir: Path):
             yield f"p{person}_{case.pose}", case.face, detect_landmarks(case.face, fixed=truth).landmarks
 
 
-def report(data: str, cases, folder: Path, reference: np.ndarray) -> tuple[int, int, int, list[np.ndarray]]:
+def report(data: str, cases, folder: Path) -> tuple[int, int, int, list[np.ndarray]]:
     ok = n = folds = 0
     distances = []
     for label, scan, landmarks in cases:
         try:
-            f, d, animatable, seconds = measure(scan, landmarks, folder, f"{data}_{label}", reference)
+            f, forced, d, animatable, register_s, seconds = measure(scan, landmarks, folder, f"{data}_{label}")
         except ValueError as exc:
             print(f"{data} {label}: registration failed: {exc}", flush=True)
             n += 1
@@ -105,8 +96,9 @@ def report(data: str, cases, folder: Path, reference: np.ndarray) -> tuple[int, 
         ok += animatable
         folds += f
         distances.append(d)
-        print(f"{data} {label}: folds={f} dist_mean_mm={d.mean():.3f} dist_p95_mm={np.percentile(d, 95):.3f} "
-              f"animatable={'yes' if animatable else 'no'} ({seconds:.1f} s)", flush=True)
+        print(f"{data} {label}: folds={f} forced={forced} dist_mean_mm={d.mean():.3f} "
+              f"dist_p95_mm={np.percentile(d, 95):.3f} "
+              f"animatable={'yes' if animatable else 'no'} (register {register_s:.1f} s, {seconds:.1f} s)", flush=True)
     return ok, n, folds, distances
 
 
@@ -123,10 +115,9 @@ def main() -> None:
     args = ap.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="mimica-bench-correspondence-"))
     totals = [0, 0, 0, []]
-    reference = reference_normals()
-    results = [("synthetic", report("synthetic", synthetic_cases(args.people), folder, reference))]
+    results = [("synthetic", report("synthetic", synthetic_cases(args.people), folder))]
     if args.sfm_people and args.sfm.is_dir():
-        results.append(("sfm", report("sfm", sfm_cases(args.sfm_people, args.sfm), folder, reference)))
+        results.append(("sfm", report("sfm", sfm_cases(args.sfm_people, args.sfm), folder)))
     elif args.sfm_people:
         print(f"(no Surrey Face Model at {args.sfm}: SFM scans skipped)")
     for data, (ok, n, folds, distances) in results:

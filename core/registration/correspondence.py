@@ -46,6 +46,8 @@ from core.face import Face, FaceMetadata, SurfacePoint, vertex_normals
 from core.layers.fap.template import DenseTemplate, TemplateError, _edge_vertices, skin_triangles
 from core.subdivision import subdivide
 from core.surface_query import TriangleSet
+from core.registration.folds import (COLLAPSED_AREA_RATIO, aligned_reference, folded_triangles, forced_folds,
+                                     triangle_normals, unfold)
 from core.registration.templates import TEMPLATE_NAMES, get_template
 
 
@@ -274,11 +276,32 @@ class Registration:
         closest, _, _ = TriangleSet(self.scan.vertices, self.scan.triangles).closest(c)
         return np.linalg.norm(closest - c, axis=1)
 
+    def folded(self) -> np.ndarray:
+        """(T,) bool: canonical triangles collapsed or facing the other way than on a face
+        (``core.registration.folds.folded_triangles`` against :func:`reference_normals`)."""
+        normals = reference_normals(self.template, self.face.vertices)
+        if normals is None:     # no reference for this template: collapsed triangles only
+            normals = triangle_normals(self.face.vertices, self.face.triangles)
+        return folded_triangles(self.face.vertices, self.face.triangles, normals)
+
+    def forced(self) -> np.ndarray:
+        """(T,) bool: canonical triangles inside a template triangle the landmarks turn over (they
+        must fold while the landmarks stay: ``core.registration.folds.forced_folds``)."""
+        found = _reference_mesh(self.template)
+        if found is None or len(found[0]) != self.face.n_vertices:
+            return np.zeros(self.face.n_triangles, bool)
+        base = get_template(self.template).base
+        reference = aligned_reference(found[0], self.face.vertices, len(base.points))
+        return forced_folds(self.face.vertices, reference, base.triangles, self.face.n_triangles)
+
     def summary(self) -> str:
-        """One line: canonical size, closeness to the scan, normal rays that missed."""
+        """One line: canonical size, folded triangles, closeness to the scan, normal rays that missed."""
         d = self.distances_to_scan()
-        return (f"{self.face.n_vertices} vertices / {self.face.n_triangles} triangles; distance to the scan "
-                f"mean {d.mean():.2f} mm, 95th percentile {np.percentile(d, 95):.2f} mm; "
+        folded = self.folded()
+        forced = int((folded & self.forced()).sum())
+        return (f"{self.face.n_vertices} vertices / {self.face.n_triangles} triangles; {int(folded.sum())} folded "
+                f"({forced} inside template triangles the landmarks turn over); distance to the scan mean "
+                f"{d.mean():.2f} mm, 95th percentile {np.percentile(d, 95):.2f} mm; "
                 f"{self.fallbacks} vertices took the closest point (normal ray missed)")
 
     def carry_back(self, **kwargs) -> "CarryBack":
@@ -288,8 +311,6 @@ class Registration:
         return self._carry
 
 
-#: A canonical triangle is taken as collapsed when its area is below this fraction of the median.
-COLLAPSED_AREA_RATIO = 1e-3
 UNTANGLE_ROUNDS = 8
 
 
@@ -394,6 +415,41 @@ def _forehead_arc(v: np.ndarray, top: int, sides: set[int], start: int, end: int
     return centre + (side - centre) * np.cos(angle) + rise * np.sin(angle)
 
 
+#: The outline passes a landmark next to it (the third corner of an outline template triangle) at
+#: least this fraction of that landmark's distance from the outline on the reference.
+OUTLINE_CLEARANCE = 0.5
+
+
+def _around_inner_landmark(v: np.ndarray, prior: np.ndarray, start: int, end: int, fraction: np.ndarray,
+                           curve: np.ndarray, third: dict) -> np.ndarray:
+    """(k, 3) ``curve`` (the outline from landmark ``start`` to ``end`` at ``fraction``) pushed out
+    where the landmark inside it lies beyond it: on generated faces the brow's outer end 4.5 / 4.6
+    lies 9 mm outside the line from the hairline side 11.3 / 11.2 to the temple 10.9 / 10.10 (the
+    default face has it 3.5 mm inside), so their template triangle turned over and folded. The
+    curve moves outward (in the plane of that triangle on the aligned reference ``prior``) along a
+    smooth bump peaking at the landmark, until the landmark is ``OUTLINE_CLEARANCE`` of its
+    reference distance inside; the caller snaps it onto the scan."""
+    inner = third.get((start, end))
+    if inner is None:
+        return curve
+    chord, chord_ref = v[end] - v[start], prior[end] - prior[start]
+    normal = np.cross(prior[end] - prior[start], prior[inner] - prior[start])     # reference triangle's normal
+    across = np.cross(normal, chord)
+    across /= max(float(np.linalg.norm(across)), 1e-12)                           # in-plane, towards the inside
+    across_ref = np.cross(normal, chord_ref)
+    depth_ref = float(np.dot(prior[inner] - prior[start], across_ref)) / max(float(np.linalg.norm(across_ref)), 1e-12)
+    depth = float(np.dot(v[inner] - v[start], across))
+    at = float(np.clip(np.dot(v[inner] - v[start], chord) / max(float(np.dot(chord, chord)), 1e-12), 0.05, 0.95))
+    offset = (curve - v[start]) @ across                      # where the curve runs across the chord
+    near = int(np.argmin(np.abs(fraction - at)))
+    push = offset[near] - (depth - OUTLINE_CLEARANCE * depth_ref)
+    if depth_ref <= 0 or push <= 0:
+        return curve
+    ramp = np.where(fraction < at, fraction / at, (1.0 - fraction) / (1.0 - at))
+    bump = ramp * ramp * (3.0 - 2.0 * ramp)                   # smoothstep up to the landmark and down again
+    return curve - push * bump[:, None] * across[None, :]
+
+
 def rounded_outline(scan: Face, projection: Projection, template_name: str) -> dict[int, np.ndarray]:
     """{canonical vertex: (3,) mm on the scan}: the canonical face's outer outline as a smooth curve
     through the template's outline landmarks (centripetal Catmull-Rom, each vertex at its arc-length
@@ -412,6 +468,12 @@ def rounded_outline(scan: Face, projection: Projection, template_name: str) -> d
     chord = np.linalg.norm(v[np.roll(outline, -1)] - v[outline], axis=1)
     base = get_template(template_name).base
     names = set(base.points)
+    found = _reference_mesh(template_name)
+    prior = aligned_reference(found[0], v, n_base) if found is not None and len(found[0]) == len(v) else None
+    third = {}        # base outline edge (a, b) -> the third landmark of its base triangle
+    for a, b, c in base.triangles.tolist():
+        for e0, e1, e2 in ((a, b, c), (b, c, a), (c, a, b)):
+            third[(e0, e1)] = third[(e1, e0)] = e2
     top = base.index("11.1") if "11.1" in names else None
     sides = {base.index(p) for p in ("11.2", "11.3") if p in names}
     if len(sides) != 2:
@@ -431,6 +493,8 @@ def rounded_outline(scan: Face, projection: Projection, template_name: str) -> d
             curve = _forehead_arc(v, top, sides, int(outline[i]), int(outline[j]), fraction)
         else:
             curve = _catmull_rom(p0, p1, p2, p3, fraction)
+        if prior is not None:
+            curve = _around_inner_landmark(v, prior, int(outline[i]), int(outline[j]), fraction, curve, third)
         for vertex, point in zip(outline[between].tolist(), curve):
             targets[vertex] = point
     if not targets:
@@ -464,7 +528,17 @@ def _reference_mesh(template_name: str) -> tuple[np.ndarray, np.ndarray] | None:
     except (ValueError, KeyError):   # TemplateError / CorrespondenceError: landmarks it does not have
         return None
     proj, _, _ = untangle(face, proj, template_name)
-    return np.array(proj.dense.vertices, float), np.array(proj.dense.triangles)
+    v, t = np.array(proj.dense.vertices, float), np.array(proj.dense.triangles)
+    # Projection folds the template even on the default face (167 triangles facing against the
+    # face's surface: nostrils, nose tip, eye corners); as the prior and the measure of folds it
+    # must face the way the face does. Those patches get a harmonic fill, put back on the face
+    # where that keeps them facing like its surface (167 -> 32 left, in the nostrils' sliver
+    # template triangles, 9.5-9.1-9.3 has a 2.6 degree corner).
+    surface = TriangleSet(face.vertices, face.triangles)
+    _, tri, _ = surface.closest(v[t].mean(axis=1))
+    held = _base_mask(len(v), len(get_template(template_name).base.points))
+    v, _, _, _ = unfold(v, t, None, face.face_normals[tri], held, surface)
+    return v, t
 
 
 def _adjacency(triangles: np.ndarray, n: int) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
@@ -484,17 +558,6 @@ def _umbrella(triangles: np.ndarray, n: int) -> scipy.sparse.csr_matrix:
     return (scipy.sparse.identity(n, format="csr") - scipy.sparse.diags(1.0 / np.maximum(degree, 1)) @ adjacency).tocsr()
 
 
-def _similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """(scale, rotation (3, 3), translation (3,)) taking points ``source`` onto ``target`` (Umeyama)."""
-    ms, mt = source.mean(axis=0), target.mean(axis=0)
-    a, b = source - ms, target - mt
-    u, sigma, vt = np.linalg.svd(b.T @ a)
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rotation = u @ d @ vt
-    scale = float((sigma * np.diag(d)).sum() / max((a * a).sum(), 1e-12))
-    return scale, rotation, mt - scale * ms @ rotation.T
-
-
 def regularise(scan: Face, projection: Projection, template_name: str,
                held: dict[int, np.ndarray] | None = None) -> tuple[Projection, int, int]:
     """(projection, triangles turned over before, after) after a regularised non-rigid fit: the canonical
@@ -511,16 +574,13 @@ def regularise(scan: Face, projection: Projection, template_name: str,
     found = _reference_mesh(template_name)
     if found is None or len(found[0]) != len(v) or not np.array_equal(found[1], t):
         return projection, 0, 0
-    reference = found[0]
-    scale, rotation, shift = _similarity(reference[:n_base], v[:n_base])
-    prior = scale * reference @ rotation.T + shift
+    prior = aligned_reference(found[0], v, n_base)
     lap = _umbrella(t, len(v))
     target = lap @ prior
-    ref_normals = np.cross(prior[t[:, 1]] - prior[t[:, 0]], prior[t[:, 2]] - prior[t[:, 0]])
+    ref_normals = triangle_normals(prior, t)
 
     def turned(x):
-        normals = np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]])
-        return int((np.einsum("kd,kd->k", normals, ref_normals) < 0).sum())
+        return int(folded_triangles(x, t, ref_normals).sum())
 
     before = turned(v)
     fixed = np.zeros(len(v), bool)
@@ -562,9 +622,32 @@ def regularise(scan: Face, projection: Projection, template_name: str,
     snapped, tri, bary = surface.closest(x, k=24, widen=False)
     near = np.linalg.norm(snapped - x, axis=1) < SNAP_MM
     x[near] = snapped[near]
+    # Folds the fit left (where the scan's own shape or the landmarks force them): untangled patch
+    # by patch, each put back on the scan where that keeps it the right way round.
+    # The outline stays where rounded_outline put it (on the scan, around the landmarks next to it).
+    x, _, _, _ = unfold(x, t, prior, ref_normals, fixed, surface)
+
+    tri, bary = surface.closest(x, k=24, widen=False)[1:]
     tri[:n_base], bary[:n_base] = projection.scan_triangle[:n_base], projection.scan_bary[:n_base]
     dense = dataclasses.replace(projection.dense, vertices=x, face_triangle=tri)
     return dataclasses.replace(projection, dense=dense, scan_triangle=tri, scan_bary=bary), before, turned(x)
+
+
+def _base_mask(n: int, n_base: int) -> np.ndarray:
+    mask = np.zeros(n, bool)
+    mask[:n_base] = True
+    return mask
+
+
+def reference_normals(template_name: str, vertices: np.ndarray) -> np.ndarray | None:
+    """(T, 3) how each canonical triangle faces on a face: the triangle's normal on the (fold-free)
+    reference mesh brought onto ``vertices``' landmarks by a similarity; None when the template has
+    no reference (see :func:`_reference_mesh`)."""
+    found = _reference_mesh(template_name)
+    if found is None or len(found[0]) != len(vertices):
+        return None
+    n_base = len(get_template(template_name).base.points)
+    return triangle_normals(aligned_reference(found[0], vertices, n_base), found[1])
 
 
 def canonical_face(scan: Face, projection: Projection, template_name: str) -> Face:
@@ -684,10 +767,18 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
                       + (f"; {left} triangles still have (almost) no area: check the landmarks near them" if left else ""))
     if turned_before:
         report.append(f"{turned_before} canonical triangles faced the other way than on a face after projection; "
-                      f"the regularised fit left {turned_after}")
+                      f"the regularised fit and untangling left {turned_after}")
     if proj.engine != "embree":
         report.append("embreex is not available: projection used the slower numpy ray test")
-    return Registration(face, total, proj, scan, template, report)
+    registration = Registration(face, total, proj, scan, template, report)
+    forced = registration.forced()
+    if forced.any():
+        base = get_template(template).base
+        names = sorted({"-".join(base.points[i] for i in base.triangles[k % len(base.triangles)])
+                        for k in np.nonzero(forced)[0]})
+        report.append(f"the landmarks turn {len(names)} template triangle(s) over ({', '.join(names[:6])}"
+                      f"{' ...' if len(names) > 6 else ''}): the canonical mesh folds there; check those landmarks")
+    return registration
 
 
 # ------------------------------------------------------------------ carry-back

@@ -28,7 +28,8 @@ import scipy.sparse
 
 from core.face import Face, SurfacePoint
 from core.layers.fap.template import DenseTemplate
-from core.registration.correspondence import Registration, _adjacency, _similarity, boundary_loops
+from core.registration.correspondence import Registration, _adjacency, boundary_loops
+from core.registration.folds import similarity
 from core.registration.templates import get_template
 from core.surface_query import TriangleSet
 
@@ -199,7 +200,7 @@ def _mouth_parts(skin: Face, scan_points: np.ndarray, donor: Face, donor_points:
     local = np.full(donor.n_vertices, -1)
     local[ids] = np.arange(len(ids))
     triangles = local[donor.triangles[keep[donor.triangles].all(axis=1)]]
-    scale, rotation, shift = _similarity(donor_points, scan_points)
+    scale, rotation, shift = similarity(donor_points, scan_points)
     vertices = scale * donor.vertices[ids] @ rotation.T + shift
     forward = rotation @ np.array([0.0, 0.0, 1.0])    # the donor faces +z
     teeth = (donor.part_mask("teeth_upper") | donor.part_mask("teeth_lower"))[ids]

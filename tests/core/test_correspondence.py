@@ -32,7 +32,9 @@ def test_canonical_vertices_lie_on_the_scan_but_where_the_fit_keeps_them_off_a_c
     size = float(np.ptp(scan.vertices, axis=0).max())
     gap = np.linalg.norm(closest - v, axis=1)
     assert np.mean(gap < 1e-6 * size) > 0.9          # snapped onto the scan
-    assert gap.max() < 0.01 * size                     # the rest within a couple of millimetres
+    # The rest within a couple of millimetres (untangling leaves a few vertices off a crease of the
+    # scan rather than fold their triangles: up to 1.85 mm here).
+    assert gap.max() < 0.015 * size
     assert registration.fallbacks == sum(registration.projection.fallbacks)
     assert registration.fallbacks < 0.05 * len(v)
     assert any("closest point" in line for line in registration.report)
@@ -179,10 +181,42 @@ def test_the_regularised_fit_turns_fewer_triangles_over_than_projection_alone(mo
         return int((np.einsum("kd,kd->k", normals, ref_normals) < 0).sum()), count_intersections(
             face.vertices, face.triangles)
 
-    fitted = quality(register_scan(other, other.landmarks).face)
+    registration = register_scan(other, other.landmarks)
+    fitted = quality(registration.face)
     monkeypatch.setattr(C, "FIT_STIFFNESS", ())
+    monkeypatch.setattr(C, "unfold", lambda x, *args: (x, np.ones(len(x), bool), 0, 0))
     projected = quality(register_scan(other, other.landmarks).face)
     assert fitted[0] < projected[0] and fitted[1] <= projected[1], (fitted, projected)
+    # Untangled: what folds is inside template triangles the landmarks turn over, and little else
+    # (14 folded, 6 of them there; projection alone 800-odd).
+    folded = registration.folded()
+    assert (folded & ~registration.forced()).sum() <= 0.002 * len(folded), folded.sum()
+
+
+def test_the_default_face_registers_onto_itself_without_folds():
+    """Known answer: the default face registered from its own landmarks is the reference mesh, with
+    no folded triangle. Up to the rounded outline and the reference's own untangled patches (583
+    vertices of its projection were moved to unfold it; the registration stays on the surface
+    there): median 0.015 mm, 90 % within 0.5 mm."""
+    import core.registration.correspondence as C
+    from core.default_face import load_default_face
+    from core.registration.templates import template_positions
+
+    face = load_default_face(full_head=False)
+    registration = register_scan(face, template_positions(face, "mpeg4_80"))
+    reference, _ = C._reference_mesh("mpeg4_80")
+    gap = np.linalg.norm(registration.face.vertices - reference, axis=1)
+    assert np.median(gap) < 0.05 and np.mean(gap < 0.5) > 0.85, (np.median(gap), np.mean(gap < 0.5))
+    assert registration.folded().sum() == 0
+    assert " 0 folded" in registration.summary()
+
+
+def test_a_virtual_scan_of_the_default_face_registers_without_folds(scan, registration):
+    """Nostrils, lip corners and eye corners of a re-meshed scan fold the projected template
+    (the fit alone left dozens); untangled, none is left, and the fit stays on the scan."""
+    assert registration.folded().sum() == 0
+    d = registration.distances_to_scan()
+    assert d.mean() < 0.5 and np.percentile(d, 95) < 2.0
 
 
 def test_swapped_lid_points_are_put_back_in_order_so_the_face_animates(scan):
