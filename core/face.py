@@ -84,10 +84,9 @@ class _TopologyCache:
     @property
     def edges(self) -> np.ndarray:
         if self._edges is None:
-            t = self.triangles
-            pairs = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-            pairs.sort(axis=1)
-            edges = np.unique(pairs, axis=0)
+            from core.subdivision import unique_edges
+
+            edges = unique_edges(self.triangles)[0]
             edges.setflags(write=False)
             self._edges = edges
         return self._edges

@@ -26,9 +26,13 @@ class Subdivided:
 
 def unique_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(edges (E, 2) sorted rows, tri_edge (m, 3) edge index of edges ab, bc, ca of each triangle)."""
-    t = np.asarray(triangles)
-    half = np.stack([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]], axis=1).reshape(-1, 2)
-    edges, inverse = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True)
+    t = np.asarray(triangles, dtype=np.int64)
+    half = np.sort(np.stack([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]], axis=1).reshape(-1, 2), axis=1)
+    # One integer per edge (rows in the same order as np.unique(axis=0) gives, ~10x faster: that
+    # one sorts the rows as opaque byte strings).
+    n = int(t.max()) + 1 if t.size else 1
+    keys, inverse = np.unique(half[:, 0] * n + half[:, 1], return_inverse=True)
+    edges = np.column_stack([keys // n, keys % n])
     return edges, inverse.reshape(-1, 3)
 
 

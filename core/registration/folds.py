@@ -71,8 +71,9 @@ def folded_triangles(vertices: np.ndarray, triangles: np.ndarray, reference_norm
 
 def _edges(triangles: np.ndarray) -> np.ndarray:
     """(E, 2) unique undirected edges."""
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
+    from core.subdivision import unique_edges
+
+    return unique_edges(triangles)[0]
 
 
 def _grow(mask: np.ndarray, adjacency: scipy.sparse.csr_matrix, rings: int) -> np.ndarray:

@@ -77,17 +77,14 @@ class _Surface:
     """Closest-point and ray queries restricted to a subset of a face's triangles."""
 
     def __init__(self, face: Face, triangle_ids: np.ndarray):
-        import trimesh
-
         self.face = face
         self.ids = np.asarray(triangle_ids, dtype=np.int64)
-        self.mesh = trimesh.Trimesh(face.vertices, face.triangles[self.ids], process=False, validate=False)
         self.local = TriangleSet(face.vertices, face.triangles[self.ids])
 
     def closest(self, points):
-        import trimesh
-
-        closest, _d, tri = trimesh.proximity.closest_point(self.mesh, np.asarray(points, float))
+        """(closest surface points (k, 3), face triangle ids (k,)): exact (centroid KD-tree candidates,
+        widened where unsure; trimesh's rtree build alone took ~1 s per 100k triangles)."""
+        closest, tri, _bary = self.local.closest(np.asarray(points, float))
         return closest, self.ids[tri]
 
     def ray_nearest(self, points, directions, max_distance: float):

@@ -70,6 +70,7 @@ import resources
 from core.face import Face, vertex_normals
 from core.layers.fap import tables
 from core.layers.fap.template import DenseTemplate, densify, mouth_side
+from core.subdivision import unique_edges
 from core.surface_query import TriangleSet
 
 OUTSIDE_FADE_MM = 6.0  # face skin beyond the template outline follows it, fading over this distance
@@ -227,8 +228,7 @@ class TissueModel:
         self.triangle_scale = np.maximum(tscale, p.mass_floor * tscale.mean())
 
         # Springs.
-        edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-        edges = np.unique(np.sort(edges, axis=1), axis=0)
+        edges = unique_edges(tri)[0]
         col = np.arange(N)
         s = self.area_scale
         self.springs_i = np.ascontiguousarray(np.concatenate([edges[:, 0], N + edges[:, 0], col, N + col]))
