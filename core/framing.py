@@ -3,8 +3,9 @@
 A full head (the default face) or a bust scan carries a neck and maybe shoulders below the chin;
 framed whole, the face fills half the picture. :func:`portrait_points` keeps the vertices from a
 little below the chin upward, "up" and "below" measured along the face's own axis from the chin
-(feature point 2.1) to the middle of the pupils (3.5, 3.6), so a scan lying in any orientation is
-cut the same way. Faces without those points are framed whole.
+(feature point 2.1) to the middle of the eyes (the pupils 3.5/3.6, or the four eye corners a
+detection gives), so a scan lying in any orientation is cut the same way. Faces without those
+points are framed whole.
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ import numpy as np
 # How far below the chin the frame reaches, as a share of the chin-to-eyes distance (~110 mm on an
 # adult: ~15 mm, the chin's underside and the start of the neck).
 BELOW_CHIN_SHARE = 0.15
-_CHIN, _EYES = "2.1", ("3.5", "3.6")
+_CHIN = "2.1"
+_EYES = (("3.5", "3.6"), ("3.7", "3.11", "3.8", "3.12"))   # pupils, else the eye corners
 
 
 def portrait_points(face, vertices: np.ndarray | None = None) -> np.ndarray:
@@ -23,10 +25,11 @@ def portrait_points(face, vertices: np.ndarray | None = None) -> np.ndarray:
     face lacks the chin or eye points or the cut would keep almost nothing."""
     x = np.asarray(face.vertices if vertices is None else vertices, dtype=float)
     names = set(face.landmark_names)
-    if _CHIN not in names or not all(e in names for e in _EYES):
+    eye_points = next((points for points in _EYES if names.issuperset(points)), None)
+    if _CHIN not in names or eye_points is None:
         return x
     chin = face.landmark_position(_CHIN, x)
-    eyes = np.mean([face.landmark_position(e, x) for e in _EYES], axis=0)
+    eyes = face.landmark_positions(eye_points, x).mean(axis=0)
     up = eyes - chin
     span = float(np.linalg.norm(up))
     if span <= 0:

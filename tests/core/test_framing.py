@@ -28,6 +28,15 @@ def test_the_cut_follows_the_face_not_the_world_axes():
     assert len(portrait_points(lying)) == len(portrait_points(face))
 
 
+def test_eye_corners_stand_in_for_the_pupils():
+    """A detected face has the eye corners but not the pupils: the cut is nearly the same."""
+    face = load_default_face()
+    corners_only = Face(face.vertices, face.triangles, parts=face.parts,
+                        landmarks={n: p for n, p in face.landmarks.items() if n not in ("3.5", "3.6")})
+    with_pupils, without = len(portrait_points(face)), len(portrait_points(corners_only))
+    assert without < face.n_vertices and abs(without - with_pupils) < 0.02 * face.n_vertices
+
+
 def test_a_face_without_feature_points_is_framed_whole():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
     face = Face(v, np.array([[0, 1, 2]]))
