@@ -47,6 +47,10 @@ from core.layers.fap.parameters import readable_name  # noqa: F401 - re-exported
 if TYPE_CHECKING:  # pragma: no cover
     from core.rig import FaceRig
 
+EXPRESSION_TIP = ("MPEG-4 FAP 2 expression preset (thesis A Table B.1 with thesis B's FACS action units), "
+                  "eased on each face where its full values would break the skin")
+VISEME_TIP = ("MPEG-4 FAP 1 viseme preset: id, name and example phonemes (SAMPA); eased on each face where "
+              "its full values would break the skin")
 
 
 # ------------------------------------------------------------------ the dock
@@ -135,7 +139,7 @@ class FapDock(QDockWidget):
         self.expression_combo.setObjectName("expressionCombo")
         for i, name in enumerate(tables.expression_names()):
             self.expression_combo.addItem(name.capitalize(), i)
-        self.expression_combo.setToolTip("MPEG-4 FAP 2 expression preset (thesis A Table B.1)")
+        self.expression_combo.setToolTip(EXPRESSION_TIP)
         self.expression_slider, self.expression_spin = self._intensity_widgets(box, "expression")
 
         self.viseme_combo = QComboBox(box)
@@ -143,7 +147,7 @@ class FapDock(QDockWidget):
         for i, (name, phonemes) in enumerate(zip(tables.viseme_names(), tables.viseme_phonemes())):
             text = f"{i} {name}" if i == 0 else f"{i} {name}  {phonemes.replace(',', '')}"
             self.viseme_combo.addItem(text, i)
-        self.viseme_combo.setToolTip("MPEG-4 FAP 1 viseme preset: id, name and example phonemes (SAMPA)")
+        self.viseme_combo.setToolTip(VISEME_TIP)
         self.viseme_slider, self.viseme_spin = self._intensity_widgets(box, "viseme")
 
         for row, (title, combo, slider, spin) in enumerate((
@@ -310,6 +314,12 @@ class FapDock(QDockWidget):
         self._show_preset(self.expression_combo, self.expression_slider, self.expression_spin, eid, eint)
         vid, vint = self.rig.viseme
         self._show_preset(self.viseme_combo, self.viseme_slider, self.viseme_spin, vid, vint)
+        # What the easing on this face did to the active presets (issue 18): in the combos' tooltips.
+        notes = self.rig.faps.preset_notes()
+        expression_note = next((n for k, n in notes.items() if k.startswith("expression:")), None)
+        viseme_note = next((n for k, n in notes.items() if k.startswith("viseme:")), None)
+        self.expression_combo.setToolTip(EXPRESSION_TIP + (f"\n{expression_note}" if expression_note else ""))
+        self.viseme_combo.setToolTip(VISEME_TIP + (f"\n{viseme_note}" if viseme_note else ""))
         # Where the active presets put each FAP: a mark on its slider, so a user sees what Joy does.
         presets = self.rig.preset_values()
         for row in self.rows.values():

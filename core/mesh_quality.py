@@ -267,6 +267,42 @@ class FaceQualityProbe:
         return (int((turned & self._measurable).sum()), float(big.max(initial=1.0)),
                 float(small.min(initial=1.0)))
 
+    def broken_vertices(self, vertices: np.ndarray, moved: np.ndarray | None = None) -> np.ndarray:
+        """(n,) bool: the vertices of everything :meth:`measure` counts as broken in the pose
+        ``vertices`` (n, 3) mm: folded or smeared skin triangles, lip / lid / teeth triangles that
+        pass through each other, the teeth or an eyeball. All False when the pose holds up (eye
+        openness is not judged).
+
+        ``moved`` (n,) bool, optional: the vertices the pose moved from rest. Two triangles that
+        did not move do not cross (the rest face holds up), so only pairs with a moved triangle
+        are tested (a viseme leaves the lids out: no lid test at all)."""
+        out = np.zeros(len(vertices), dtype=bool)
+        corners = vertices[self.skin_tris]
+        turned = np.einsum("ij,ij->i", _normals(corners), self._rest_normals) < 0
+        big, small = principal_stretches(self._rest_frames, corners)
+        broken = (turned | (big > MAX_STRETCH) | (small < MIN_STRETCH)) & self._measurable
+        out[self.skin_tris[broken]] = True
+        # (triangles, other triangles or None for "among themselves"), as measure counts them.
+        checks = []
+        if self.lip_tris is not None:
+            checks += [(self.lip_tris, None)] + ([(self.lip_tris, self.teeth_tris)] if self.teeth_tris is not None else [])
+        for side, lid_tris in self.lid_tris.items():
+            if lid_tris is not None:
+                ball = self.eyeball_tris[side]
+                checks += [(lid_tris, None)] + ([(lid_tris, ball)] if ball is not None else [])
+        for tris_a, tris_b in checks:
+            among = tris_b is None
+            if moved is not None:
+                # Moved triangles against all (a pair of two unmoved ones cannot cross).
+                tris_b = tris_a if among else tris_b
+                tris_a = tris_a[moved[tris_a].any(axis=1)]
+                if not len(tris_a):
+                    continue
+            ia, ib = intersecting_pairs(vertices, tris_a, tris_b)
+            out[tris_a[ia]] = True
+            out[(tris_a if tris_b is None else tris_b)[ib]] = True
+        return out
+
     def surface_holds(self, vertices: np.ndarray) -> bool:
         """No folded skin triangle and every stretch within [MIN_STRETCH, MAX_STRETCH]."""
         folded, big, small = self.surface(vertices)

@@ -50,6 +50,7 @@ from core.surface_query import TriangleSet
 from core.layers.fap import tables
 from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
 from core.layers.fap.lip_contact import LipContact
+from core.layers.fap.preset_easing import PresetEasing, ease_preset
 from core.layers.fap.teeth_guard import TeethGuard
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
@@ -130,6 +131,10 @@ class FapDeformer:
         limits, self.limit_reasons = clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
                                                   self.specs, [n for n in self.animated_faps if n not in lids])
         self.clean_limits = keeping(limits, presets)
+        # Presets eased on this face, computed on first use (preset_easing); not pickled with the
+        # deformer but stored on their own in the cache the deformer came from.
+        self._easings: dict[tuple[str, int], PresetEasing] = {}
+        self._easing_store: tuple[DiskCache, str] | None = None
         assert self.matrix.shape == (3 * n, N_FAPS)
 
     # ------------------------------------------------------------ building
@@ -330,11 +335,13 @@ class FapDeformer:
         lid). Lid vertices are kept at least ``LID_CLEARANCE_MM`` outside the eyeball's own surface
         in their direction from the centre (its radius as a function of the angle from the gaze
         axis, which covers the cornea), or by their rest clearance when that is smaller (at least
-        ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball), so the neutral face
-        is unchanged.
+        ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball; skin inside the
+        profile at rest keeps its negative gap), so the neutral face is unchanged and nothing jumps
+        when a lid FAP leaves 0.
         """
         guards = []
-        for name, faps in (("eyeball_l", (19, 21)), ("eyeball_r", (20, 22))):
+        # The cheek lift (41/42) pushes the lower lid up over the ball as well (joy's AU 6).
+        for name, faps in (("eyeball_l", (19, 21, 41)), ("eyeball_r", (20, 22, 42))):
             if name not in self._eyes:
                 continue
             idx, centre = self._eyes[name]
@@ -345,7 +352,10 @@ class FapDeformer:
             length = np.linalg.norm(r, axis=1)
             angle = np.arccos(np.clip(r[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0))
             rest_gap = length - np.interp(angle, angles, radii)
-            clearance = np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM)
+            # Skin already inside the profile at rest (socket skin beside a ball that is not a
+            # sphere about the fitted centre) keeps its own gap: held at MIN_LID_CLEARANCE_MM it
+            # jumped up to 1.7 mm forward at the first tick of any lid FAP and folded the lower lid.
+            clearance = np.where(rest_gap < 0.0, rest_gap, np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM))
             guards.append((lid, centre, clearance, angles, radii))
         return guards
 
@@ -402,6 +412,8 @@ class FapDeformer:
         # The face is the cache key, not part of the entry: it is given back on load.
         state = dict(self.__dict__)
         del state["face"], state["_rest"]
+        state["_easings"], state["_easing_store"] = {}, None
+        state.pop("_probe", None)
         return state
 
     def __setstate__(self, state: dict) -> None:
@@ -428,9 +440,11 @@ class FapDeformer:
         if isinstance(found, cls) and (dense is None or np.array_equal(found.dense.vertices, dense.vertices)):
             found.face = face
             found._rest = face.vertices.ravel()
+            found._easing_store = (cache, key)
             return found
         deformer = cls(face, progress=progress, dense=dense)
         cache.put("fap", key, deformer)
+        deformer._easing_store = (cache, key)
         return deformer
 
     # ------------------------------------------------------------ queries
@@ -475,6 +489,47 @@ class FapDeformer:
                 ends.setdefault(why or FOLD_REASON, []).append(f"{value:.0f}")
         return "; ".join(f"beyond {' and '.join(values)} {why}: eased" for why, values in ends.items()) or None
 
+    def preset_easing(self, kind: str, preset_id: int) -> PresetEasing:
+        """The expression (``kind`` "expression") or viseme ("viseme") ``preset_id`` at 100 %, eased
+        on this face until its pose holds up (``preset_easing.ease_preset``).
+
+        Seconds to a minute on first use at 58k vertices (a pose check per round), then kept here
+        and in the disk cache the deformer came from (keyed by the deformer's key, the preset's
+        values and the easing's code)."""
+        found = self._easings.get((kind, preset_id))
+        if found is not None:
+            return found
+        table = tables.expression_table() if kind == "expression" else tables.viseme_table()
+        authored = np.array(table[preset_id], dtype=float)
+        store = None
+        if self._easing_store is not None:
+            import core.layers.fap.preset_easing as easing_module
+            import core.mesh_quality as quality_module
+
+            cache, key = self._easing_store
+            store = (cache, fingerprint(key, kind, preset_id, authored,
+                                        source_version(easing_module, quality_module)))
+            found = cache.get("fap-preset", store[1])
+        if not isinstance(found, PresetEasing):
+            found = self._ease(authored)
+            if store is not None:
+                store[0].put("fap-preset", store[1], found)
+        self._easings[(kind, preset_id)] = found
+        return found
+
+    def _ease(self, authored: np.ndarray) -> PresetEasing:
+        from core.mesh_quality import FaceQualityProbe
+
+        if not authored.any():
+            return PresetEasing(authored, authored.copy(), True, 0)
+        if getattr(self, "_probe", None) is None:
+            self._probe = FaceQualityProbe(self.face)
+        columns = self.matrix.tocsc()
+        return ease_preset(authored, lambda values: self.deform(self.limited(values)), self.face.vertices,
+                           self.face.triangles,
+                           lambda i: columns[:, i].toarray().reshape(-1, 3) * self.fapu_vector[i],
+                           self._probe.broken_vertices)
+
     def displacement(self, values: np.ndarray) -> np.ndarray:
         """(n, 3) mm: the FAT's offsets for (68,) effective FAP values (FAP units), lids in contact."""
         values = lid_contact(np.asarray(values, dtype=float))
@@ -490,6 +545,7 @@ class FapDeformer:
             for upper, lower in self._eye_rims:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
+        if values[18:22].any() or values[40:42].any():
             for lid, centre, clearance, angles, radii in self._lid_guards:
                 # Two passes: pushing a vertex forward turns it toward the cornea, which is higher.
                 for _ in range(2):

@@ -143,15 +143,38 @@ class FapLayer:
             out += tables.viseme_table()[vid] * weight
         return out
 
+    def eased_preset_values(self) -> np.ndarray:
+        """(68,) :meth:`preset_values` with each preset eased on this face so that it holds up at
+        100 % (``FapDeformer.preset_easing``; equal where a preset needs no easing)."""
+        out = np.zeros(N_FAPS)
+        for kind, mix in (("expression", self._expressions), ("viseme", self._visemes)):
+            for pid, weight in sorted(mix):
+                if pid and weight:
+                    out += self.deformer.preset_easing(kind, pid).eased * weight
+        return out
+
+    def preset_notes(self) -> dict[str, str]:
+        """{"expression:joy": "Eased so the skin holds up on this face: ...", ...} for the active
+        presets that are eased on this face."""
+        names = tables.expression_names()
+        out = {}
+        for kind, mix in (("expression", self._expressions), ("viseme", self._visemes)):
+            for pid, weight in mix:
+                note = self.deformer.preset_easing(kind, pid).note() if pid and weight else None
+                if note:
+                    out[f"{kind}:{names[pid] if kind == 'expression' else pid}"] = note
+        return out
+
     def effective_values(self) -> np.ndarray:
         """(68,) user values + presets (what the user asked for)."""
         return self._values + self.preset_values()
 
     def limited_values(self) -> np.ndarray:
-        """(68,) the effective values eased into the face's clean limits: what drives the
-        deformation (equal to :meth:`effective_values` well inside the limits)."""
+        """(68,) the user values plus the presets as eased on this face, eased into the face's clean
+        limits: what drives the deformation (equal to :meth:`effective_values` well inside the
+        limits, for presets that need no easing)."""
         if self._limited is None:   # offset and finish both ask, once per state
-            self._limited = self.deformer.limited(self.effective_values())
+            self._limited = self.deformer.limited(self._values + self.eased_preset_values())
         return self._limited
 
     # ------------------------------------------------------------ internals
