@@ -131,8 +131,8 @@ class FapDeformer:
         limits, self.limit_reasons = clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
                                                   self.specs, [n for n in self.animated_faps if n not in lids])
         self.clean_limits = keeping(limits, presets)
-        # Presets eased on this face, computed on first use (preset_easing); not pickled with the
-        # deformer but stored on their own in the cache the deformer came from.
+        # Presets eased on this face, computed on first use (preset_easing) and stored on their own
+        # in the cache the deformer came from (the deformer's entry is written before any).
         self._easings: dict[tuple[str, int], PresetEasing] = {}
         self._easing_store: tuple[DiskCache, str] | None = None
         assert self.matrix.shape == (3 * n, N_FAPS)
@@ -412,7 +412,9 @@ class FapDeformer:
         # The face is the cache key, not part of the entry: it is given back on load.
         state = dict(self.__dict__)
         del state["face"], state["_rest"]
-        state["_easings"], state["_easing_store"] = {}, None
+        # Eased presets travel with a deformer sent to another process; the cache handle and the
+        # quality probe (rebuilt on demand) do not.
+        state["_easing_store"] = None
         state.pop("_probe", None)
         return state
 
