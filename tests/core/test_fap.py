@@ -430,7 +430,9 @@ def test_expression_intensity_scales_the_displacement(rig):
     lips[contact.upper], lips[contact.lower] = True, True
     skin = ~lids & ~lips
     assert skin.sum() > 0.9 * rig.face.n_vertices
-    assert np.abs(full).max() > 5
+    # Joy is eased on the default face (core.layers.fap.preset_easing): it still moves the skin
+    # by millimetres, and the eased values scale with the intensity like the table's.
+    assert np.abs(full).max() > 3
     assert np.allclose(half[skin], full[skin] / 2, atol=1e-9)
     rig.set_fap2(1, 63, 6, 0)
     assert rig.expression == (1, 1.0)

@@ -63,6 +63,7 @@ OUTSIDE_FADE_MM = 20.0
 SMOOTHING_STEPS = 30
 LID_CLEARANCE_MM = 0.4      # a closing lid slides this far outside the eyeball
 MIN_LID_CLEARANCE_MM = 0.1  # ... or at least this far (a 2 mm lid triangle sags 0.03 mm into a 15 mm ball)
+GUARD_RAMP = 128.0          # FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 
 
 def lid_contact(values: np.ndarray) -> np.ndarray:
@@ -327,17 +328,19 @@ class FapDeformer:
         return out if len(out) == 2 else {}
 
     def _lid_guards_over_eyeballs(self) -> list[tuple]:
-        """Per eye: (lid vertex indices, eyeball centre (3,), clearance over the eyeball (k,) mm, the
-        eyeball's radius profile: angles from +z (b,) rad and radii (b,) mm).
+        """Guards that keep each eye's lids outside its eyeball.
 
         The FAT moves a lid in a straight line, but the eyeball bulges forward, and its cornea
         more: a closing lid would pass behind the cornea (the eye then shows through the closed
         lid). Lid vertices are kept at least ``LID_CLEARANCE_MM`` outside the eyeball's own surface
         in their direction from the centre (its radius as a function of the angle from the gaze
         axis, which covers the cornea), or by their rest clearance when that is smaller (at least
-        ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball; skin inside the
-        profile at rest keeps its negative gap), so the neutral face is unchanged and nothing jumps
-        when a lid FAP leaves 0.
+        ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball), so the neutral face
+        is unchanged. Skin closer than that at rest starts from its own gap and reaches the
+        clearance over the first ``GUARD_RAMP`` units of the eye's FAPs (no jump when one leaves 0).
+
+        Per eye: (lid vertex indices, eyeball centre (3,), clearance at rest (k,) mm, full clearance
+        (k,) mm, radius profile angles (b,) rad and radii (b,) mm, the eye's FAP numbers).
         """
         guards = []
         # The cheek lift (41/42) pushes the lower lid up over the ball as well (joy's AU 6).
@@ -352,11 +355,11 @@ class FapDeformer:
             length = np.linalg.norm(r, axis=1)
             angle = np.arccos(np.clip(r[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0))
             rest_gap = length - np.interp(angle, angles, radii)
-            # Skin already inside the profile at rest (socket skin beside a ball that is not a
-            # sphere about the fitted centre) keeps its own gap: held at MIN_LID_CLEARANCE_MM it
-            # jumped up to 1.7 mm forward at the first tick of any lid FAP and folded the lower lid.
-            clearance = np.where(rest_gap < 0.0, rest_gap, np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM))
-            guards.append((lid, centre, clearance, angles, radii))
+            clearance = np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM)
+            # Skin closer than that at rest (socket skin inside the profile of a ball that is not a
+            # sphere about the fitted centre) starts from its own gap: held at the clearance at once
+            # it jumped 2.5 mm forward at the first tick of a lid FAP and folded the lower lid.
+            guards.append((lid, centre, np.minimum(rest_gap, clearance), clearance, angles, radii, faps))
         return guards
 
     def _in_any_part(self) -> np.ndarray:
@@ -548,7 +551,10 @@ class FapDeformer:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
         if values[18:22].any() or values[40:42].any():
-            for lid, centre, clearance, angles, radii in self._lid_guards:
+            for lid, centre, rest_clearance, full_clearance, angles, radii, faps in self._lid_guards:
+                # From the rest gap to the full clearance over the first GUARD_RAMP of the eye's FAPs.
+                ramp = min(max(abs(values[f - 1]) for f in faps) / GUARD_RAMP, 1.0)
+                clearance = rest_clearance + (full_clearance - rest_clearance) * ramp
                 # Two passes: pushing a vertex forward turns it toward the cornea, which is higher.
                 for _ in range(2):
                     r = x[lid] - centre
