@@ -63,7 +63,7 @@ OUTSIDE_FADE_MM = 20.0
 SMOOTHING_STEPS = 30
 LID_CLEARANCE_MM = 0.4      # a closing lid slides this far outside the eyeball
 MIN_LID_CLEARANCE_MM = 0.1  # ... or at least this far (a 2 mm lid triangle sags 0.03 mm into a 15 mm ball)
-GUARD_RAMP = 128.0          # FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
+GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 
 
 def lid_contact(values: np.ndarray) -> np.ndarray:
@@ -337,7 +337,8 @@ class FapDeformer:
         axis, which covers the cornea), or by their rest clearance when that is smaller (at least
         ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball), so the neutral face
         is unchanged. Skin closer than that at rest starts from its own gap and reaches the
-        clearance over the first ``GUARD_RAMP`` units of the eye's FAPs (no jump when one leaves 0).
+        clearance over the first ``GUARD_RAMP`` units of the eye's closing FAPs (no jump when one
+        leaves 0; lids opening in surprise or fear leave the socket skin where it is).
 
         Per eye: (lid vertex indices, eyeball centre (3,), clearance at rest (k,) mm, full clearance
         (k,) mm, radius profile angles (b,) rad and radii (b,) mm, the eye's FAP numbers).
@@ -552,8 +553,8 @@ class FapDeformer:
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
         if values[18:22].any() or values[40:42].any():
             for lid, centre, rest_clearance, full_clearance, angles, radii, faps in self._lid_guards:
-                # From the rest gap to the full clearance over the first GUARD_RAMP of the eye's FAPs.
-                ramp = min(max(abs(values[f - 1]) for f in faps) / GUARD_RAMP, 1.0)
+                # From the rest gap to the full clearance as the eye closes (opening lids leave it).
+                ramp = min(max(max(values[f - 1] for f in faps), 0.0) / GUARD_RAMP, 1.0)
                 clearance = rest_clearance + (full_clearance - rest_clearance) * ramp
                 # Two passes: pushing a vertex forward turns it toward the cornea, which is higher.
                 for _ in range(2):
