@@ -63,6 +63,7 @@ OUTSIDE_FADE_MM = 20.0
 SMOOTHING_STEPS = 30
 LID_CLEARANCE_MM = 0.4      # a closing lid slides this far outside the eyeball
 MIN_LID_CLEARANCE_MM = 0.1  # ... or at least this far (a 2 mm lid triangle sags 0.03 mm into a 15 mm ball)
+CHEEK_GUARD_REACH_MM = 4.0  # cheek-lift skin farther from the eyeball than this is not guarded
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 
 
@@ -350,12 +351,19 @@ class FapDeformer:
                 continue
             idx, centre = self._eyes[name]
             angles, radii = _radius_profile(self.face.vertices[idx] - centre)
-            moved = sum(self.binding @ self.template_weights[f] for f in faps if f in self.template_weights)
-            lid = np.nonzero(np.asarray(moved) > 1e-6)[0]
-            r = self.face.vertices[lid] - centre
+            def moved_by(numbers):
+                weights = sum(self.binding @ self.template_weights[f] for f in numbers if f in self.template_weights)
+                return np.asarray(weights) > 1e-6
+
+            lids_move = moved_by(faps[:2])
+            candidates = np.nonzero(lids_move | moved_by(faps[2:]))[0]
+            r = self.face.vertices[candidates] - centre
             length = np.linalg.norm(r, axis=1)
             angle = np.arccos(np.clip(r[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0))
             rest_gap = length - np.interp(angle, angles, radii)
+            # The cheek lift's wide region only where it can reach the ball (the guard runs per tick).
+            near = lids_move[candidates] | (rest_gap < CHEEK_GUARD_REACH_MM)
+            lid, r, length, angle, rest_gap = candidates[near], r[near], length[near], angle[near], rest_gap[near]
             clearance = np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM)
             # Skin closer than that at rest (socket skin inside the profile of a ball that is not a
             # sphere about the fitted centre) starts from its own gap: held at the clearance at once
