@@ -29,8 +29,12 @@ the FAP's linear displacement field:
 Contact sheets (front + three-quarter, by ``app.render``) go to ``--sheets DIR`` (default
 ``/tmp/mimica-face-quality``), one PNG per identity and pose family; ``--no-sheets`` skips them.
 
+``--families expressions visemes`` keeps only the poses of those families (faps, expressions,
+visemes, mixes, muscles; the neutral pose is in expressions).
+
 Usage: python benchmarks/face_quality.py [--identities default generated sfm] [--no-mixes]
-       [--no-muscles] [--clean-ranges] [--sheets DIR | --no-sheets] [--tile PX] [--sheet-format jpg]
+       [--no-muscles] [--families F ...] [--clean-ranges] [--sheets DIR | --no-sheets] [--tile PX]
+       [--sheet-format jpg]
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 SFM_DIR = ROOT.parent / "shared" / "data" / "sfm"
 # Lid-closing FAPs and the eye each one must close at its maximum (close_t_l/r_eyelid).
 CLOSING_LIDS = {19: "left", 20: "right"}
+FAMILIES = ("faps", "expressions", "visemes", "mixes", "muscles")
 
 
 def identity_face(name: str):
@@ -165,6 +170,8 @@ def run_identity(name: str, args) -> tuple[int, int]:
     poses += list(fap_poses(rig)) + list(preset_poses(rig, args.mixes))
     if args.muscles:
         poses += list(muscle_poses(rig))
+    if args.families:
+        poses = [p for p in poses if p[0] in args.families]
     failures = 0
     totals = dict.fromkeys(("lip", "lid", "teeth", "folds", "stretched_poses", "squeezed_poses", "open_eyes"), 0)
     sheets: dict[str, list] = {}
@@ -210,6 +217,7 @@ def main() -> None:
     parser.add_argument("--identities", nargs="+", default=["default", "generated", "sfm"])
     parser.add_argument("--no-mixes", dest="mixes", action="store_false")
     parser.add_argument("--no-muscles", dest="muscles", action="store_false")
+    parser.add_argument("--families", nargs="+", choices=FAMILIES, help="only the poses of these families")
     parser.add_argument("--clean-ranges", action="store_true")
     parser.add_argument("--sheets", type=Path, default=Path("/tmp/mimica-face-quality"))
     parser.add_argument("--no-sheets", dest="sheets", action="store_const", const=None)

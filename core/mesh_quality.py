@@ -127,14 +127,7 @@ def intersecting_pairs(vertices: np.ndarray, tris_a: np.ndarray,
     ca, cb = va.mean(axis=1), vb.mean(axis=1)
     rad_a = np.linalg.norm(va - ca[:, None], axis=2).max(axis=1)
     rad_b = rad_a if same else np.linalg.norm(vb - cb[:, None], axis=2).max(axis=1)
-    reach = float(rad_a.max() + rad_b.max())
-    tree_a = cKDTree(ca)
-    if same:
-        pairs = tree_a.query_pairs(reach, output_type="ndarray")
-        ia, ib = pairs[:, 0], pairs[:, 1]
-    else:
-        pairs = tree_a.sparse_distance_matrix(cKDTree(cb), reach, output_type="ndarray")
-        ia, ib = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+    ia, ib = _candidate_pairs(ca, rad_a, cb, rad_b, same)
     # Bounding spheres first (most candidates of the shared radius are too far apart), then
     # triangles that share a vertex (they touch by construction), then the exact test.
     keep = np.linalg.norm(ca[ia] - cb[ib], axis=1) <= rad_a[ia] + rad_b[ib]
@@ -143,6 +136,45 @@ def intersecting_pairs(vertices: np.ndarray, tris_a: np.ndarray,
     ia, ib = ia[~shared], ib[~shared]
     hit = triangles_intersect(va[ia], vb[ib])
     return ia[hit], ib[hit]
+
+
+# Triangles above this percentile of their set's bounding radii are searched apart (see
+# _candidate_pairs).
+_LARGE_PERCENTILE = 90.0
+
+
+def _candidate_pairs(ca: np.ndarray, rad_a: np.ndarray, cb: np.ndarray, rad_b: np.ndarray,
+                     same: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(ia, ib) pairs of triangles (centroids ``ca``/``cb``, bounding radii) whose centroids are
+    close enough for their bounding spheres to meet (each unordered pair once when ``same``).
+
+    Searched per size class (the largest tenth of each set apart): one search radius of twice the
+    largest triangle's made a dense mouth region yield ten times the pairs it needs."""
+    def classes(rad):
+        large = rad > np.percentile(rad, _LARGE_PERCENTILE)
+        return [idx for idx in (np.flatnonzero(~large), np.flatnonzero(large)) if len(idx)]
+
+    classes_a = classes(rad_a)
+    classes_b = classes_a if same else classes(rad_b)
+    found_a, found_b = [], []
+    for i, A in enumerate(classes_a):
+        tree = cKDTree(ca[A])
+        for j, B in enumerate(classes_b):
+            reach = float(rad_a[A].max() + rad_b[B].max())
+            if same and j < i:
+                continue            # the same pairs as (j, i)
+            if same and i == j:
+                pairs = tree.query_pairs(reach, output_type="ndarray")
+                found_a.append(A[pairs[:, 0]])
+                found_b.append(A[pairs[:, 1]])
+            else:
+                pairs = tree.sparse_distance_matrix(cKDTree(cb[B]), reach, output_type="ndarray")
+                found_a.append(A[pairs["i"].astype(np.int64)])
+                found_b.append(B[pairs["j"].astype(np.int64)])
+    ia, ib = np.concatenate(found_a), np.concatenate(found_b)
+    if same:   # unordered, as query_pairs gives them
+        ia, ib = np.minimum(ia, ib), np.maximum(ia, ib)
+    return ia, ib
 
 
 def _local_frames(corners: np.ndarray) -> np.ndarray:

@@ -425,11 +425,13 @@ def test_expression_intensity_scales_the_displacement(rig):
     # Closing lids slide over the eyeballs and lips pressed together give way (contacts, not
     # linear): compare everything else.
     lids = np.any([rig.fap_influence(n) > 0 for n in (19, 20, 21, 22)], axis=0)
+    for guard in rig.deformer._lid_guards:     # the lids' guard over the eyeballs covers the cheek lift too
+        lids[guard[0]] = True
     contact = rig.deformer._lip_contact
     lips = np.zeros(rig.face.n_vertices, bool)
     lips[contact.upper], lips[contact.lower] = True, True
     skin = ~lids & ~lips
-    assert skin.sum() > 0.9 * rig.face.n_vertices
+    assert skin.sum() > 0.7 * rig.face.n_vertices   # the guard's set includes the cheek-lift region
     assert np.abs(full).max() > 5
     assert np.allclose(half[skin], full[skin] / 2, atol=1e-9)
     rig.set_fap2(1, 63, 6, 0)
@@ -548,3 +550,18 @@ def test_relaxation_keeps_fixed_weights_and_straightens_a_ramp():
     assert relaxed[0] == 1.0 and relaxed[-1] == 0.0
     assert np.allclose(relaxed, np.linspace(1, 0, n), atol=1e-6)
     assert np.abs(np.diff(_relax(step, graph, fixed, 30))).max() < np.abs(np.diff(step)).max()
+
+
+def test_lid_fap_first_tick_moves_the_skin_by_its_own_size_not_a_jump(default_rig):
+    """Socket skin inside the eyeball's profile at rest was pushed to the guard's clearance as soon as
+    any lid FAP left 0: 422 vertices jumped up to 2.5 mm at 1 IRISD (about 0.01 mm of lid travel).
+    Left: the few vertices within MIN_LID_CLEARANCE_MM (0.1 mm) of the ball, held at it and turned
+    toward the cornea (about 0.23 mm); the cheek lift now has the guard too."""
+    rig = default_rig
+    rig.reset()
+    rest = rig.vertices().copy()
+    for number in (19, 21, 41):
+        rig.reset()
+        rig.set_fap(number, 1.0)
+        assert np.linalg.norm(rig.vertices() - rest, axis=1).max() < 0.3, number
+    rig.reset()

@@ -63,6 +63,8 @@ OUTSIDE_FADE_MM = 20.0
 SMOOTHING_STEPS = 30
 LID_CLEARANCE_MM = 0.4      # a closing lid slides this far outside the eyeball
 MIN_LID_CLEARANCE_MM = 0.1  # ... or at least this far (a 2 mm lid triangle sags 0.03 mm into a 15 mm ball)
+CHEEK_GUARD_REACH_MM = 4.0  # cheek-lift skin farther from the eyeball than this is not guarded
+GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 
 
 def lid_contact(values: np.ndarray) -> np.ndarray:
@@ -323,8 +325,7 @@ class FapDeformer:
         return out if len(out) == 2 else {}
 
     def _lid_guards_over_eyeballs(self) -> list[tuple]:
-        """Per eye: (lid vertex indices, eyeball centre (3,), clearance over the eyeball (k,) mm, the
-        eyeball's radius profile: angles from +z (b,) rad and radii (b,) mm).
+        """Guards that keep each eye's lids outside its eyeball.
 
         The FAT moves a lid in a straight line, but the eyeball bulges forward, and its cornea
         more: a closing lid would pass behind the cornea (the eye then shows through the closed
@@ -332,22 +333,38 @@ class FapDeformer:
         in their direction from the centre (its radius as a function of the angle from the gaze
         axis, which covers the cornea), or by their rest clearance when that is smaller (at least
         ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball), so the neutral face
-        is unchanged.
+        is unchanged. Skin closer than that at rest starts from its own gap and reaches the
+        clearance over the first ``GUARD_RAMP`` units of the eye's closing FAPs (no jump when one
+        leaves 0; lids opening in surprise or fear leave the socket skin where it is).
+
+        Per eye: (lid vertex indices, eyeball centre (3,), clearance at rest (k,) mm, full clearance
+        (k,) mm, radius profile angles (b,) rad and radii (b,) mm, the eye's FAP numbers).
         """
         guards = []
-        for name, faps in (("eyeball_l", (19, 21)), ("eyeball_r", (20, 22))):
+        # The cheek lift (41/42) pushes the lower lid up over the ball as well (joy's AU 6).
+        for name, faps in (("eyeball_l", (19, 21, 41)), ("eyeball_r", (20, 22, 42))):
             if name not in self._eyes:
                 continue
             idx, centre = self._eyes[name]
             angles, radii = _radius_profile(self.face.vertices[idx] - centre)
-            moved = sum(self.binding @ self.template_weights[f] for f in faps if f in self.template_weights)
-            lid = np.nonzero(np.asarray(moved) > 1e-6)[0]
-            r = self.face.vertices[lid] - centre
+            def moved_by(numbers):
+                weights = sum(self.binding @ self.template_weights[f] for f in numbers if f in self.template_weights)
+                return np.asarray(weights) > 1e-6
+
+            lids_move = moved_by(faps[:2])
+            candidates = np.nonzero(lids_move | moved_by(faps[2:]))[0]
+            r = self.face.vertices[candidates] - centre
             length = np.linalg.norm(r, axis=1)
             angle = np.arccos(np.clip(r[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0))
             rest_gap = length - np.interp(angle, angles, radii)
+            # The cheek lift's wide region only where it can reach the ball (the guard runs per tick).
+            near = lids_move[candidates] | (rest_gap < CHEEK_GUARD_REACH_MM)
+            lid, r, length, angle, rest_gap = candidates[near], r[near], length[near], angle[near], rest_gap[near]
             clearance = np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM)
-            guards.append((lid, centre, clearance, angles, radii))
+            # Skin closer than that at rest (socket skin inside the profile of a ball that is not a
+            # sphere about the fitted centre) starts from its own gap: held at the clearance at once
+            # it jumped 2.5 mm forward at the first tick of a lid FAP and folded the lower lid.
+            guards.append((lid, centre, np.minimum(rest_gap, clearance), clearance, angles, radii, faps))
         return guards
 
     def _in_any_part(self) -> np.ndarray:
@@ -493,7 +510,11 @@ class FapDeformer:
             for upper, lower in self._eye_rims:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
-            for lid, centre, clearance, angles, radii in self._lid_guards:
+        if values[18:22].any() or values[40:42].any():
+            for lid, centre, rest_clearance, full_clearance, angles, radii, faps in self._lid_guards:
+                # From the rest gap to the full clearance as the eye closes (opening lids leave it).
+                ramp = min(max(max(values[f - 1] for f in faps), 0.0) / GUARD_RAMP, 1.0)
+                clearance = rest_clearance + (full_clearance - rest_clearance) * ramp
                 # Two passes: pushing a vertex forward turns it toward the cornea, which is higher.
                 for _ in range(2):
                     r = x[lid] - centre

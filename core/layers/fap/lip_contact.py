@@ -30,6 +30,9 @@ MIN_RIM_VERTICES = 4
 CORNER_TAPER_MM = 3.0
 # Overlaps below this (mm) are rounding, not lips passing through each other.
 TOLERANCE_MM = 1e-6
+# Pressed rims end this far apart (mm), not exactly touching: rims on one line leave the triangles
+# either side of them cutting through each other wherever the lips' Gaussian give-way differs.
+SEPARATION_MM = 0.05
 
 
 class LipContact:
@@ -95,7 +98,7 @@ class LipContact:
         # Where a pose pressed the lips into each other, all of the overlap goes (the rims end exactly
         # touching: a rest-sized sliver left would still cut the seam's triangles through each other).
         order = np.argsort(lower[:, 0])
-        along, depth = lower[order, 0], np.where(pressed, overlap, 0.0)[order]
+        along, depth = lower[order, 0], np.where(pressed, overlap + SEPARATION_MM, 0.0)[order]
         half_up = 0.5 * np.interp(x[self.upper, 0], along, depth, left=0.0, right=0.0) * self.upper_weight
         half_down = 0.5 * np.interp(x[self.lower, 0], along, depth, left=0.0, right=0.0) * self.lower_weight
         x[self.upper, 1] += half_up
