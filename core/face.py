@@ -532,12 +532,15 @@ def coincident_skin_vertices(face: "Face") -> tuple[np.ndarray, np.ndarray]:
     ids = np.flatnonzero(skin)
     if not len(ids):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    _unique, inverse, counts = np.unique(face.vertices[ids], axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
-    shared = counts[inverse] > 1
-    members, groups = ids[shared], inverse[shared]
-    order = np.argsort(groups, kind="stable")
-    members, groups = members[order], groups[order]
+    # Equal rows side by side (a stable lexsort keeps equal ones in index order; ~10x faster than
+    # np.unique(axis=0), and this runs as a face is first shown).
+    v = face.vertices[ids]
+    order = np.lexsort(v.T[::-1])
+    sorted_rows = v[order]
+    starts = np.r_[True, (sorted_rows[1:] != sorted_rows[:-1]).any(axis=1)]
+    position_group = np.cumsum(starts) - 1
+    shared = np.bincount(position_group)[position_group] > 1
+    members, groups = ids[order][shared], position_group[shared]
     first = members[np.searchsorted(groups, groups)]            # each group's first member
     normals = face.vertex_normals
     aligned = (normals[members] * normals[first]).sum(axis=1) >= np.cos(np.radians(WELD_MAX_ANGLE_DEG))
