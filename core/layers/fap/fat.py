@@ -51,6 +51,7 @@ from core.surface_query import TriangleSet
 from core.layers.fap import tables
 from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
 from core.layers.fap.lip_contact import LipContact
+from core.layers.fap.step_memo import StepMemo
 from core.layers.fap.teeth_guard import TeethGuard
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
@@ -118,6 +119,7 @@ class FapDeformer:
         skin = ~self._in_any_part()
         self._teeth_guard = TeethGuard(face, np.nonzero(skin)[0])
         self._lip_contact = LipContact(face, np.nonzero(skin)[0])
+        self._memos = self._step_memos()
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
         if self._eyes:
@@ -374,6 +376,23 @@ class FapDeformer:
             mask[idx] = True
         return mask
 
+    def _step_memos(self) -> dict[str, StepMemo]:
+        """A :class:`StepMemo` per finish step, with the vertices it reads and writes: the lids (rims
+        and guards), the lip contact and the teeth guard."""
+        empty = np.zeros(0, np.int64)
+        lid_writes = np.concatenate([upper for upper, _lower in self._eye_rims]
+                                    + [guard[0] for guard in self._lid_guards] + [empty])
+        lid_reads = np.concatenate([lower for _upper, lower in self._eye_rims] + [lid_writes])
+        lips = self._lip_contact
+        lip_writes = np.concatenate([lips.upper, lips.lower]) if lips.active else empty
+        lip_reads = np.concatenate([lips.upper_rim, lips.lower_rim, lip_writes]) if lips.active else empty
+        teeth = self._teeth_guard
+        teeth_reads = np.concatenate([teeth.watched] + [row.anchors for row in teeth.rows])
+        # A step with nothing to read does nothing (a face without eyeballs or teeth): no memo to check.
+        return {name: StepMemo(reads, writes) for name, reads, writes in (
+            ("lids", lid_reads, lid_writes), ("lips", lip_reads, lip_writes), ("teeth", teeth_reads, teeth.watched))
+            if len(reads)}
+
     def _eye_rims_of_skin(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per eye: (upper rim, lower rim) vertex indices of the skin's eye opening, ordered by x.
 
@@ -498,14 +517,9 @@ class FapDeformer:
         values = lid_contact(np.asarray(values, dtype=float))
         return (self.matrix @ (values * self.fapu_vector)).reshape(-1, 3)
 
-    def finish(self, x: np.ndarray, values: np.ndarray, *, in_place: bool = False) -> np.ndarray:
-        """(n, 3) ``x`` (all offsets added) after the FAPs' non-additive steps: upper lids stop on the
-        lower ones and slide over the eyeballs, mouth skin stays outside the teeth, eyeballs rotate
-        (gaze 23-26), the head rotates (48-50). ``in_place``: ``x`` is a float array the caller owns
-        and it is edited rather than copied (the rig's working array: one copy less per tick)."""
-        values = lid_contact(np.asarray(values, dtype=float))
-        if not in_place:
-            x = np.array(x, dtype=float)
+    def _close_lids(self, x: np.ndarray, values: np.ndarray) -> None:
+        """Upper lids stop on the lower ones, and lids (and the cheek lift's skin) slide over the
+        eyeballs, in ``x`` (n, 3) in place, for (68,) values after :func:`lid_contact`."""
         if values[18:22].any():
             for upper, lower in self._eye_rims:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
@@ -529,11 +543,27 @@ class FapDeformer:
                     sel = lid[inside]
                     planar = (r[inside, :2] ** 2).sum(axis=1)
                     x[sel, 2] = centre[2] + np.sqrt(np.maximum(need[inside] ** 2 - planar, 0.0))
+
+    def finish(self, x: np.ndarray, values: np.ndarray, *, in_place: bool = False) -> np.ndarray:
+        """(n, 3) ``x`` (all offsets added) after the FAPs' non-additive steps: upper lids stop on the
+        lower ones and slide over the eyeballs, mouth skin stays outside the teeth, eyeballs rotate
+        (gaze 23-26), the head rotates (48-50). ``in_place``: ``x`` is a float array the caller owns
+        and it is edited rather than copied (the rig's working array: one copy less per tick)."""
+        values = lid_contact(np.asarray(values, dtype=float))
+        if not in_place:
+            x = np.array(x, dtype=float)
+        # Each step is skipped (its last result put back) when its vertices and values are as they were
+        # at the last tick: a slider that moves a brow leaves the mouth's steps' inputs unchanged.
+        memos = self._memos
+        if "lids" in memos:
+            memos["lids"].run(x, lambda y: self._close_lids(y, values), values[[18, 19, 20, 21, 40, 41]].tobytes())
         # Lips that were moved into each other press on each other instead (both give way).
-        self._lip_contact.apply(x)
+        if "lips" in memos:
+            memos["lips"].run(x, self._lip_contact.apply)
         # Teeth move rigidly, the skin around them only partly (and some lip FAPs drive it straight
         # at them): skin that ended inside a row of teeth goes back out over it.
-        self._teeth_guard.apply(x)
+        if "teeth" in memos:
+            memos["teeth"].run(x, self._teeth_guard.apply)
         if self._eyes:
             for name, (yaw, pitch) in (("eyeball_l", (23, 25)), ("eyeball_r", (24, 26))):
                 a, b = values[yaw - 1] * tables.ANGLE_UNIT, values[pitch - 1] * tables.ANGLE_UNIT
@@ -558,12 +588,13 @@ def deformer_key(face: Face) -> str:
     import core.layers.fap.template as template_module
     import core.layers.fap.limits as limits_module
     import core.layers.fap.lip_contact as lip_contact_module
+    import core.layers.fap.step_memo as step_memo_module
     import core.layers.fap.teeth_guard as teeth_guard_module
     import core.surface_query as surface_query
     import core.subdivision as subdivision
 
     code = source_version(sys.modules[__name__], template_module, teeth_guard_module, lip_contact_module,
-                          limits_module, tables, surface_query, subdivision)
+                          limits_module, step_memo_module, tables, surface_query, subdivision)
     landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]
