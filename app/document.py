@@ -54,9 +54,12 @@ def build_rig(face, cache: DiskCache | None = None, progress=None) -> tuple[obje
         return None, f"Animation is not available in this installation ({type(exc).__name__}: {exc})."
     cache = cache if cache is not None else DiskCache()
     try:
+        from core.layers.fap import kernels as fap_kernels
         from core.normal_kernels import warm_up
 
-        warm_up()   # build_rig runs on a loader thread: compile the per-tick normals there
+        # build_rig runs on a loader thread: compile (or load) the per-tick kernels there.
+        warm_up()
+        fap_kernels.warm_up()
         rig = FaceRig(face, cache=cache, progress=progress)
         notes = getattr(face.metadata, "notes", None)
         if cache.notes and isinstance(notes, list):

@@ -12,7 +12,9 @@ SABiom muscles, and the ones to come (blend shapes, RBF control points, vector m
 - signals ``parameters_changed(ParameterChange)`` after its values changed and ``pose_changed()``
   when its offset changed without a parameter change (a dynamic layer settling); a layer whose
   offset follows its parameters only through a simulation sets ``dynamic = True``;
-- optionally ``finish(x) -> x``: a non-additive step applied after every layer's offset.
+- optionally ``finish(x) -> x``: a non-additive step applied after every layer's offset;
+- optionally ``add_offset(x)``: adds its offset into ``x`` in place (what ``offset`` gives, without
+  an (n, 3) temporary; the rig prefers it).
 
 :class:`ValueLayer` implements everything for layers whose state is just their values: a new
 layer subclasses it, lists its keys and writes ``offset``. :func:`register_layer` makes a layer

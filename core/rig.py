@@ -340,6 +340,10 @@ class FaceRig:
             x = np.array(self.face.vertices, dtype=float)
             layers = self.layers
             for layer in layers:
+                add_offset: Callable | None = getattr(layer, "add_offset", None)
+                if add_offset is not None:
+                    add_offset(x)
+                    continue
                 offset = layer.offset(x)
                 if offset is not None:
                     x += offset

@@ -256,7 +256,8 @@ def test_the_teeth_guard_leaves_the_neutral_face_and_small_motions_alone(rig):
     assert np.array_equal(rig.vertices(), rig.face.vertices)
     rig.set_faps({3: 300, 6: 100})
     plain = rig.face.vertices + rig.deformer.displacement(rig.effective_fap_values())
-    assert np.array_equal(rig.vertices(), plain)
+    # Equal up to the rounding of the in-place FAT product (each term added to the vertex in turn).
+    np.testing.assert_allclose(rig.vertices(), plain, rtol=0, atol=1e-12)
     rig.reset_faps()
 
 
@@ -590,7 +591,46 @@ def test_finish_steps_replayed_from_their_memo_give_the_same_vertices_bit_for_bi
         fresh = copy.copy(deformer)
         fresh._memos = {name: StepMemo(m.reads, m.writes) for name, m in deformer._memos.items()}
         values = rig.faps.limited_values()
-        again = fresh.finish(rig.face.vertices + fresh.displacement(values), values)
-        assert np.array_equal(posed, again)
+        again = np.array(rig.face.vertices)
+        fresh.add_displacement(again, values)      # the rig's own sums
+        assert np.array_equal(posed, fresh.finish(again, values, in_place=True))
     assert replays > 10, "ticks that leave a step's inputs alone replay it"
     rig.reset()
+
+
+def test_compiled_finish_steps_give_the_numpy_steps_vertices(rig, monkeypatch):
+    """The lid guard, teeth guard and step memos run as numba kernels (core.layers.fap.kernels) where
+    numba is installed: on random FAP vectors near their slider ends (lids closing over the eyeballs,
+    teeth pushed into the skin) they give the numpy path's vertices exactly."""
+    import copy
+
+    from core.layers.fap import kernels, tables
+    from core.layers.fap.step_memo import StepMemo
+
+    if not kernels.AVAILABLE:
+        pytest.skip("numba is not installed: only the numpy path exists")
+    deformer = rig.deformer
+
+    def finished(values, compiled: bool) -> np.ndarray:
+        monkeypatch.setattr(kernels, "AVAILABLE", compiled)
+        fresh = copy.copy(deformer)   # empty memos: every step runs
+        fresh._memos = {name: StepMemo(m.reads, m.writes) for name, m in deformer._memos.items()}
+        return fresh.finish(rig.face.vertices + fresh.displacement(values), values)
+
+    rng = np.random.default_rng(11)
+    faps = [n for n in rig.animated_faps if n not in (48, 49, 50)]
+    lids_moved = teeth_moved = 0
+    lid_vertices = np.concatenate([guard[0] for guard in deformer._lid_guards])
+    teeth_vertices = deformer._teeth_guard.watched
+    for _ in range(30):
+        values = np.zeros(tables.N_FAPS)
+        for number in rng.choice(faps, int(rng.integers(2, 10)), replace=False):
+            p = rig.describe(f"fap:{number}")
+            values[number - 1] = rng.choice([p.minimum, p.maximum]) * rng.uniform(0.5, 1.0)
+        values[18:22] = rng.uniform(0, 1024, 4) * (rng.random() < 0.6)   # lids often closing
+        compiled, reference = finished(values, True), finished(values, False)
+        assert np.array_equal(compiled, reference)
+        plain = rig.face.vertices + deformer.displacement(values)
+        lids_moved += not np.array_equal(compiled[lid_vertices], plain[lid_vertices])
+        teeth_moved += not np.array_equal(compiled[teeth_vertices], plain[teeth_vertices])
+    assert lids_moved >= 5 and teeth_moved >= 5     # the comparison covers real pushes

@@ -48,7 +48,7 @@ import resources
 from core.cache import DiskCache, fingerprint, source_version
 from core.face import Face
 from core.surface_query import TriangleSet
-from core.layers.fap import tables
+from core.layers.fap import kernels, tables
 from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
 from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
@@ -439,6 +439,7 @@ class FapDeformer:
         # The face is the cache key, not part of the entry: it is given back on load.
         state = dict(self.__dict__)
         del state["face"], state["_rest"]
+        state.pop("_fat_columns", None)   # derived from the matrix on first use
         return state
 
     def __setstate__(self, state: dict) -> None:
@@ -517,6 +518,22 @@ class FapDeformer:
         values = lid_contact(np.asarray(values, dtype=float))
         return (self.matrix @ (values * self.fapu_vector)).reshape(-1, 3)
 
+    def add_displacement(self, x: np.ndarray, values: np.ndarray) -> None:
+        """``x`` (n, 3) float mm += :meth:`displacement` of (68,) values, in place: the rig's per-tick
+        product (no (3n,) temporary; only the columns of non-zero FAPs are read). Equal to
+        ``x + displacement(values)`` up to rounding (~1e-13 mm: the terms are added one by one)."""
+        scaled = lid_contact(np.asarray(values, dtype=float)) * self.fapu_vector
+        if kernels.AVAILABLE and x.dtype == np.float64 and x.flags.c_contiguous:
+            columns = self.__dict__.get("_fat_columns")
+            if columns is None:     # built on first use, never pickled (see __getstate__)
+                csc = self.matrix.tocsc()
+                csc.sort_indices()
+                columns = self._fat_columns = (csc.indptr.astype(np.int64), csc.indices.astype(np.int64),
+                                               np.ascontiguousarray(csc.data, dtype=np.float64))
+            kernels.add_active_columns(x.reshape(-1), *columns, scaled)
+        else:
+            x += (self.matrix @ scaled).reshape(-1, 3)
+
     def _close_lids(self, x: np.ndarray, values: np.ndarray) -> None:
         """Upper lids stop on the lower ones, and lids (and the cheek lift's skin) slide over the
         eyeballs, in ``x`` (n, 3) in place, for (68,) values after :func:`lid_contact`."""
@@ -529,6 +546,9 @@ class FapDeformer:
                 # From the rest gap to the full clearance as the eye closes (opening lids leave it).
                 ramp = min(max(max(values[f - 1] for f in faps), 0.0) / GUARD_RAMP, 1.0)
                 clearance = rest_clearance + (full_clearance - rest_clearance) * ramp
+                if kernels.AVAILABLE:
+                    kernels.close_lids_over_eyeball(x, lid, centre, clearance, angles, radii)
+                    continue
                 # Two passes: pushing a vertex forward turns it toward the cornea, which is higher.
                 for _ in range(2):
                     r = x[lid] - centre
@@ -579,8 +599,10 @@ class FapDeformer:
 
     def deform(self, values: np.ndarray) -> np.ndarray:
         """(n, 3) vertices for (68,) effective FAP values alone: rest + FAT offsets, then :meth:`finish`
-        (``core.rig.FaceRig`` composes other layers' offsets in between)."""
-        return self.finish(self._rest.reshape(-1, 3) + self.displacement(values), values)
+        (``core.rig.FaceRig`` composes other layers' offsets in between; the same sums as its rig)."""
+        x = np.array(self._rest.reshape(-1, 3), dtype=float)
+        self.add_displacement(x, values)
+        return self.finish(x, values, in_place=True)
 
 
 def deformer_key(face: Face) -> str:

@@ -78,6 +78,10 @@ class FapLayer:
     def offset(self, x: np.ndarray) -> np.ndarray:
         return self.deformer.displacement(self.limited_values())
 
+    def add_offset(self, x: np.ndarray) -> None:
+        """``x`` (n, 3) += :meth:`offset`, in place (the rig's working array)."""
+        self.deformer.add_displacement(x, self.limited_values())
+
     def finish(self, x: np.ndarray) -> np.ndarray:
         """``x`` after the FAPs' non-additive steps, edited in place (the rig passes its own working
         array; see ``core.rig.FaceRig.vertices``)."""

@@ -26,6 +26,8 @@ import numpy as np
 import scipy.sparse
 from scipy.spatial import cKDTree
 
+from core.layers.fap import kernels
+
 # Skin stays this far outside the teeth (mm) once pushed: more than the chord sag of a 2 mm skin
 # triangle over a 20 mm-radius arch (0.03 mm), less than the default face's own 2 mm rest gap.
 TEETH_CLEARANCE_MM = 0.5
@@ -153,6 +155,7 @@ class GuardedRow(NamedTuple):
     rest : (k, 3) mm the guarded vertices at rest (the row's frame is the rest frame).
     slack_squared : (k,) mm^2 squared rest slack: a vertex that moved less than its slack relative to
         the row cannot be in the pushed region.
+    slots : (k,) int each guarded vertex's place in ``TeethGuard.watched``.
     """
 
     name: str
@@ -163,6 +166,7 @@ class GuardedRow(NamedTuple):
     rest_anchors: np.ndarray
     rest: np.ndarray
     slack_squared: np.ndarray
+    slots: np.ndarray
 
 
 def _sample_triangles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -208,10 +212,14 @@ class TeethGuard:
             slack = np.maximum(hull.distance_to_pushed_region(rest[skin[guarded]], clearance[guarded])
                                - SLACK_MARGIN_MM, 0.0)
             self.rows.append(GuardedRow(name, hull, skin[guarded], clearance[guarded], anchors, rest[anchors],
-                                        rest[skin[guarded]], slack * slack))
+                                        rest[skin[guarded]], slack * slack, np.zeros(0, np.int64)))
         # Every guarded vertex, and how a push at one spreads to the others: SPREAD_RINGS steps of
         # neighbour averaging (rows sum to 1), kept by column so a tick reads only the pushed ones.
-        self.watched = np.unique(np.concatenate([row.skin for row in self.rows] or [np.zeros(0, np.int64)]))
+        self.watched = np.unique(np.concatenate([row.skin for row in self.rows] or [np.zeros(0, np.int64)])
+                                 ).astype(np.int64)
+        self.rows = [row._replace(skin=row.skin.astype(np.int64),
+                                  slots=np.searchsorted(self.watched, row.skin).astype(np.int64))
+                     for row in self.rows]
         ring = face.adjacency[self.watched][:, self.watched].tocsr()
         ring.data[:] = 1.0
         ring = ring + scipy.sparse.identity(len(self.watched), format="csr")
@@ -220,13 +228,19 @@ class TeethGuard:
         for _ in range(SPREAD_RINGS):
             spread = spread @ step
         spread = spread.tocsc()
-        self._spread_indptr, self._spread_indices, self._spread_data = spread.indptr, spread.indices, spread.data
+        # int64 throughout: the compiled kernels have one signature.
+        self._spread_indptr = spread.indptr.astype(np.int64)
+        self._spread_indices = spread.indices.astype(np.int64)
+        self._spread_data = spread.data
 
     def apply(self, x: np.ndarray, slack_filter: bool = True) -> np.ndarray:
         """``x`` (n, 3) mm with the guarded skin pushed out of each row of teeth where it is (in place);
         each push spreads to the skin around it, fading over ``SPREAD_RINGS`` rings.
 
-        ``slack_filter=False`` tests every guarded vertex (the same result, slower: for tests)."""
+        ``slack_filter=False`` tests every guarded vertex (the same result, slower: for tests).
+        Compiled (``kernels``) where numba is available, else numpy."""
+        if kernels.AVAILABLE and x.dtype == np.float64:
+            return self._apply_compiled(x, slack_filter)
         pushes = []
         for row in self.rows:
             hull, skin, clearance = row.hull, row.skin, row.clearance
@@ -271,6 +285,28 @@ class TeethGuard:
             x[vertices] = moved
         if pushes:
             self._spread(x, pushes)
+        return x
+
+    def _apply_compiled(self, x: np.ndarray, slack_filter: bool) -> np.ndarray:
+        """:meth:`apply` by ``kernels.push_out_of_row`` and ``kernels.spread_pushes``."""
+        slots, offsets = [], []
+        for row in self.rows:
+            hull = row.hull
+            rotation, shift = _rigid_fit(row.rest_anchors, x[row.anchors])
+            pushed = np.empty(len(row.skin), np.int64)
+            pushes = np.empty((len(row.skin), 3))
+            count = kernels.push_out_of_row(
+                x, row.skin, row.rest, row.slack_squared, row.clearance,
+                np.eye(3) if rotation is None else np.ascontiguousarray(rotation), np.asarray(shift, float),
+                rotation is not None, hull.centre, float(hull.y0), float(hull.height), hull.n_angles,
+                hull.n_heights, 1.0 / np.radians(ANGLE_STEP_DEG), 1.0 / HEIGHT_STEP_MM, hull._flat,
+                float(hull.reach_squared), bool(slack_filter), pushed, pushes)
+            if count:
+                slots.append(row.slots[pushed[:count]])
+                offsets.append(pushes[:count])
+        if slots:
+            kernels.spread_pushes(x, self.watched, np.concatenate(slots), np.concatenate(offsets),
+                                  self._spread_indptr, self._spread_indices, self._spread_data)
         return x
 
     def _spread(self, x: np.ndarray, pushes) -> None:
