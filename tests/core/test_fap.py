@@ -601,7 +601,8 @@ def test_finish_steps_replayed_from_their_memo_give_the_same_vertices_bit_for_bi
 def test_compiled_finish_steps_give_the_numpy_steps_vertices(rig, monkeypatch):
     """The lid guard, teeth guard and step memos run as numba kernels (core.layers.fap.kernels) where
     numba is installed: on random FAP vectors near their slider ends (lids closing over the eyeballs,
-    teeth pushed into the skin) they give the numpy path's vertices exactly."""
+    teeth pushed into the skin, eyes turned) they give the numpy path's vertices (exactly but for the
+    gaze rotation's last bit: its sums are not BLAS's)."""
     import copy
 
     from core.layers.fap import kernels, tables
@@ -629,7 +630,7 @@ def test_compiled_finish_steps_give_the_numpy_steps_vertices(rig, monkeypatch):
             values[number - 1] = rng.choice([p.minimum, p.maximum]) * rng.uniform(0.5, 1.0)
         values[18:22] = rng.uniform(0, 1024, 4) * (rng.random() < 0.6)   # lids often closing
         compiled, reference = finished(values, True), finished(values, False)
-        assert np.array_equal(compiled, reference)
+        assert np.abs(compiled - reference).max() <= 1e-12
         plain = rig.face.vertices + deformer.displacement(values)
         lids_moved += not np.array_equal(compiled[lid_vertices], plain[lid_vertices])
         teeth_moved += not np.array_equal(compiled[teeth_vertices], plain[teeth_vertices])

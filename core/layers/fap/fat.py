@@ -590,7 +590,11 @@ class FapDeformer:
                 if a or b:
                     idx, centre = self._eyes[name]
                     R = _yaw_pitch(a, b)
-                    x[idx] = (x[idx] - centre) @ R.T + centre
+                    if kernels.AVAILABLE and x.dtype == np.float64:
+                        kernels.rotate_rows(x, np.asarray(idx, dtype=np.int64), np.asarray(centre, dtype=float),
+                                            np.ascontiguousarray(R, dtype=float))
+                    else:
+                        x[idx] = (x[idx] - centre) @ R.T + centre
         head = values[47:50] * tables.ANGLE_UNIT
         if head.any():
             R = _rotation((0, 1, 0), head[1]) @ _rotation((1, 0, 0), head[0]) @ _rotation((0, 0, 1), head[2])

@@ -9,6 +9,7 @@ arithmetic). These loops do the same sums in one pass each:
   68 columns active, a few microseconds with one);
 - :func:`close_lids_over_eyeball`: the lid guard (``FapDeformer._close_lids``) of one eye;
 - :func:`push_out_of_row` and :func:`spread_pushes`: the teeth guard (``teeth_guard.TeethGuard``);
+- :func:`rotate_rows`: an eyeball's gaze rotation;
 - :func:`rows_equal`, :func:`put_rows`: the step memos' compare and replay.
 
 Numba compiles on first use and ``cache=True`` keeps the machine code under ``__pycache__`` (later
@@ -24,7 +25,7 @@ import os
 import numpy as np
 
 AVAILABLE = False
-add_active_columns = close_lids_over_eyeball = push_out_of_row = spread_pushes = rows_equal = put_rows = None
+add_active_columns = close_lids_over_eyeball = push_out_of_row = spread_pushes = rotate_rows = rows_equal = put_rows = None
 
 if not os.environ.get("MIMICA_NO_NUMBA"):
     try:
@@ -162,6 +163,14 @@ if not os.environ.get("MIMICA_NO_NUMBA"):
                     x[v, 2] += around[r, 2]
 
         @_jit
+        def rotate_rows(x, rows, centre, rotation):  # pragma: no cover - compiled
+            """x[rows] = (x[rows] - centre) @ rotation.T + centre, in place (an eyeball's gaze)."""
+            for r in rows:
+                px, py, pz = x[r, 0] - centre[0], x[r, 1] - centre[1], x[r, 2] - centre[2]
+                for c in range(3):
+                    x[r, c] = px * rotation[c, 0] + py * rotation[c, 1] + pz * rotation[c, 2] + centre[c]
+
+        @_jit
         def rows_equal(x, rows, seen):  # pragma: no cover - compiled
             """Whether x[rows] (k, 3) equals ``seen`` (k, 3) exactly (stops at the first difference)."""
             for i in range(rows.shape[0]):
@@ -190,9 +199,12 @@ def warm_up() -> None:
     push_out_of_row(x, rows, x.copy(), np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3), True, np.zeros(3),
                     -1.0, 2.0, 180, 4, 1.0, 1.0, np.zeros(720), 1.0, True, np.zeros(3, np.int64), np.zeros((3, 3)))
     spread_pushes(x, rows, rows, np.zeros((3, 3)), np.arange(4, dtype=np.int64), rows, np.ones(3))
+    eyeball = rows.copy()
+    eyeball.setflags(write=False)      # as a face's parts are: a type of its own to numba
+    rotate_rows(x, eyeball, np.zeros(3), np.eye(3))
     rows_equal(x, rows, x.copy())
     put_rows(x, rows, x.copy())
 
 
-__all__ = ["AVAILABLE", "add_active_columns", "close_lids_over_eyeball", "push_out_of_row", "spread_pushes",
+__all__ = ["AVAILABLE", "add_active_columns", "close_lids_over_eyeball", "push_out_of_row", "spread_pushes", "rotate_rows",
            "rows_equal", "put_rows", "warm_up"]
