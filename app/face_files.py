@@ -236,25 +236,27 @@ class FaceFilesMixin:
     def _on_loaded(self, face, path: str) -> None:
         if face is None:
             return
-        self.set_face(face, path=path or None, rig=None, rig_message=PREPARING_MESSAGE, rig_pending=True)
-        if path:
-            self.add_recent_file(path)
         notes = list(getattr(face.metadata, "notes", []) or [])
         seen, self._notes_seen = self._notes_seen, None
         if seen is not None:  # an edited copy of the shown face: only what is new is news
             notes = [n for n in notes if n not in seen]
         shown = Path(path).name if path else face.metadata.name
+
+        def work(job):
+            return build_rig(face, progress=job.progress)   # build_rig never raises
+
+        # The rig builds (or loads from the cache) on the loader thread while this thread shows the
+        # face: its result arrives through the event loop, after set_face below.
+        self.loads.start(work, lambda result: self._on_rig_built(face, result, shown, notes),
+                         lambda text: self._on_load_failed(text, path), self._on_load_progress)
+        self.set_face(face, path=path or None, rig=None, rig_message=PREPARING_MESSAGE, rig_pending=True)
+        if path:
+            self.add_recent_file(path)
         if notes:
             self.statusBar().showMessage(f"Loaded {shown} — " + "; ".join(notes), 15000)
             if path:  # the built-in face's notes are not news: status bar only
                 self._show_notes(notes, shown)
         self.progress_bar.setValue(0)
-
-        def work(job):
-            return build_rig(face, progress=job.progress)   # build_rig never raises
-
-        self.loads.start(work, lambda result: self._on_rig_built(face, result, shown, notes),
-                         lambda text: self._on_load_failed(text, path), self._on_load_progress)
 
     def _on_rig_built(self, face, result, shown: str, notes: list[str]) -> None:
         self._finish_load()

@@ -77,6 +77,11 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
     def __init__(self, face=None, *, path=None, settings: QSettings | None = None,
                  load_default: bool = True, tools: bool = True, parent: QWidget | None = None):
         super().__init__(parent)
+        from core import normal_kernels
+
+        # The first frames' normals in numpy: loading numba's machine code (~0.5-1 s) happens on the
+        # rig's loader thread (app.document.build_rig), not before the face can be seen.
+        normal_kernels.defer_until_warm()
         from pyvistaqt import QtInteractor
 
         from app import scene

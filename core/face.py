@@ -24,7 +24,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 from scipy.spatial import cKDTree
 
-from core.normal_kernels import vertex_normals_into
+from core import normal_kernels
 
 
 @dataclass(frozen=True)
@@ -477,8 +477,9 @@ class VertexNormals:
 
     def __call__(self, vertices) -> np.ndarray:
         v = np.ascontiguousarray(vertices, dtype=np.float64)
-        if vertex_normals_into is not None and v.shape == (self.n_vertices, 3):
-            out = vertex_normals_into(v, self._triangles, np.empty_like(v))
+        kernel = normal_kernels.kernel()
+        if kernel is not None and v.shape == (self.n_vertices, 3):
+            out = kernel(v, self._triangles, np.empty_like(v))
         else:
             out = self.with_numpy(v)
         if self._welds is not None:

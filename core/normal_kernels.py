@@ -2,27 +2,42 @@
 
 Per slider tick the viewport needs the normals of the posed face: with numpy that is nine gathers,
 a cross product and a sparse product, ~5-10 ms for the 105k-triangle default face; this loop does
-the same sums in ~1 ms. Numba compiles on first use (``cache=True`` keeps the machine code under
-``__pycache__``); without numba, or with ``MIMICA_NO_NUMBA=1``, :func:`vertex_normals_into` is None
-and the numpy path is used.
+the same sums in ~1 ms. Numba is imported and the loop compiled on first use (``cache=True`` keeps
+the machine code under ``__pycache__``; loading it still costs ~0.5 s the first time numba is used
+in a process). :func:`kernel` gives the loop, or None when numba is missing, disabled
+(``MIMICA_NO_NUMBA=1``) or deferred: the window calls :func:`defer_until_warm` so that its first
+frames use numpy while a loader thread runs :func:`warm_up`, instead of stalling on the load.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 
 import numpy as np
 
-vertex_normals_into = None
+_lock = threading.Lock()
+_kernel = None
+_tried = False      # numba import attempted (it may have failed)
+_deferred = False   # kernel() gives None until warm_up() has run
 
-if not os.environ.get("MIMICA_NO_NUMBA"):
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency; the numpy path still works
-        numba = None
-    if numba is not None:
+
+def _load():
+    """Import numba and compile (or load) the loop, once; None without numba."""
+    global _kernel, _tried
+    with _lock:
+        if _tried:
+            return _kernel
+        _tried = True
+        if os.environ.get("MIMICA_NO_NUMBA"):
+            return None
+        try:
+            import numba
+        except ImportError:  # pragma: no cover - numba is a dependency; the numpy path still works
+            return None
+
         @numba.njit(cache=True, nogil=True)
-        def _vertex_normals_into(v, tri, out):  # pragma: no cover - compiled
+        def vertex_normals_into(v, tri, out):  # pragma: no cover - compiled
             """v (n, 3) float64, tri (m, 3) int64 -> out (n, 3) unit normals (0 for isolated vertices)."""
             out[:] = 0.0
             for t in range(tri.shape[0]):
@@ -44,16 +59,31 @@ if not os.environ.get("MIMICA_NO_NUMBA"):
                     out[i, 2] /= length
             return out
 
-        vertex_normals_into = _vertex_normals_into
+        v = np.eye(3)
+        vertex_normals_into(v, np.array([[0, 1, 2]], dtype=np.int64), np.empty_like(v))   # compile now
+        _kernel = vertex_normals_into
+        return _kernel
 
+
+def kernel():
+    """The compiled ``vertex_normals_into(v (n, 3) float64, tri (m, 3) int64, out (n, 3))``, or None
+    (use numpy): loaded on first use, unless deferred until :func:`warm_up`."""
+    if _kernel is not None or _tried:
+        return _kernel
+    return None if _deferred else _load()
+
+
+def defer_until_warm() -> None:
+    """Until :func:`warm_up` has run, :func:`kernel` gives None instead of loading numba on the
+    caller's thread (the window's first frame must not wait ~0.5-1 s for it)."""
+    global _deferred
+    _deferred = True
 
 
 def warm_up() -> None:
-    """Compile (or load the cached machine code of) the kernel now, e.g. on a loader thread, so the
+    """Compile (or load the cached machine code of) the loop now, e.g. on a loader thread, so the
     first slider tick does not pay for it."""
-    if vertex_normals_into is not None:
-        v = np.eye(3)
-        vertex_normals_into(v, np.array([[0, 1, 2]], dtype=np.int64), np.empty_like(v))
+    _load()
 
 
-__all__ = ["vertex_normals_into", "warm_up"]
+__all__ = ["kernel", "defer_until_warm", "warm_up"]

@@ -11,12 +11,25 @@ Model / State / Control split:
 - ``force_file``          ForceSet, thesis presets, JSON force files.
 """
 
-from core.layers.muscles.force_file import (ForceFileError, ForceSet, load_force_set, preset, preset_names,
-                         save_force_set)
-from core.layers.muscles.layer import LayerSnapshot, MuscleLayer
-from core.layers.muscles.model import MuscleModelError
-from core.layers.muscles.muscles import MuscleSpec, control_keys, jaw_range, muscle_specs
-from core.layers.muscles.solver import RelaxReport, SolverDiverged
+import importlib
+
+# Names resolved on first use (PEP 562): the window's muscle dock lists the presets at start-up
+# without importing the solver (numba, ~0.3 s) before the face is on screen.
+_MODULE_OF = {
+    "ForceFileError": "force_file", "ForceSet": "force_file", "load_force_set": "force_file",
+    "preset": "force_file", "preset_names": "force_file", "save_force_set": "force_file",
+    "LayerSnapshot": "layer", "MuscleLayer": "layer", "MuscleModelError": "model",
+    "MuscleSpec": "muscles", "control_keys": "muscles", "jaw_range": "muscles", "muscle_specs": "muscles",
+    "RelaxReport": "solver", "SolverDiverged": "solver",
+}
+
+
+def __getattr__(name: str):
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+
 
 __all__ = [
     "MuscleSpec", "muscle_specs", "control_keys", "jaw_range", "MuscleLayer", "LayerSnapshot", "ForceSet",
