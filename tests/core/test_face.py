@@ -182,3 +182,27 @@ def test_texture_runs_down_when_v_falls_as_the_face_rises(grid_face):
     assert not texture_runs_down(Face(grid_face.vertices, grid_face.triangles)), "no uv"
     flat = Face(grid_face.vertices, grid_face.triangles, uv=np.full((grid_face.n_vertices, 2), 0.5))
     assert not texture_runs_down(flat), "no evidence, no flip"
+
+
+def test_a_deferred_normals_kernel_leaves_numba_alone_until_warmed():
+    """The window defers the compiled normals (core.normal_kernels) so its first frame does not wait
+    for numba: until warm_up() the numpy path is used and numba is not even imported; afterwards the
+    kernel gives the numpy path's normals. Run in a fresh interpreter (numba may be loaded here)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import sys, numpy as np\n"
+        "from core import normal_kernels as k\n"
+        "from core.face import VertexNormals\n"
+        "k.defer_until_warm()\n"
+        "tri = np.array([[0, 1, 2], [0, 2, 3]]); v = np.array([[0., 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, .5]])\n"
+        "before = VertexNormals(tri, 4)(v)\n"
+        "print(k.kernel() is None, 'numba' in sys.modules)\n"
+        "k.warm_up()\n"
+        "print(k.kernel() is not None, np.allclose(k.kernel()(v, tri, np.empty_like(v)), before, atol=1e-12))\n")
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "False", "True", "True"]

@@ -387,3 +387,23 @@ def test_segments_and_ring_for_drawing(fresh):
 def test_state_api_smoke(layer):
     assert isinstance(layer._state, State)
     assert layer.node_count == 3 * 1160 and layer.spring_count > 9000
+
+
+def test_muscle_package_names_resolve_lazily_without_the_solver():
+    """The window's muscle dock lists the presets at start-up: ``core.layers.muscles.preset_names``
+    must not import the solver (and numba) before the face is on screen; every other public name still
+    resolves, and an unknown one is an AttributeError."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys\n"
+            "from core.layers.muscles import preset_names\n"
+            "print(len(preset_names()), 'core.layers.muscles.solver' in sys.modules, 'numba' in sys.modules)\n"
+            "import core.layers.muscles as m\n"
+            "print(all(getattr(m, name) is not None for name in m.__all__))\n"
+            "try:\n    m.no_such_name\nexcept AttributeError:\n    print('AttributeError')\n")
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["5", "False", "False", "True", "AttributeError"]
