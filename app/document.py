@@ -36,6 +36,17 @@ PREPARING_MESSAGE = "Preparing the face for animation…"
 NO_RIG_MESSAGE = "This face has no MPEG-4 feature points yet: mark them (landmark picker) to animate it."
 
 
+def warm_up_kernels() -> None:
+    """Build the per-tick numba kernels (vertex normals, the FAP layer's steps) now: the window runs
+    this in the background once the face is animatable (it defers them, ``core.lazy_numba``), and
+    ``mimica prepare`` at install, which fills numba's disk cache for later starts."""
+    from core import normal_kernels
+    from core.layers.fap import kernels as fap_kernels
+
+    normal_kernels.warm_up()
+    fap_kernels.warm_up()
+
+
 def build_rig(face, cache: DiskCache | None = None, progress=None) -> tuple[object | None, str]:
     """(FaceRig for ``face``, "") or (None, a message for the user saying why not).
 
@@ -54,12 +65,6 @@ def build_rig(face, cache: DiskCache | None = None, progress=None) -> tuple[obje
         return None, f"Animation is not available in this installation ({type(exc).__name__}: {exc})."
     cache = cache if cache is not None else DiskCache()
     try:
-        from core.layers.fap import kernels as fap_kernels
-        from core.normal_kernels import warm_up
-
-        # build_rig runs on a loader thread: compile (or load) the per-tick kernels there.
-        warm_up()
-        fap_kernels.warm_up()
         rig = FaceRig(face, cache=cache, progress=progress)
         notes = getattr(face.metadata, "notes", None)
         if cache.notes and isinstance(notes, list):
@@ -157,4 +162,4 @@ class Document(QObject):
         return changed
 
 
-__all__ = ["Document", "build_rig", "NO_RIG_MESSAGE", "PREPARING_MESSAGE"]
+__all__ = ["Document", "build_rig", "warm_up_kernels", "NO_RIG_MESSAGE", "PREPARING_MESSAGE"]

@@ -74,14 +74,16 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
     load_finished = Signal(bool)  # True on success
     closing = Signal()  # the window really closes (any Save / Discard / Cancel question answered)
 
+    _kernels_warming = False   # the per-tick numba kernels are being (or were) built in this process
+
     def __init__(self, face=None, *, path=None, settings: QSettings | None = None,
                  load_default: bool = True, tools: bool = True, parent: QWidget | None = None):
         super().__init__(parent)
-        from core import normal_kernels
+        from core import lazy_numba
 
-        # The first frames' normals in numpy: loading numba's machine code (~0.5-1 s) happens on the
-        # rig's loader thread (app.document.build_rig), not before the face can be seen.
-        normal_kernels.defer_until_warm()
+        # The first frames in numpy: numba (~1 s to import and load its machine code) is loaded in the
+        # background once the face is animatable (_on_rig_arrived), not before the face can be seen.
+        lazy_numba.defer_until_warm()
         from pyvistaqt import QtInteractor
 
         from app import scene
@@ -432,6 +434,11 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         """The shown face's rig, built in the background after the face appeared."""
         self._disconnect_rig()
         self._set_rig(rig)   # the dock shows document.rig_message; the loader words the status bar
+        if rig is not None and not MainWindow._kernels_warming:
+            MainWindow._kernels_warming = True     # once per process: the kernels are shared
+            from app.document import warm_up_kernels
+
+            self.jobs.start(lambda _job: warm_up_kernels(), lambda _result: None)
 
     def _set_rig(self, rig, message: str = "") -> None:
         self._shown_overlay = (None, None)

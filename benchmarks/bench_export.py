@@ -16,11 +16,15 @@ with ``--baseline FPS`` (an earlier median, e.g. of the code before a change, me
 
     export_fps best median=<fps> workers=<n> (ratio to the baseline <fps> fps: <x>)
 
+``--cores 1 2`` measures how the export scales with cores instead: each run is confined to the
+first N cores (CPU affinity, inherited by the render processes, which then default to one per core)
+and the lines are ``export_fps median=<fps> cores=<n> workers=<w> (ratio to 1 core: <x>)``.
+
 and the load average before and after (this machine is shared; software OpenGL, Mesa llvmpipe,
 draws a frame on one core, so the speed-up is bounded by the idle cores).
 
-Usage: python benchmarks/bench_export.py [--workers 1 2] [--repeats 3] [--seconds 10] [--size 1280x720]
-       [--quality 80] [--path window|cli] [--baseline FPS]
+Usage: python benchmarks/bench_export.py [--workers 1 2 | --cores 1 2] [--repeats 3] [--seconds 10]
+       [--size 1280x720] [--quality 80] [--path window|cli] [--baseline FPS]
 """
 
 from __future__ import annotations
@@ -74,10 +78,17 @@ def main() -> None:
     parser.add_argument("--size", default="1280x720")
     parser.add_argument("--quality", type=int, default=80)
     parser.add_argument("--path", choices=("window", "cli"), default="window")
+    parser.add_argument("--cores", type=int, nargs="+", default=None,
+                        help="confine runs to this many cores each (scaling with cores; workers default to the cores)")
     parser.add_argument("--baseline", type=float, default=None,
                         help="frames per second to compare with (an earlier median, measured alike)")
     args = parser.parse_args()
-    counts = args.workers or sorted({1, default_workers()})
+    all_cores = sorted(os.sched_getaffinity(0))
+    if args.cores and max(args.cores) > len(all_cores):
+        parser.error(f"--cores: this process may run on {len(all_cores)} cores")
+    # Each configuration is (cores, workers): cores None keeps the affinity as it is.
+    configs = ([(c, None) for c in args.cores] if args.cores
+               else [(None, n) for n in (args.workers or sorted({1, default_workers()}))])
     size = tuple(int(v) for v in args.size.lower().split("x"))
 
     face = load_default_face()
@@ -91,36 +102,52 @@ def main() -> None:
     pose(0.0)
     print(f"export of {args.seconds:g} s at 30 fps, {size[0]}x{size[1]} MP4 (quality {args.quality}), "
           f"{face.n_vertices} vertices, path={args.path}, {os.cpu_count()} cores; load average {load()}")
-    fps: dict[int, list[float]] = {n: [] for n in counts}
+    fps: dict[tuple, list[float]] = {config: [] for config in configs}
+    used_workers: dict[tuple, int] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for repeat in range(args.repeats):
-            for n in counts:
+            for config in configs:
+                cores, n = config
+                if cores is not None:
+                    os.sched_setaffinity(0, all_cores[:cores])   # the render processes inherit it
+                    n = default_workers()
                 options = {"workers": n} if "workers" in ExportSettings.__dataclass_fields__ else {}  # older code
                 settings = ExportSettings(path=Path(tmp) / f"bench{n}.mp4", end_s=args.seconds, size=size, fps=30,
                                           quality=args.quality, **options)
                 run = export_in_subprocess if args.path == "window" else export
                 cpu0 = cpu_seconds()
                 t0 = time.perf_counter()
-                result = run(face, pose, settings)
+                try:
+                    result = run(face, pose, settings)
+                finally:
+                    os.sched_setaffinity(0, all_cores)
                 wall = time.perf_counter() - t0
                 cpu = cpu_seconds() - cpu0
-                fps[n].append(result.frames / wall)
+                fps[config].append(result.frames / wall)
+                used_workers[config] = getattr(result, "workers", 1)
                 per = 1000.0 / max(result.frames, 1)
-                print(f"  run {repeat + 1} workers={getattr(result, 'workers', 1)}: {result.frames} frames in {wall:.1f} s "
+                where = "" if cores is None else f"cores={cores} "
+                print(f"  run {repeat + 1} {where}workers={getattr(result, 'workers', 1)}: {result.frames} frames in {wall:.1f} s "
                       f"({result.frames / wall:.2f} fps; waiting for frames {result.render_seconds * per:.0f} "
                       f"ms/frame, for the encoder {result.encode_seconds * per:.0f} ms/frame; CPU of all the "
                       f"export's processes {cpu * per:.0f} ms/frame = {cpu / wall:.2f} cores busy; "
                       f"{Path(result.path).stat().st_size / 1e6:.2f} MB); load {load()}", flush=True)
-    base = float(np.median(fps[counts[0]]))
-    for n in counts:
-        median = float(np.median(fps[n]))
-        print(f"export_fps median={median:.2f} workers={n} (ratio to {counts[0]} worker"
-              f"{'s' if counts[0] != 1 else ''}: {median / base:.2f})")
+    base = float(np.median(fps[configs[0]]))
+    first_cores, first_workers = configs[0]
+    for config in configs:
+        cores, n = config
+        median = float(np.median(fps[config]))
+        if cores is None:
+            print(f"export_fps median={median:.2f} workers={n} (ratio to {first_workers} worker"
+                  f"{'s' if first_workers != 1 else ''}: {median / base:.2f})")
+        else:
+            print(f"export_fps median={median:.2f} cores={cores} workers={used_workers[config]} (ratio to "
+                  f"{first_cores} core{'s' if first_cores != 1 else ''}: {median / base:.2f})")
     if args.baseline:
-        best = max(counts, key=lambda n: float(np.median(fps[n])))
+        best = max(configs, key=lambda config: float(np.median(fps[config])))
         median = float(np.median(fps[best]))
-        print(f"export_fps best median={median:.2f} workers={best} (ratio to the baseline {args.baseline:g} fps: "
-              f"{median / args.baseline:.2f})")
+        print(f"export_fps best median={median:.2f} workers={used_workers[best]} (ratio to the baseline "
+              f"{args.baseline:g} fps: {median / args.baseline:.2f})")
     print(f"load average after: {load()}")
 
 

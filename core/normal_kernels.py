@@ -2,88 +2,63 @@
 
 Per slider tick the viewport needs the normals of the posed face: with numpy that is nine gathers,
 a cross product and a sparse product, ~5-10 ms for the 105k-triangle default face; this loop does
-the same sums in ~1 ms. Numba is imported and the loop compiled on first use (``cache=True`` keeps
-the machine code under ``__pycache__``; loading it still costs ~0.5 s the first time numba is used
-in a process). :func:`kernel` gives the loop, or None when numba is missing, disabled
-(``MIMICA_NO_NUMBA=1``) or deferred: the window calls :func:`defer_until_warm` so that its first
-frames use numpy while a loader thread runs :func:`warm_up`, instead of stalling on the load.
+the same sums in ~1 ms. Built lazily (:mod:`core.lazy_numba`; ``cache=True`` keeps the machine code
+under ``__pycache__``): :func:`kernel` gives the loop, or None when numba is missing, disabled
+(``MIMICA_NO_NUMBA=1``) or deferred (the window's first frames use numpy).
 """
 
 from __future__ import annotations
 
-import os
-import threading
+from types import SimpleNamespace
 
 import numpy as np
 
-_lock = threading.Lock()
-_kernel = None
-_tried = False      # numba import attempted (it may have failed)
-_deferred = False   # kernel() gives None until warm_up() has run
+from core.lazy_numba import LazyKernels
 
 
-def _load():
-    """Import numba and compile (or load) the loop, once; None without numba."""
-    global _kernel, _tried
-    with _lock:
-        if _tried:
-            return _kernel
-        _tried = True
-        if os.environ.get("MIMICA_NO_NUMBA"):
-            return None
-        try:
-            import numba
-        except ImportError:  # pragma: no cover - numba is a dependency; the numpy path still works
-            return None
+def _build(numba) -> SimpleNamespace:
+    @numba.njit(cache=True, nogil=True)
+    def vertex_normals_into(v, tri, out):  # pragma: no cover - compiled
+        """v (n, 3) float64, tri (m, 3) int64 -> out (n, 3) unit normals (0 for isolated vertices)."""
+        out[:] = 0.0
+        for t in range(tri.shape[0]):
+            a, b, c = tri[t, 0], tri[t, 1], tri[t, 2]
+            e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+            e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+            nx = e1y * e2z - e1z * e2y   # length = 2 * area: area weighting for free
+            ny = e1z * e2x - e1x * e2z
+            nz = e1x * e2y - e1y * e2x
+            for k in (a, b, c):
+                out[k, 0] += nx
+                out[k, 1] += ny
+                out[k, 2] += nz
+        for i in range(out.shape[0]):
+            length = np.sqrt(out[i, 0] ** 2 + out[i, 1] ** 2 + out[i, 2] ** 2)
+            if length > 0.0:
+                out[i, 0] /= length
+                out[i, 1] /= length
+                out[i, 2] /= length
+        return out
 
-        @numba.njit(cache=True, nogil=True)
-        def vertex_normals_into(v, tri, out):  # pragma: no cover - compiled
-            """v (n, 3) float64, tri (m, 3) int64 -> out (n, 3) unit normals (0 for isolated vertices)."""
-            out[:] = 0.0
-            for t in range(tri.shape[0]):
-                a, b, c = tri[t, 0], tri[t, 1], tri[t, 2]
-                e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-                e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-                nx = e1y * e2z - e1z * e2y   # length = 2 * area: area weighting for free
-                ny = e1z * e2x - e1x * e2z
-                nz = e1x * e2y - e1y * e2x
-                for k in (a, b, c):
-                    out[k, 0] += nx
-                    out[k, 1] += ny
-                    out[k, 2] += nz
-            for i in range(out.shape[0]):
-                length = np.sqrt(out[i, 0] ** 2 + out[i, 1] ** 2 + out[i, 2] ** 2)
-                if length > 0.0:
-                    out[i, 0] /= length
-                    out[i, 1] /= length
-                    out[i, 2] /= length
-            return out
+    v = np.eye(3)
+    vertex_normals_into(v, np.array([[0, 1, 2]], dtype=np.int64), np.empty_like(v))   # compile (or load) now
+    return SimpleNamespace(vertex_normals_into=vertex_normals_into)
 
-        v = np.eye(3)
-        vertex_normals_into(v, np.array([[0, 1, 2]], dtype=np.int64), np.empty_like(v))   # compile now
-        _kernel = vertex_normals_into
-        return _kernel
+
+_KERNELS = LazyKernels(_build)
 
 
 def kernel():
     """The compiled ``vertex_normals_into(v (n, 3) float64, tri (m, 3) int64, out (n, 3))``, or None
-    (use numpy): loaded on first use, unless deferred until :func:`warm_up`."""
-    if _kernel is not None or _tried:
-        return _kernel
-    return None if _deferred else _load()
-
-
-def defer_until_warm() -> None:
-    """Until :func:`warm_up` has run, :func:`kernel` gives None instead of loading numba on the
-    caller's thread (the window's first frame must not wait ~0.5-1 s for it)."""
-    global _deferred
-    _deferred = True
+    (use numpy)."""
+    kernels = _KERNELS.get()
+    return kernels.vertex_normals_into if kernels is not None else None
 
 
 def warm_up() -> None:
-    """Compile (or load the cached machine code of) the loop now, e.g. on a loader thread, so the
+    """Compile (or load the cached machine code of) the loop now, e.g. on a background thread, so the
     first slider tick does not pay for it."""
-    _load()
+    _KERNELS.load()
 
 
-__all__ = ["kernel", "defer_until_warm", "warm_up"]
+__all__ = ["kernel", "warm_up"]

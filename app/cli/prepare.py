@@ -15,7 +15,7 @@ from app.cli.common import CliError, load_face_or_default
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.document import build_rig
+    from app.document import build_rig, warm_up_kernels
     from app.preview import cached_preview
     from core.cache import DiskCache, cache_dir
 
@@ -26,6 +26,7 @@ def run(args: argparse.Namespace) -> int:
     if rig is None:
         raise CliError(message.splitlines()[0])
     cached_preview(face, cache)
+    warm_up_kernels()   # numba's machine code to its disk cache: the window loads it in a moment
     for note in cache.notes:
         print(note)
     print(f"{face.metadata.name}: ready to animate ({time.perf_counter() - start:.1f} s; cache in {cache_dir()})")

@@ -194,9 +194,9 @@ def test_a_deferred_normals_kernel_leaves_numba_alone_until_warmed():
 
     code = (
         "import sys, numpy as np\n"
-        "from core import normal_kernels as k\n"
+        "from core import lazy_numba, normal_kernels as k\n"
         "from core.face import VertexNormals\n"
-        "k.defer_until_warm()\n"
+        "lazy_numba.defer_until_warm()\n"
         "tri = np.array([[0, 1, 2], [0, 2, 3]]); v = np.array([[0., 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, .5]])\n"
         "before = VertexNormals(tri, 4)(v)\n"
         "print(k.kernel() is None, 'numba' in sys.modules)\n"

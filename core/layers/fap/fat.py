@@ -523,14 +523,15 @@ class FapDeformer:
         product (no (3n,) temporary; only the columns of non-zero FAPs are read). Equal to
         ``x + displacement(values)`` up to rounding (~1e-13 mm: the terms are added one by one)."""
         scaled = lid_contact(np.asarray(values, dtype=float)) * self.fapu_vector
-        if kernels.AVAILABLE and x.dtype == np.float64 and x.flags.c_contiguous:
+        compiled = kernels.get()
+        if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
             columns = self.__dict__.get("_fat_columns")
             if columns is None:     # built on first use, never pickled (see __getstate__)
                 csc = self.matrix.tocsc()
                 csc.sort_indices()
                 columns = self._fat_columns = (csc.indptr.astype(np.int64), csc.indices.astype(np.int64),
                                                np.ascontiguousarray(csc.data, dtype=np.float64))
-            kernels.add_active_columns(x.reshape(-1), *columns, scaled)
+            compiled.add_active_columns(x.reshape(-1), *columns, scaled)
         else:
             x += (self.matrix @ scaled).reshape(-1, 3)
 
@@ -542,12 +543,13 @@ class FapDeformer:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
         if values[18:22].any() or values[40:42].any():
+            compiled = kernels.get()
             for lid, centre, rest_clearance, full_clearance, angles, radii, faps in self._lid_guards:
                 # From the rest gap to the full clearance as the eye closes (opening lids leave it).
                 ramp = min(max(max(values[f - 1] for f in faps), 0.0) / GUARD_RAMP, 1.0)
                 clearance = rest_clearance + (full_clearance - rest_clearance) * ramp
-                if kernels.AVAILABLE:
-                    kernels.close_lids_over_eyeball(x, lid, centre, clearance, angles, radii)
+                if compiled is not None:
+                    compiled.close_lids_over_eyeball(x, lid, centre, clearance, angles, radii)
                     continue
                 # Two passes: pushing a vertex forward turns it toward the cornea, which is higher.
                 for _ in range(2):
@@ -590,8 +592,9 @@ class FapDeformer:
                 if a or b:
                     idx, centre = self._eyes[name]
                     R = _yaw_pitch(a, b)
-                    if kernels.AVAILABLE and x.dtype == np.float64:
-                        kernels.rotate_rows(x, np.asarray(idx, dtype=np.int64), np.asarray(centre, dtype=float),
+                    compiled = kernels.get()
+                    if compiled is not None and x.dtype == np.float64:
+                        compiled.rotate_rows(x, np.asarray(idx, dtype=np.int64), np.asarray(centre, dtype=float),
                                             np.ascontiguousarray(R, dtype=float))
                     else:
                         x[idx] = (x[idx] - centre) @ R.T + centre

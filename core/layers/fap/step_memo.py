@@ -34,10 +34,11 @@ class StepMemo:
         """Apply ``step`` to ``x`` (n, 3) in place, or replay its last writes when ``x[reads]`` and
         ``key`` are what they were then."""
         last = self._last
-        if kernels.AVAILABLE and x.dtype == np.float64:
+        compiled = kernels.get()
+        if compiled is not None and x.dtype == np.float64:
             # Compared in place (no copy of the inputs unless the step runs).
-            if last is not None and last[0] == key and kernels.rows_equal(x, self.reads, last[1]):
-                kernels.put_rows(x, self.writes, last[2])
+            if last is not None and last[0] == key and compiled.rows_equal(x, self.reads, last[1]):
+                compiled.put_rows(x, self.writes, last[2])
                 return
             seen = np.take(x, self.reads, axis=0)
         else:

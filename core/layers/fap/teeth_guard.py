@@ -239,8 +239,9 @@ class TeethGuard:
 
         ``slack_filter=False`` tests every guarded vertex (the same result, slower: for tests).
         Compiled (``kernels``) where numba is available, else numpy."""
-        if kernels.AVAILABLE and x.dtype == np.float64:
-            return self._apply_compiled(x, slack_filter)
+        compiled = kernels.get()
+        if compiled is not None and x.dtype == np.float64:
+            return self._apply_compiled(compiled, x, slack_filter)
         pushes = []
         for row in self.rows:
             hull, skin, clearance = row.hull, row.skin, row.clearance
@@ -287,15 +288,15 @@ class TeethGuard:
             self._spread(x, pushes)
         return x
 
-    def _apply_compiled(self, x: np.ndarray, slack_filter: bool) -> np.ndarray:
-        """:meth:`apply` by ``kernels.push_out_of_row`` and ``kernels.spread_pushes``."""
+    def _apply_compiled(self, compiled, x: np.ndarray, slack_filter: bool) -> np.ndarray:
+        """:meth:`apply` by the ``compiled`` kernels ``push_out_of_row`` and ``spread_pushes``."""
         slots, offsets = [], []
         for row in self.rows:
             hull = row.hull
             rotation, shift = _rigid_fit(row.rest_anchors, x[row.anchors])
             pushed = np.empty(len(row.skin), np.int64)
             pushes = np.empty((len(row.skin), 3))
-            count = kernels.push_out_of_row(
+            count = compiled.push_out_of_row(
                 x, row.skin, row.rest, row.slack_squared, row.clearance,
                 np.eye(3) if rotation is None else np.ascontiguousarray(rotation), np.asarray(shift, float),
                 rotation is not None, hull.centre, float(hull.y0), float(hull.height), hull.n_angles,
@@ -305,7 +306,7 @@ class TeethGuard:
                 slots.append(row.slots[pushed[:count]])
                 offsets.append(pushes[:count])
         if slots:
-            kernels.spread_pushes(x, self.watched, np.concatenate(slots), np.concatenate(offsets),
+            compiled.spread_pushes(x, self.watched, np.concatenate(slots), np.concatenate(offsets),
                                   self._spread_indptr, self._spread_indices, self._spread_data)
         return x
 
