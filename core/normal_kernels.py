@@ -45,7 +45,7 @@ def _build(numba) -> SimpleNamespace:
     return SimpleNamespace(vertex_normals_into=vertex_normals_into)
 
 
-_KERNELS = LazyKernels(_build)
+_KERNELS = LazyKernels(_build, __file__)
 
 
 def kernel():

@@ -206,3 +206,33 @@ def test_a_deferred_normals_kernel_leaves_numba_alone_until_warmed():
     out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["True", "False", "True", "True"]
+
+
+def test_a_corrupt_numba_cache_is_rebuilt_with_a_note(tmp_path):
+    """Numba raised on a damaged index file of its disk cache (the kernels' machine code): the cache
+    files are removed, the kernel compiled afresh, and stderr says so; no crash."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    env.pop("MIMICA_NO_NUMBA", None)
+    code = "from core import normal_kernels as k; k.warm_up(); print(k.kernel() is not None)"
+
+    def run():
+        return subprocess.run([sys.executable, "-c", code], cwd=root, env=env, capture_output=True, text=True,
+                              timeout=300)
+
+    first = run()
+    assert first.returncode == 0 and first.stdout.split() == ["True"], first.stderr
+    index = list(tmp_path.glob("**/normal_kernels.*.nbi"))
+    assert index, "numba wrote no cache to damage"
+    for path in index:
+        path.write_bytes(b"garbage\n")
+    second = run()
+    assert second.returncode == 0 and second.stdout.split() == ["True"], second.stderr
+    assert "cache of normal_kernels.py was unreadable" in second.stderr
+    third = run()       # the cache was rewritten: quiet again
+    assert third.returncode == 0 and "unreadable" not in third.stderr

@@ -201,7 +201,7 @@ def _warm(k: SimpleNamespace) -> None:
     k.put_rows(x, rows, x.copy())
 
 
-_KERNELS = LazyKernels(_build)
+_KERNELS = LazyKernels(_build, __file__)
 
 
 def get() -> SimpleNamespace | None:
