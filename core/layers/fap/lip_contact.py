@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from core.face import Face
+from core.layers.fap import kernels
 from core.layers.fap.template import mouth_side
 
 # How far from its rim a lip gives way (mm): a Gaussian of this width, about half a lip's height.
@@ -77,6 +78,11 @@ class LipContact:
         to nothing over the CORNER_TAPER_MM next to each mouth corner (there the rims meet and part
         again, and a corner raised by any layer lifts both: not lips pressed into each other);
         -inf beyond the upper rim's ends."""
+        compiled = kernels.get()
+        if compiled is not None and x.dtype == np.float64:
+            out = np.empty(len(self.lower_rim))
+            compiled.lip_overlap(x, self.upper_rim, self.lower_rim, CORNER_TAPER_MM, out)
+            return out
         upper = x[self.upper_rim]
         order = np.argsort(upper[:, 0])
         ends = upper[order[[0, -1]], 0]
@@ -90,11 +96,11 @@ class LipContact:
         """Resolve the lips' overlap in ``x`` (n, 3) mm, in place."""
         if not self.active:
             return
-        lower = x[self.lower_rim]
         overlap = self._overlap(x)
         pressed = overlap > self.rest_overlap
         if not pressed.any():
             return                      # the common case: lips apart or just touching
+        lower = x[self.lower_rim]
         # Where a pose pressed the lips into each other, all of the overlap goes (the rims end exactly
         # touching: a rest-sized sliver left would still cut the seam's triangles through each other).
         order = np.argsort(lower[:, 0])
