@@ -13,7 +13,9 @@ Built once per face (about a second for the 50k-vertex default face):
    every region also includes the triangles around its core points (a skirt) so the taper has room;
    then the weights are relaxed (Jacobi steps of Laplacian smoothing, core and zero border fixed)
    so that no ramp between them is steeper than it must be (a steep ramp folds or tears the skin
-   at a slider's end). The core is the FAP's feature point
+   at a slider's end); regions the template marks ``round_top`` (the lip corners) also hold the
+   Gaussian's top (weights >= ``ROUND_TOP``), as a point core held alone becomes a cone. The core
+   is the FAP's feature point
    (thesis A), widened where a rigid part must follow in full (the jaw moves the lower lip and
    chin together; the lip-corner FAPs move the inner and outer corner together). For the eyelids
    the core is the whole lid margin, each margin vertex weighted by the local height of the eye
