@@ -169,11 +169,13 @@ JAW_EXTRA = {"symmetric": True, "profile": "jaw", "corner_weight": JAW_CORNER_WE
 BROW_REGION = ["4.1", "4.3", "4.5", "el.ai", "el.ao", "11.1", "11.3", "10.9", "9.7", "3.13", "3.7", "3.11",
                "el.ui", "3.1", "el.uo"]
 BROW = {"pinned": ["3.7", "el.uo", "3.1", "el.ui", "3.11"]}
-# The lip-corner FAPs (stretch, raise; inner and outer): both lips and the cheek beside the corner up to
-# the cheekbone (5.3) and the jaw's ear contact (10.7). A smile moves the corner ~10 mm up and back;
-# with the region ending at 5.1, 15 mm beside it, the skin between was squeezed to nothing and folded
-# (the lips crossing at the corners in joy).
-CORNER_REGION = UPPER_LIP + LOWER_LIP + ["5.1", "5.3", "10.7", "2.13", "9.1", "2.11"]
+# The lip-corner raise FAPs (12/13 inner, 59/60 outer): both lips and the cheek beside and above the
+# corner up to the cheekbone (5.3), the jaw's ear contact (10.7) and the nose wing (9.1). A smile moves
+# the corner ~11 mm up; with the region ending at 5.1 and 2.13, 15 mm beside it, the skin between was
+# squeezed into the corner (the lips crossing there in joy). Not down to the chin (2.11): the skin
+# below the lower lip faces down, and raised with the corner it went into the mouth cavity.
+# The stretch FAPs keep the lips and 5.1: widened, a pucker (CH, RR, ou) pulled the cheeks into the cavity.
+CORNER_REGION = UPPER_LIP + LOWER_LIP + ["5.1", "5.3", "10.7", "2.13", "9.1"]
 # ... with a round top (the weight near the core held through the relaxation, not only the two core
 # points: a corner pinned alone became a cone and the skin beside it folded).
 CORNER = {"round_top": True}
@@ -187,7 +189,7 @@ LEFT_REGIONS = {
     3: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, JAW_EXTRA),
     4: (UPPER_LIP, ["2.2"], 8.0, {"symmetric": True}),
     5: (LOWER_LIP, ["2.3"], 8.0, {"symmetric": True}),
-    6: (CORNER_REGION, ["2.4", "8.3"], 3.0, CORNER),
+    6: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
     8: (UPPER_LIP, ["2.6"], 2.5, {}),
     10: (LOWER_LIP, ["2.8"], 2.5, {}),
     12: (CORNER_REGION, ["2.4", "8.3"], 3.0, CORNER),
@@ -217,7 +219,7 @@ LEFT_REGIONS = {
          {"pinned": LOWER_MARGIN}),
     51: (["8.1", "8.10", "8.5", "2.2", "2.6", "9.15"], ["8.1"], 3.0, {"symmetric": True}),
     52: (["8.2", "8.7", "2.3", "2.8", "2.10"], ["8.2"], 3.0, {"symmetric": True}),
-    53: (CORNER_REGION, ["2.4", "8.3"], 3.0, CORNER),
+    53: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
     55: (["8.5", "8.10", "8.1", "8.3", "2.6", "2.4", "2.2", "9.1", "9.5"], ["8.5"], 2.5, {}),
     57: (["8.7", "8.2", "8.3", "2.8", "2.4", "2.3", "2.11", "2.10"], ["8.7"], 2.5, {}),
     59: (CORNER_REGION, ["2.4", "8.3"], 3.0, CORNER),
