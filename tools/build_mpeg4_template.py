@@ -169,16 +169,17 @@ JAW_EXTRA = {"symmetric": True, "profile": "jaw", "corner_weight": JAW_CORNER_WE
 BROW_REGION = ["4.1", "4.3", "4.5", "el.ai", "el.ao", "11.1", "11.3", "10.9", "9.7", "3.13", "3.7", "3.11",
                "el.ui", "3.1", "el.uo"]
 BROW = {"pinned": ["3.7", "el.uo", "3.1", "el.ui", "3.11"]}
-# The lip-corner raise FAPs (12/13 inner, 59/60 outer): both lips and the cheek beside and above the
-# corner up to the cheekbone (5.3), the jaw's ear contact (10.7) and the nose wing (9.1). A smile moves
-# the corner ~11 mm up; with the region ending at 5.1 and 2.13, 15 mm beside it, the skin between was
-# squeezed into the corner (the lips crossing there in joy). Not down to the chin (2.11): the skin
-# below the lower lip faces down, and raised with the corner it went into the mouth cavity.
+# The lip-corner raise FAPs (12/13 inner, 59/60 outer): both lips and the cheek around the corner, up
+# to the cheekbone (5.3), the nose wing (9.1), back to the jaw's ear contact (10.7) and down to the
+# chin (2.11). A smile moves the corner ~11 mm up; with the region ending at 5.1 and 2.13, 15 mm beside
+# it, the skin between was squeezed into the corner (the lips crossing there in joy). The jaw line
+# (2.11-2.13-10.7, the template's outline, which is no region border by itself) is pinned: with its
+# weight left on, the skin under the jaw followed the corner up into the mouth cavity.
 # The stretch FAPs keep the lips and 5.1: widened, a pucker (CH, RR, ou) pulled the cheeks into the cavity.
-CORNER_REGION = UPPER_LIP + LOWER_LIP + ["5.1", "5.3", "10.7", "2.13", "9.1"]
+CORNER_REGION = UPPER_LIP + LOWER_LIP + ["5.1", "5.3", "10.7", "2.13", "9.1", "2.11"]
 # ... with a round top (the weight near the core held through the relaxation, not only the two core
 # points: a corner pinned alone became a cone and the skin beside it folded).
-CORNER = {"round_top": True}
+CORNER = {"round_top": True, "pinned": ["2.11", "2.13", "10.7"]}
 LOWER_MARGIN = ["3.7", "el.lo", "3.3", "el.li", "3.11"]
 UPPER_CORNER = (["2.4", "8.3", "2.6", "8.5", "8.10"], ["2.4", "8.3"], 4.0,
                 {"symmetric": True, "scale": JAW_CORNER_WEIGHT})

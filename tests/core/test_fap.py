@@ -640,7 +640,8 @@ def test_disgust_does_not_cross_the_lips_at_the_corners(rig):
 @pytest.mark.parametrize("expression", ["joy", "sadness"])
 def test_corner_motion_keeps_the_skin_out_of_the_mouth_cavity(rig, expression):
     """The mouth cavity has no FAT rows: skin moved into the head shows it through the cheek. A
-    corner raise region reaching down to the chin did that in joy (593 crossing pairs)."""
+    corner raise region reaching down to the chin with the jaw line not pinned did that in joy (593
+    crossing pairs)."""
     from core.mesh_quality import intersecting_pairs
 
     face = rig.face
