@@ -169,6 +169,18 @@ JAW_EXTRA = {"symmetric": True, "profile": "jaw", "corner_weight": JAW_CORNER_WE
 BROW_REGION = ["4.1", "4.3", "4.5", "el.ai", "el.ao", "11.1", "11.3", "10.9", "9.7", "3.13", "3.7", "3.11",
                "el.ui", "3.1", "el.uo"]
 BROW = {"pinned": ["3.7", "el.uo", "3.1", "el.ui", "3.11"]}
+# The lip-corner raise FAPs (12/13 inner, 59/60 outer): both lips and the cheek around the corner, up
+# to the cheekbone (5.3), the nose wing (9.1), back to the jaw's ear contact (10.7) and down to the
+# chin (2.11). A smile moves the corner ~11 mm up; with the region ending at 5.1 and 2.13, 15 mm beside
+# it, the skin between was squeezed into the corner (the lips crossing there in joy). The jaw line
+# (2.11-2.13-10.7, the template's outline, which is no region border by itself) is pinned: with its
+# weight left on, the skin under the jaw followed the corner up into the mouth cavity.
+# The stretch FAPs keep the lips and 5.1: widened, a pucker (CH, RR, ou) pulled the cheeks into the cavity.
+CORNER_REGION = UPPER_LIP + LOWER_LIP + ["5.1", "5.3", "10.7", "2.13", "9.1", "2.11"]
+# ... with a round top (the weight near the core held through the relaxation, not only the two core
+# points: a corner pinned alone became a cone and the skin beside it folded).
+CORNER = {"round_top": True, "pinned": ["2.11", "2.13", "10.7"]}
+LOWER_MARGIN = ["3.7", "el.lo", "3.3", "el.li", "3.11"]
 UPPER_CORNER = (["2.4", "8.3", "2.6", "8.5", "8.10"], ["2.4", "8.3"], 4.0,
                 {"symmetric": True, "scale": JAW_CORNER_WEIGHT})
 # (fap, vertex set (left side; mirrored for the right FAP), core, w, extra)
@@ -181,7 +193,7 @@ LEFT_REGIONS = {
     6: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
     8: (UPPER_LIP, ["2.6"], 2.5, {}),
     10: (LOWER_LIP, ["2.8"], 2.5, {}),
-    12: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
+    12: (CORNER_REGION, ["2.4", "8.3"], 3.0, CORNER),
     14: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, JAW_EXTRA),
     15: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, JAW_EXTRA),
     16: (LOWER_LIP, ["2.3", "8.2"], 3.0, {"symmetric": True}),
@@ -202,13 +214,16 @@ LEFT_REGIONS = {
     35: (BROW_REGION, ["4.5"], 3.0, BROW),
     37: (BROW_REGION, ["4.1"], 3.0, BROW),
     39: (["5.1", "5.3", "8.3", "2.4", "10.7", "2.13", "9.1", "9.5", "8.5", "8.7"], ["5.1"], 3.0, {}),
-    41: (["5.3", "5.1", "el.bo", "3.9", "el.bi", "10.9", "10.7", "9.1", "9.13", "9.5"], ["5.3"], 3.0, {}),
+    # The cheek lift reaches up to the lower lid's margin, which stays pinned: ending below the lid
+    # (el.bo-3.9-el.bi, 8 mm above 5.3) it pushed the skin there into the lid (AU 6 lifts it ~10 mm).
+    41: (["5.3", "5.1", "el.bo", "3.9", "el.bi", "10.9", "10.7", "9.1", "9.13", "9.5"] + LOWER_MARGIN, ["5.3"], 3.0,
+         {"pinned": LOWER_MARGIN}),
     51: (["8.1", "8.10", "8.5", "2.2", "2.6", "9.15"], ["8.1"], 3.0, {"symmetric": True}),
     52: (["8.2", "8.7", "2.3", "2.8", "2.10"], ["8.2"], 3.0, {"symmetric": True}),
     53: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
     55: (["8.5", "8.10", "8.1", "8.3", "2.6", "2.4", "2.2", "9.1", "9.5"], ["8.5"], 2.5, {}),
     57: (["8.7", "8.2", "8.3", "2.8", "2.4", "2.3", "2.11", "2.10"], ["8.7"], 2.5, {}),
-    59: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
+    59: (CORNER_REGION, ["2.4", "8.3"], 3.0, CORNER),
     61: (["9.1", "9.5", "9.13", "9.3", "9.15", "8.10", "8.5"], ["9.1"], 3.0, {}),
     63: (["9.3", "9.1", "9.5", "9.15", "9.13", "9.12"], ["9.3"], 3.0, {"symmetric": True}),
     64: (["9.3", "9.1", "9.5", "9.15", "9.13", "9.12"], ["9.3"], 3.0, {"symmetric": True}),
@@ -243,7 +258,7 @@ def region_table(tri: np.ndarray) -> list[dict]:
                 # region's border and the weight can fade to zero on all sides (no crease).
                 core_ids = {index[c] for c in vcore}
                 skirt = [int(t) for t in np.nonzero([bool(set(r) & core_ids) for r in tri])[0]]
-                triangles = sorted(set(triangles) | set(skirt) - set(eye_opening))
+                triangles = sorted((set(triangles) | set(skirt)) - set(eye_opening))
             entry = {"fap": number, "triangles": triangles, "core": list(vcore), "w": w}
             if vextra.get("chain"):
                 entry["core_is_chain"] = True
@@ -255,6 +270,8 @@ def region_table(tri: np.ndarray) -> list[dict]:
                 entry["corner_weight"] = vextra["corner_weight"]
             if vextra.get("pinned"):
                 entry["pinned"] = vextra["pinned"]
+            if vextra.get("round_top"):
+                entry["round_top"] = True
             if vextra.get("scale"):
                 entry["scale"] = vextra["scale"]
             if vextra.get("tilt"):

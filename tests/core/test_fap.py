@@ -636,3 +636,96 @@ def test_compiled_finish_steps_give_the_numpy_steps_vertices(rig, monkeypatch):
         lids_moved += not np.array_equal(compiled[lid_vertices], plain[lid_vertices])
         teeth_moved += not np.array_equal(compiled[teeth_vertices], plain[teeth_vertices])
     assert lids_moved >= 5 and teeth_moved >= 5     # the comparison covers real pushes
+
+
+def test_lip_corner_weights_have_a_round_top_not_a_cone(rig):
+    """The lip-corner raise FAPs' weight stays near 1 for the first 2 mm around the corner points: with
+    only the two core points held at 1 through the relaxation it fell to 0.72 there (a cone), and a
+    smile folded the skin beside the corner."""
+    d = rig.deformer
+    v = d.dense.vertices
+    for fap, (inner, outer) in ((12, ("2.4", "8.3")), (13, ("2.5", "8.4")), (59, ("2.4", "8.3")),
+                                (60, ("2.5", "8.4"))):
+        w = d.template_weights[fap]
+        for fp in (inner, outer):
+            near = np.linalg.norm(v - v[d.template.index(fp)], axis=1) < 2.0
+            assert w[near].min() > 0.9, (fap, fp, w[near].min())
+        assert w.max() == pytest.approx(1.0)
+
+
+def _crossings_near(rig, points, radius):
+    """Lip triangle pairs of the rig's current pose that cross, with a rest vertex within ``radius``
+    mm of one of ``points`` (feature point names)."""
+    from core.mesh_quality import FaceQualityProbe, intersecting_pairs
+
+    face = rig.face
+    probe = FaceQualityProbe(face)
+    ia, ib = intersecting_pairs(rig.vertices(), probe.lip_tris)
+    tris = np.concatenate([probe.lip_tris[ia], probe.lip_tris[ib]], axis=1)
+    centres = np.array([face.landmark_position(p) for p in points])
+    rest = face.vertices[tris]                                   # (k, 6, 3)
+    distance = np.linalg.norm(rest[:, :, None] - centres[None, None], axis=3).min(axis=(1, 2))
+    return int((distance < radius).sum())
+
+
+def test_disgust_does_not_cross_the_lips_at_the_corners(rig):
+    """Disgust raises the lower lip and lowers the outer corners: the lips crossed right at the
+    corners, where lip contact fades out (6 pairs)."""
+    rig.reset()
+    rig.set_expression("disgust", 1.0)
+    try:
+        assert _crossings_near(rig, ("2.4", "2.5", "8.3", "8.4"), 1e3) == 0
+    finally:
+        rig.reset()
+
+
+@pytest.mark.parametrize("expression", ["joy", "sadness"])
+def test_corner_motion_keeps_the_skin_out_of_the_mouth_cavity(rig, expression):
+    """The mouth cavity has no FAT rows: skin moved into the head shows it through the cheek. A
+    corner raise region reaching down to the chin with the jaw line not pinned did that in joy (593
+    crossing pairs)."""
+    from core.mesh_quality import intersecting_pairs
+
+    face = rig.face
+    cavity = np.zeros(face.n_vertices, bool)
+    cavity[face.parts["mouth_cavity"]] = True
+    cavity_tris = face.triangles[cavity[face.triangles].all(axis=1)]
+    in_part = np.zeros(face.n_vertices, bool)
+    for idx in face.parts.values():
+        in_part[idx] = True
+    skin = face.triangles[~in_part[face.triangles].any(axis=1)]
+    near = skin[np.linalg.norm(face.vertices[skin].mean(axis=1) - face.landmark_position("2.2"), axis=1) < 70]
+    rig.reset()
+    rig.set_expression(expression, 1.0)
+    try:
+        assert len(intersecting_pairs(rig.vertices(), near, cavity_tris)[0]) == 0
+    finally:
+        rig.reset()
+
+
+def test_a_smile_keeps_the_skin_beside_the_corners_from_folding_into_them(rig):
+    """Joy pulls each corner ~14 mm up and back. The corner's cone of weight squeezed the skin beside
+    it into the corner: 254 crossing lip triangle pairs. With the round top the corner moves as a
+    piece; what still crosses (4 pairs) is the lips' inner surfaces at the seam, beside the inner
+    corners, where lip contact fades out. Less than a tenth of before is asserted."""
+    rig.reset()
+    rig.set_expression("joy", 1.0)
+    try:
+        assert _crossings_near(rig, ("2.4", "2.5"), 1e3) < 26
+    finally:
+        rig.reset()
+
+
+def test_the_cheek_lift_reaches_the_lower_lid_margin_which_stays_pinned(rig):
+    """AU 6's cheek lift (lift_l/r_cheek, ~10 mm at joy's value on the default face) spreads up to the
+    lower lid's margin, held at 0 there: ending 4 mm below the margin (el.bo-3.9-el.bi) it squeezed
+    the skin there into the lid (joy: 104 lid crossings)."""
+    d = rig.deformer
+    v = d.dense.vertices
+    for fap, margin, below in ((41, ("3.7", "el.lo", "3.3", "el.li", "3.11"), "3.3"),
+                               (42, ("3.12", "er.lo", "3.4", "er.li", "3.8"), "3.4")):
+        w = d.template_weights[fap]
+        assert np.abs(w[d.dense.on_chain(margin)]).max() == 0.0
+        lid = v[d.template.index(below)]
+        under = (np.abs(v[:, 0] - lid[0]) < 2.0) & (lid[1] - v[:, 1] > 1.0) & (lid[1] - v[:, 1] < 3.0)
+        assert under.any() and w[under].max() > 0.05, fap
