@@ -20,6 +20,7 @@ the callers then keep their numpy paths (the tests compare both).
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -28,182 +29,10 @@ from core.lazy_numba import LazyKernels
 
 
 def _build(numba) -> SimpleNamespace:
-    _jit = numba.njit(cache=True, nogil=True)
+    """The kernels of :mod:`core.layers.fap.compiled_steps` (numba is imported there), warmed."""
+    from core.layers.fap import compiled_steps as c
 
-    @_jit
-    def add_active_columns(x_flat, indptr, rows, data, scaled):  # pragma: no cover - compiled
-        """x_flat (3n,) += F @ scaled with F (3n, 68) given by its CSC arrays, skipping the
-        columns whose value is 0 (a slider tick on a face at rest reads one column). Each row
-        gets its terms in column order, from x_flat's own value: a fixed order, so the same
-        state always gives the same vertices."""
-        for j in range(scaled.shape[0]):
-            v = scaled[j]
-            if v == 0.0:
-                continue
-            for k in range(indptr[j], indptr[j + 1]):
-                x_flat[rows[k]] += data[k] * v
-
-    @_jit
-    def _interp(x, xp, fp):  # pragma: no cover - compiled
-        """np.interp for one x (xp increasing), the same sums: numba's own checks every xp on
-        each call. The interval is guessed as if xp were evenly spaced (the profiles are), then
-        corrected."""
-        n = xp.shape[0]
-        if x <= xp[0]:
-            return fp[0]
-        if x >= xp[n - 1]:
-            return fp[n - 1]
-        lo = min(max(int((x - xp[0]) / (xp[n - 1] - xp[0]) * (n - 1)), 0), n - 2)
-        while xp[lo] > x:
-            lo -= 1
-        while xp[lo + 1] <= x:
-            lo += 1
-        slope = (fp[lo + 1] - fp[lo]) / (xp[lo + 1] - xp[lo])
-        return slope * (x - xp[lo]) + fp[lo]
-
-    @_jit
-    def lip_overlap(x, upper_rim, lower_rim, taper_mm, out):  # pragma: no cover - compiled
-        """``lip_contact.LipContact._overlap`` into ``out`` (len(lower_rim),): how far each lower-rim
-        vertex of ``x`` is above the upper rim at its x, tapered over ``taper_mm`` next to the rim's
-        ends; -inf beyond them."""
-        m = upper_rim.shape[0]
-        ux = np.empty(m)
-        uy = np.empty(m)
-        for i in range(m):
-            ux[i] = x[upper_rim[i], 0]
-            uy[i] = x[upper_rim[i], 1]
-        order = np.argsort(ux)
-        sx = ux[order]
-        sy = uy[order]
-        first, last = sx[0], sx[m - 1]
-        for j in range(lower_rim.shape[0]):
-            lx, ly = x[lower_rim[j], 0], x[lower_rim[j], 1]
-            if lx < first or lx > last:
-                out[j] = -np.inf
-                continue
-            taper = min(max(min(lx - first, last - lx) / taper_mm, 0.0), 1.0)
-            out[j] = (ly - _interp(lx, sx, sy)) * taper
-
-    @_jit
-    def close_lids_over_eyeball(x, lid, centre, clearance, angles, radii):  # pragma: no cover
-        """Push lid vertices ``x[lid]`` (k,) forward (+z) onto the eyeball's guard surface: the
-        radius profile ``radii`` (b,) mm over ``angles`` (b,) rad from the gaze axis, plus each
-        vertex's ``clearance`` (k,) mm. Two passes per vertex: a push forward turns the vertex
-        toward the cornea, which is higher."""
-        for i in range(lid.shape[0]):
-            v = lid[i]
-            for _ in range(2):
-                rx, ry, rz = x[v, 0] - centre[0], x[v, 1] - centre[1], x[v, 2] - centre[2]
-                length = np.sqrt(rx * rx + ry * ry + rz * rz)
-                cos = min(max(rz / max(length, 1e-9), -1.0), 1.0)
-                need = _interp(np.arccos(cos), angles, radii) + clearance[i]
-                if not length < need:
-                    break
-                planar = rx * rx + ry * ry
-                x[v, 2] = centre[2] + np.sqrt(max(need * need - planar, 0.0))
-
-    @_jit
-    def push_out_of_row(x, skin, rest, slack_squared, clearance, rotation, shift, turned, centre,
-                        y0, height, n_angles, n_heights, angle_scale, height_scale, table,
-                        reach_squared, slack_filter, pushed, offsets):  # pragma: no cover
-        """Push guarded ``skin`` (k,) vertices of ``x`` out of one row of teeth (in place); see
-        ``teeth_guard.TeethGuard.apply`` for the arguments' meaning. The row's rest frame is
-        ``local = (x - shift) @ rotation`` when ``turned``, else ``x - shift``. Writes the pushed
-        vertices into ``pushed`` (k,) and their offsets into ``offsets`` (k, 3); returns how many."""
-        count = 0
-        half = 0.5 * height
-        for i in range(skin.shape[0]):
-            v = skin[i]
-            px, py, pz = x[v, 0] - shift[0], x[v, 1] - shift[1], x[v, 2] - shift[2]
-            if turned:
-                lx = px * rotation[0, 0] + py * rotation[1, 0] + pz * rotation[2, 0]
-                ly = px * rotation[0, 1] + py * rotation[1, 1] + pz * rotation[2, 1]
-                lz = px * rotation[0, 2] + py * rotation[1, 2] + pz * rotation[2, 2]
-            else:
-                lx, ly, lz = px, py, pz
-            h = ly - y0
-            if not abs(h - half) < half:
-                continue
-            dx, dz = lx - centre[0], lz - centre[2]
-            squared = dx * dx + dz * dz
-            if not squared < reach_squared:
-                continue
-            if slack_filter:
-                ox, oy, oz = lx - rest[i, 0], ly - rest[i, 1], lz - rest[i, 2]
-                if ox * ox + oy * oy + oz * oz < slack_squared[i]:
-                    continue
-            a = np.int64((np.arctan2(dx, dz) + np.pi) * angle_scale) % n_angles
-            need = table[a * n_heights + np.int64(h * height_scale)] + clearance[i]
-            radius = np.sqrt(squared)
-            if not radius < need:
-                continue
-            scale = need / max(radius, 1e-9)
-            mx, my, mz = centre[0] + dx * scale, ly, centre[2] + dz * scale
-            if turned:
-                ox = mx * rotation[0, 0] + my * rotation[0, 1] + mz * rotation[0, 2] + shift[0]
-                oy = mx * rotation[1, 0] + my * rotation[1, 1] + mz * rotation[1, 2] + shift[1]
-                oz = mx * rotation[2, 0] + my * rotation[2, 1] + mz * rotation[2, 2] + shift[2]
-            else:
-                ox, oy, oz = mx + shift[0], my + shift[1], mz + shift[2]
-            pushed[count] = i
-            offsets[count, 0] = ox - x[v, 0]
-            offsets[count, 1] = oy - x[v, 1]
-            offsets[count, 2] = oz - x[v, 2]
-            x[v, 0], x[v, 1], x[v, 2] = ox, oy, oz
-            count += 1
-        return count
-
-    @_jit
-    def spread_pushes(x, watched, slots, offsets, indptr, indices, data):  # pragma: no cover
-        """Move the watched vertices around pushed ones part way (in place): ``slots`` (k,) are
-        the pushed vertices' places in ``watched`` (m,), ``offsets`` (k, 3) mm their pushes, and
-        the spread matrix (m, m) is given by its CSC arrays; pushed vertices keep their own push."""
-        m = watched.shape[0]
-        around = np.zeros((m, 3))
-        reached = np.zeros(m, np.bool_)
-        for j in range(slots.shape[0]):
-            s = slots[j]
-            for e in range(indptr[s], indptr[s + 1]):
-                r = indices[e]
-                w = data[e]
-                around[r, 0] += w * offsets[j, 0]
-                around[r, 1] += w * offsets[j, 1]
-                around[r, 2] += w * offsets[j, 2]
-                reached[r] = True
-        for j in range(slots.shape[0]):
-            reached[slots[j]] = False
-        for r in range(m):
-            if reached[r]:
-                v = watched[r]
-                x[v, 0] += around[r, 0]
-                x[v, 1] += around[r, 1]
-                x[v, 2] += around[r, 2]
-
-    @_jit
-    def rotate_rows(x, rows, centre, rotation):  # pragma: no cover - compiled
-        """x[rows] = (x[rows] - centre) @ rotation.T + centre, in place (an eyeball's gaze)."""
-        for r in rows:
-            px, py, pz = x[r, 0] - centre[0], x[r, 1] - centre[1], x[r, 2] - centre[2]
-            for c in range(3):
-                x[r, c] = px * rotation[c, 0] + py * rotation[c, 1] + pz * rotation[c, 2] + centre[c]
-
-    @_jit
-    def rows_equal(x, rows, seen):  # pragma: no cover - compiled
-        """Whether x[rows] (k, 3) equals ``seen`` (k, 3) exactly (stops at the first difference)."""
-        for i in range(rows.shape[0]):
-            r = rows[i]
-            if x[r, 0] != seen[i, 0] or x[r, 1] != seen[i, 1] or x[r, 2] != seen[i, 2]:
-                return False
-        return True
-
-    @_jit
-    def put_rows(x, rows, values):  # pragma: no cover - compiled
-        """x[rows] = values (k, 3), in place."""
-        for i in range(rows.shape[0]):
-            r = rows[i]
-            x[r, 0], x[r, 1], x[r, 2] = values[i, 0], values[i, 1], values[i, 2]
-
-    kernels = SimpleNamespace(add_active_columns=add_active_columns, lip_overlap=lip_overlap, close_lids_over_eyeball=close_lids_over_eyeball, push_out_of_row=push_out_of_row, spread_pushes=spread_pushes, rotate_rows=rotate_rows, rows_equal=rows_equal, put_rows=put_rows)
+    kernels = SimpleNamespace(**{name: getattr(c, name) for name in _NAMES})
     _warm(kernels)
     return kernels
 
@@ -229,7 +58,9 @@ def _warm(k: SimpleNamespace) -> None:
     k.put_rows(x, rows, x.copy())
 
 
-_KERNELS = LazyKernels(_build, __file__)
+_NAMES = ("add_active_columns", "lip_overlap", "close_lids_over_eyeball", "push_out_of_row", "spread_pushes",
+          "rotate_rows", "rows_equal", "put_rows")
+_KERNELS = LazyKernels(_build, Path(__file__).with_name("compiled_steps.py"))
 
 
 def get() -> SimpleNamespace | None:
