@@ -3,14 +3,14 @@
 Sweeps, per identity, every animated FAP to both ends of its slider range, every expression and
 viseme preset at 100 %, every expression mixed with every viseme (speech with emotion) at 100 %, and
 thesis C's muscle presets, and measures each pose with :class:`core.mesh_quality.FaceQualityProbe`:
-lip / lid / teeth intersections, folded triangles, the largest texture stretch and smallest squeeze,
+lip / lid / teeth / mouth-cavity intersections, folded triangles, the largest texture stretch and smallest squeeze,
 and for lid-closing FAPs at their maximum whether the eye is closed. Prints per pose
 
-    <identity> <pose>: lip=<n> lid=<n> teeth=<n> folds=<n> stretch=<x> squeeze=<x> [eye=<%>] OK|FAIL <why>
+    <identity> <pose>: lip=<n> lid=<n> teeth=<n> cavity=<n> folds=<n> stretch=<x> squeeze=<x> [eye=<%>] OK|FAIL <why>
 
 then per identity the totals over its poses (which failures dominate)
 
-    <identity> totals: lip=<n> lid=<n> teeth=<n> folds=<n> stretched_poses=<k> squeezed_poses=<k> open_eyes=<k>
+    <identity> totals: lip=<n> lid=<n> teeth=<n> cavity=<n> folds=<n> stretched_poses=<k> squeezed_poses=<k> open_eyes=<k>
 
 and ``<identity>: failures=<k>/<poses> (<s> s)``, and at the end
 
@@ -173,7 +173,7 @@ def run_identity(name: str, args) -> tuple[int, int]:
     if args.families:
         poses = [p for p in poses if p[0] in args.families]
     failures = 0
-    totals = dict.fromkeys(("lip", "lid", "teeth", "folds", "stretched_poses", "squeezed_poses", "open_eyes"), 0)
+    totals = dict.fromkeys(("lip", "lid", "teeth", "cavity", "folds", "stretched_poses", "squeezed_poses", "open_eyes"), 0)
     sheets: dict[str, list] = {}
     for family, label, apply, closes in poses:
         rig.reset()
@@ -183,14 +183,16 @@ def run_identity(name: str, args) -> tuple[int, int]:
         why = q.failures(eyes_closed=closes)
         failures += bool(why)
         for key, value in (("lip", q.lip_intersections), ("lid", q.lid_intersections),
-                           ("teeth", q.teeth_intersections), ("folds", q.folded_triangles),
+                           ("teeth", q.teeth_intersections), ("cavity", q.cavity_intersections),
+                           ("folds", q.folded_triangles),
                            ("stretched_poses", q.max_stretch > MAX_STRETCH),
                            ("squeezed_poses", q.min_stretch < MIN_STRETCH),
                            ("open_eyes", any("open, should be closed" in w for w in why))):
             totals[key] += int(value or 0)
         eye = "".join(f" eye_{s}={100 * q.eye_openness[s]:.0f}%" for s in closes if s in q.eye_openness)
         counts = " ".join(f"{k}={'-' if v is None else v}" for k, v in (
-            ("lip", q.lip_intersections), ("lid", q.lid_intersections), ("teeth", q.teeth_intersections)))
+            ("lip", q.lip_intersections), ("lid", q.lid_intersections), ("teeth", q.teeth_intersections),
+            ("cavity", q.cavity_intersections)))
         print(f"{name} {label}: {counts} folds={q.folded_triangles} stretch={q.max_stretch:.2f} "
               f"squeeze={q.min_stretch:.2f}{eye} {'FAIL ' + '; '.join(why) if why else 'OK'}", flush=True)
         if args.sheets:

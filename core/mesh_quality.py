@@ -53,6 +53,9 @@ class PoseQuality:
     max_stretch: float
     min_stretch: float
     eye_openness: dict[str, float] = field(default_factory=dict)
+    # Mouth skin crossing the mouth cavity's lining (a region pulled in through the lips); None
+    # when the face has no cavity.
+    cavity_intersections: int | None = None
 
     def failures(self, *, eyes_closed: tuple[str, ...] = ()) -> list[str]:
         """Human-readable reasons this pose breaks the surface ([] when it holds up).
@@ -60,7 +63,7 @@ class PoseQuality:
         ``eyes_closed``: the eyes ("left", "right") this pose must close completely."""
         out = []
         for what, n in (("lip", self.lip_intersections), ("lid", self.lid_intersections),
-                        ("teeth", self.teeth_intersections)):
+                        ("teeth", self.teeth_intersections), ("mouth cavity", self.cavity_intersections)):
             if n:
                 out.append(f"{n} {what} intersections")
         if self.folded_triangles:
@@ -250,6 +253,7 @@ class FaceQualityProbe:
             return tris[mask[tris].all(axis=1)] if mask.any() else None
 
         self.teeth_tris = part_tris("teeth_upper", "teeth_lower")
+        self.cavity_tris = part_tris("mouth_cavity")
         self.eyeball_tris = {side: part_tris(f"eyeball_{side[0]}") for side in ("left", "right")}
         self.eyeball_vertices = {side: face.parts.get(f"eyeball_{side[0]}") for side in ("left", "right")}
 
@@ -265,6 +269,8 @@ class FaceQualityProbe:
 
         # Lips: within 0.9 mouth widths of the mouth's centre (both lips, corners and philtrum).
         self.lip_tris = region("8.3", "8.4", 0.9)
+        # Skin that can reach into the mouth cavity: within 1.5 mouth widths (cheeks, chin).
+        self.mouth_skin_tris = region("8.3", "8.4", 1.5)
         # Lids: within 0.85 eye widths of each eye's centre (both lids and their folds).
         self.lid_tris = {"left": region("3.7", "3.11", 0.85), "right": region("3.8", "3.12", 0.85)}
 
@@ -274,11 +280,13 @@ class FaceQualityProbe:
         ``eyes``: also measure eye openness (ray casts; ~50 ms per eye)."""
         folded, max_stretch, min_stretch = self.surface(vertices)
 
-        lip = teeth = None
+        lip = teeth = cavity = None
         if self.lip_tris is not None:
             lip = count_intersections(vertices, self.lip_tris)
             if self.teeth_tris is not None:
                 teeth = count_intersections(vertices, self.lip_tris, self.teeth_tris)
+        if self.mouth_skin_tris is not None and self.cavity_tris is not None:
+            cavity = count_intersections(vertices, self.mouth_skin_tris, self.cavity_tris)
         lid = None
         if all(t is not None for t in self.lid_tris.values()):
             lid = 0
@@ -287,7 +295,7 @@ class FaceQualityProbe:
                 if self.eyeball_tris[side] is not None:
                     lid += count_intersections(vertices, lid_tris, self.eyeball_tris[side])
         openness = self.eye_openness(vertices) if eyes else {}
-        return PoseQuality(lip, lid, teeth, folded, max_stretch, min_stretch, openness)
+        return PoseQuality(lip, lid, teeth, folded, max_stretch, min_stretch, openness, cavity)
 
     def surface(self, vertices: np.ndarray) -> tuple[int, float, float]:
         """(folded skin triangles, largest stretch, smallest stretch) of a pose: the cheap part of

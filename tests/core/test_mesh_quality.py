@@ -100,3 +100,23 @@ def test_eye_openness_sees_a_lid_closing_over_an_eyeball():
     assert FaceQualityProbe(open_face).eye_openness(open_face.vertices)["left"] > 0.5
     closed = _eye_face(vertices, tris, ball)
     assert FaceQualityProbe(closed).eye_openness(closed.vertices)["left"] == 0.0
+
+
+def test_skin_pulled_into_the_mouth_cavity_is_counted():
+    """The probe counts mouth skin crossing the mouth cavity's lining (a region pulled in through the
+    lips): none at rest; the chin's skin pushed 20 mm back into the head crosses it."""
+    from core.default_face import load_default_face
+
+    face = load_default_face()
+    probe = FaceQualityProbe(face)
+    assert probe.measure(face.vertices).cavity_intersections == 0
+    chin = face.landmark_position("2.1")
+    in_part = np.zeros(face.n_vertices, bool)
+    for idx in face.parts.values():
+        in_part[idx] = True
+    near_chin = (np.linalg.norm(face.vertices - chin, axis=1) < 25.0) & ~in_part
+    pushed = face.vertices.copy()
+    pushed[near_chin] += [0.0, 12.0, -20.0]      # up behind the lower lip and back into the mouth
+    quality = probe.measure(pushed)
+    assert quality.cavity_intersections > 0
+    assert any("mouth cavity" in why for why in quality.failures())
