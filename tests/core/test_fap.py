@@ -729,3 +729,18 @@ def test_the_cheek_lift_reaches_the_lower_lid_margin_which_stays_pinned(rig):
         lid = v[d.template.index(below)]
         under = (np.abs(v[:, 0] - lid[0]) < 2.0) & (lid[1] - v[:, 1] > 1.0) & (lid[1] - v[:, 1] < 3.0)
         assert under.any() and w[under].max() > 0.05, fap
+
+
+def test_skin_the_cheek_lift_slides_over_the_eyeball_keeps_clear_of_it(rig):
+    """Joy's cheek lift moves the socket skin at the outer eye corners 2-4 mm over the eyeball; held
+    at its rest gap (inside the ball's conservative profile there) its triangles cut the ball: 20
+    lid/eyeball crossings. Skin that slid takes the guard's full clearance (GUARD_SLIDE_MM)."""
+    from core.mesh_quality import FaceQualityProbe, count_intersections
+
+    probe = FaceQualityProbe(rig.face)
+    rig.reset()
+    rig.set_expression("joy", 1.0)
+    posed = rig.vertices()
+    for side in ("left", "right"):
+        assert count_intersections(posed, probe.lid_tris[side], probe.eyeball_tris[side]) == 0, side
+    rig.reset()

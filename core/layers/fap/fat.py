@@ -70,6 +70,9 @@ ROUND_TOP = 0.95
 LID_CLEARANCE_MM = 0.4      # a closing lid slides this far outside the eyeball
 MIN_LID_CLEARANCE_MM = 0.1  # ... or at least this far (a 2 mm lid triangle sags 0.03 mm into a 15 mm ball)
 CHEEK_GUARD_REACH_MM = 4.0  # cheek-lift skin farther from the eyeball than this is not guarded
+# Skin that moved this far (mm) takes the lid guard's full clearance (face_quality on the presets: joy's
+# lid/eyeball crossings 34 -> 0, folds 370 -> 394; 1 mm: 8 crossings, 4 mm: 8 and 168 folds).
+GUARD_SLIDE_MM = 2.0
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 
 
@@ -346,10 +349,12 @@ class FapDeformer:
         ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball), so the neutral face
         is unchanged. Skin closer than that at rest starts from its own gap and reaches the
         clearance over the first ``GUARD_RAMP`` units of the eye's closing FAPs (no jump when one
-        leaves 0; lids opening in surprise or fear leave the socket skin where it is).
+        leaves 0; lids opening in surprise or fear leave the socket skin where it is), or as it slides
+        over the ball: in full once it moved ``GUARD_SLIDE_MM`` (joy's cheek lift at the outer corners).
 
         Per eye: (lid vertex indices, eyeball centre (3,), clearance at rest (k,) mm, full clearance
-        (k,) mm, radius profile angles (b,) rad and radii (b,) mm, the eye's FAP numbers).
+        (k,) mm, radius profile angles (b,) rad and radii (b,) mm, the eye's FAP numbers, the lid
+        vertices at rest (k, 3) mm).
         """
         guards = []
         # The cheek lift (41/42) pushes the lower lid up over the ball as well (joy's AU 6).
@@ -375,7 +380,8 @@ class FapDeformer:
             # Skin closer than that at rest (socket skin inside the profile of a ball that is not a
             # sphere about the fitted centre) starts from its own gap: held at the clearance at once
             # it jumped 2.5 mm forward at the first tick of a lid FAP and folded the lower lid.
-            guards.append((lid, centre, np.minimum(rest_gap, clearance), clearance, angles, radii, faps))
+            guards.append((lid, centre, np.minimum(rest_gap, clearance), clearance, angles, radii, faps,
+                           self.face.vertices[lid]))
         return guards
 
     def _in_any_part(self) -> np.ndarray:
@@ -553,9 +559,14 @@ class FapDeformer:
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
         if values[18:22].any() or values[40:42].any():
             compiled = kernels.get()
-            for lid, centre, rest_clearance, full_clearance, angles, radii, faps in self._lid_guards:
+            for lid, centre, rest_clearance, full_clearance, angles, radii, faps, rest in self._lid_guards:
                 # From the rest gap to the full clearance as the eye closes (opening lids leave it).
                 ramp = min(max(max(values[f - 1] for f in faps), 0.0) / GUARD_RAMP, 1.0)
+                # Skin that slid over the ball (the cheek lift moves the socket skin millimetres) takes
+                # the full clearance too: at its rest gap, below the ball's profile, its triangles cut
+                # the ball wherever it now lies.
+                slid = np.sqrt(((x[lid] - rest) ** 2).sum(axis=1)) / GUARD_SLIDE_MM
+                ramp = np.minimum(np.maximum(ramp, slid), 1.0)
                 clearance = rest_clearance + (full_clearance - rest_clearance) * ramp
                 if compiled is not None:
                     compiled.close_lids_over_eyeball(x, lid, centre, clearance, angles, radii)
