@@ -2,7 +2,7 @@
 
 A FAP slider tick on the 58,907-vertex default face spent ~2 ms of its ~3 ms in its finish steps:
 numpy calls on a few thousand vertices each (per-call overhead, temporaries and fancy indexing, not
-arithmetic). These loops do the same sums in one pass each:
+arithmetic). These loops (in :mod:`core.layers.fap.compiled_steps`) do the same sums in one pass each:
 
 - :func:`add_active_columns`: ``x += F @ v`` in place, reading only the FAT columns of non-zero
   FAPs (scipy's product allocates a (3n,) result and reads every column: 0.55 ms vs 0.40 with all
@@ -13,7 +13,9 @@ arithmetic). These loops do the same sums in one pass each:
 - :func:`rotate_rows`: an eyeball's gaze rotation;
 - :func:`rows_equal`, :func:`put_rows`: the step memos' compare and replay.
 
-Built lazily (:mod:`core.lazy_numba`; ``cache=True`` keeps the machine code under ``__pycache__``):
+Built lazily (:mod:`core.lazy_numba`; ``cache=True`` keeps the machine code under ``__pycache__``,
+and the kernels are module-level functions there because numba's cache missed every time for
+closures that call one another):
 :func:`get` gives them, or None without numba, with ``MIMICA_NO_NUMBA=1`` or while deferred, and
 the callers then keep their numpy paths (the tests compare both).
 """
@@ -64,7 +66,7 @@ _KERNELS = LazyKernels(_build, Path(__file__).with_name("compiled_steps.py"))
 
 
 def get() -> SimpleNamespace | None:
-    """The compiled kernels (attributes named as below), or None: take the numpy path."""
+    """The compiled kernels (attributes named as in ``_NAMES``), or None: take the numpy path."""
     return _KERNELS.get()
 
 
