@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -47,3 +52,12 @@ def default_rig():
     from core.rig import FaceRig
 
     return FaceRig(load_default_face())
+
+
+def run_fresh_python(code: str, env: dict | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh interpreter from the repository root (what this process imported or
+    loaded, e.g. numba, does not leak into it); ``env`` replaces the environment."""
+    root = Path(__file__).resolve().parents[2]
+    return subprocess.run([sys.executable, "-c", code], cwd=root, env=env if env is not None else dict(os.environ),
+                          capture_output=True, text=True, timeout=timeout)
+

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from core.face import Face, SurfacePoint, VertexNormals, coincident_skin_vertices, vertex_normals
+from tests.core.conftest import run_fresh_python
 
 
 def unit_square(z=0.0):
@@ -188,10 +189,6 @@ def test_a_deferred_normals_kernel_leaves_numba_alone_until_warmed():
     """The window defers the compiled normals (core.normal_kernels) so its first frame does not wait
     for numba: until warm_up() the numpy path is used and numba is not even imported; afterwards the
     kernel gives the numpy path's normals. Run in a fresh interpreter (numba may be loaded here)."""
-    import subprocess
-    import sys
-    from pathlib import Path
-
     code = (
         "import sys, numpy as np\n"
         "from core import lazy_numba, normal_kernels as k\n"
@@ -202,8 +199,7 @@ def test_a_deferred_normals_kernel_leaves_numba_alone_until_warmed():
         "print(k.kernel() is None, 'numba' in sys.modules)\n"
         "k.warm_up()\n"
         "print(k.kernel() is not None, np.allclose(k.kernel()(v, tri, np.empty_like(v)), before, atol=1e-12))\n")
-    root = Path(__file__).resolve().parents[2]
-    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    out = run_fresh_python(code)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["True", "False", "True", "True"]
 
@@ -212,18 +208,13 @@ def test_a_corrupt_numba_cache_is_rebuilt_with_a_note(tmp_path):
     """Numba raised on a damaged index file of its disk cache (the kernels' machine code): the cache
     files are removed, the kernel compiled afresh, and stderr says so; no crash."""
     import os
-    import subprocess
-    import sys
-    from pathlib import Path
 
-    root = Path(__file__).resolve().parents[2]
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     env.pop("MIMICA_NO_NUMBA", None)
     code = "from core import normal_kernels as k; k.warm_up(); print(k.kernel() is not None)"
 
     def run():
-        return subprocess.run([sys.executable, "-c", code], cwd=root, env=env, capture_output=True, text=True,
-                              timeout=300)
+        return run_fresh_python(code, env)
 
     first = run()
     assert first.returncode == 0 and first.stdout.split() == ["True"], first.stderr

@@ -393,9 +393,7 @@ def test_muscle_package_names_resolve_lazily_without_the_solver():
     """The window's muscle dock lists the presets at start-up: ``core.layers.muscles.preset_names``
     must not import the solver (and numba) before the face is on screen; every other public name still
     resolves, and an unknown one is an AttributeError."""
-    import subprocess
-    import sys
-    from pathlib import Path
+    from tests.core.conftest import run_fresh_python
 
     code = ("import sys\n"
             "from core.layers.muscles import preset_names\n"
@@ -403,7 +401,6 @@ def test_muscle_package_names_resolve_lazily_without_the_solver():
             "import core.layers.muscles as m\n"
             "print(all(getattr(m, name) is not None for name in m.__all__))\n"
             "try:\n    m.no_such_name\nexcept AttributeError:\n    print('AttributeError')\n")
-    root = Path(__file__).resolve().parents[2]
-    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    out = run_fresh_python(code)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["5", "False", "False", "True", "AttributeError"]
