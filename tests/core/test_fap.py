@@ -744,3 +744,28 @@ def test_skin_the_cheek_lift_slides_over_the_eyeball_keeps_clear_of_it(rig):
     for side in ("left", "right"):
         assert count_intersections(posed, probe.lid_tris[side], probe.eyeball_tris[side]) == 0, side
     rig.reset()
+
+
+def test_lids_follow_the_eyes_vertical_gaze(rig):
+    """As in a real face the lids ride on the cornea: eyes turned 15 degrees down lower the upper lid
+    margins (about 0.6 x the cornea's 3.9 mm drop) and no lid crosses the eyeball (208 crossings
+    when the lids stayed put); turned up, the upper lids rise. Yaw alone moves no lid."""
+    from core.mesh_quality import FaceQualityProbe, count_intersections
+
+    probe = FaceQualityProbe(rig.face)
+    upper = rig.deformer._eye_rims[0][0]
+    rest = rig.face.vertices[upper, 1].mean()
+    rig.reset()
+    rig.set_faps({25: 26180, 26: 26180})                   # 0.26 rad = 15 degrees down
+    posed = rig.vertices()
+    drop = rest - posed[upper, 1].mean()
+    assert 1.5 < drop < 3.5
+    for side in ("left", "right"):
+        assert count_intersections(posed, probe.lid_tris[side], probe.eyeball_tris[side]) == 0, side
+    rig.reset()
+    rig.set_faps({25: -26180})
+    assert rig.vertices()[upper, 1].mean() > rest + 0.5
+    rig.reset()
+    rig.set_faps({23: 30000})
+    assert np.array_equal(rig.vertices()[upper], rig.face.vertices[upper])
+    rig.reset()

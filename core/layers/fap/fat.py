@@ -73,6 +73,13 @@ CHEEK_GUARD_REACH_MM = 4.0  # cheek-lift skin farther from the eyeball than this
 # Skin that moved this far (mm) takes the lid guard's full clearance (face_quality on the presets: joy's
 # lid/eyeball crossings 34 -> 0, folds 370 -> 394; 1 mm: 8 crossings, 4 mm: 8 and 168 folds).
 GUARD_SLIDE_MM = 2.0
+# How far the lid margins follow the cornea's vertical travel as the eye turns down (upper, lower) and
+# up. Measured on the default face (core.mesh_quality, lid/eyeball crossings, folded triangles): both
+# eyes 15 deg down 208 -> 0 crossings, 0 folds; 30 deg down 324 -> 27 (53 folds; 0.9/0.4 left 39 and
+# 60); 30 deg up 135 -> 75 (5 folds; following 0.7/0.3 up folded 130 triangles of the raised lid).
+UPPER_LID_FOLLOW = 0.6
+LOWER_LID_FOLLOW = 0.3
+LIDS_FOLLOW_UP = (0.3, 0.1)
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 
 
@@ -530,14 +537,52 @@ class FapDeformer:
 
     def displacement(self, values: np.ndarray) -> np.ndarray:
         """(n, 3) mm: the FAT's offsets for (68,) effective FAP values (FAP units), lids in contact."""
-        values = lid_contact(np.asarray(values, dtype=float))
+        values = self.lid_values(values)
         return (self.matrix @ (values * self.fapu_vector)).reshape(-1, 3)
+
+    def lid_values(self, values: np.ndarray) -> np.ndarray:
+        """(68,) FAP values with the lids following the eyes' vertical gaze, then in contact
+        (:func:`lid_contact`). As in a real face, a lid rides on the cornea: an eye turned down by
+        an angle t lowers its upper lid margin by ``UPPER_LID_FOLLOW`` x the cornea's drop (R sin t,
+        R the eyeball's radius) and its lower lid by ``LOWER_LID_FOLLOW`` x it (``LIDS_FOLLOW_UP``
+        when it turns up); the FAP units come from the FAT's own offset of each lid margin. Without
+        it the cornea passed through the lids (324 crossings at 30 degrees down)."""
+        out = np.array(values, dtype=float)
+        if self._eyes and out[24:26].any():
+            for name, pitch, upper, lower in (("eyeball_l", 25, 19, 21), ("eyeball_r", 26, 20, 22)):
+                drop = self._eyeball_radius(name) * np.sin(out[pitch - 1] * tables.ANGLE_UNIT)   # mm, + down
+                if drop:
+                    up_gain, low_gain = self._lid_rim_gains(upper, lower)
+                    up_follow, low_follow = (UPPER_LID_FOLLOW, LOWER_LID_FOLLOW) if drop > 0 else LIDS_FOLLOW_UP
+                    out[upper - 1] += up_follow * drop / up_gain
+                    out[lower - 1] -= low_follow * drop / low_gain
+        return lid_contact(out)
+
+    def _eyeball_radius(self, name: str) -> float:
+        """mm: the median of the eyeball's radius profile (its lid guard's)."""
+        for guard in self._lid_guards:
+            if (19 in guard[6]) == (name == "eyeball_l"):
+                return float(np.median(guard[5]))
+        return 0.0
+
+    def _lid_rim_gains(self, upper: int, lower: int) -> tuple[float, float]:
+        """(mm down per unit of FAP ``upper``, mm up per unit of FAP ``lower``) at their lid margins
+        (the FAT's mean vertical offset of the eye's rim vertices)."""
+        gains = self.__dict__.setdefault("_rim_gains", {})
+        if (upper, lower) not in gains:
+            rims = self._eye_rims[0 if upper == 19 else -1]
+            out = []
+            for number, rim, sign in ((upper, rims[0], -1.0), (lower, rims[1], 1.0)):
+                column = self.matrix[:, number - 1].toarray().ravel()
+                out.append(max(sign * column[3 * rim + 1].mean() * self.fapu_vector[number - 1], 1e-6))
+            gains[(upper, lower)] = tuple(out)
+        return gains[(upper, lower)]
 
     def add_displacement(self, x: np.ndarray, values: np.ndarray) -> None:
         """``x`` (n, 3) float mm += :meth:`displacement` of (68,) values, in place: the rig's per-tick
         product (no (3n,) temporary; only the columns of non-zero FAPs are read). Equal to
         ``x + displacement(values)`` up to rounding (~1e-13 mm: the terms are added one by one)."""
-        scaled = lid_contact(np.asarray(values, dtype=float)) * self.fapu_vector
+        scaled = self.lid_values(values) * self.fapu_vector
         compiled = kernels.get()
         if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
             columns = self.__dict__.get("_fat_columns")
@@ -591,7 +636,7 @@ class FapDeformer:
         lower ones and slide over the eyeballs, mouth skin stays outside the teeth, eyeballs rotate
         (gaze 23-26), the head rotates (48-50). ``in_place``: ``x`` is a float array the caller owns
         and it is edited rather than copied (the rig's working array: one copy less per tick)."""
-        values = lid_contact(np.asarray(values, dtype=float))
+        values = self.lid_values(values)
         if not in_place:
             x = np.array(x, dtype=float)
         # Each step is skipped (its last result put back) when its vertices and values are as they were
