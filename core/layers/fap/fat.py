@@ -462,6 +462,7 @@ class FapDeformer:
         state = dict(self.__dict__)
         del state["face"], state["_rest"]
         state.pop("_fat_columns", None)   # derived from the matrix on first use
+        state.pop("_last_lid_values", None)
         return state
 
     def __setstate__(self, state: dict) -> None:
@@ -547,36 +548,40 @@ class FapDeformer:
         R the eyeball's radius) and its lower lid by ``LOWER_LID_FOLLOW`` x it (``LIDS_FOLLOW_UP``
         when it turns up); the FAP units come from the FAT's own offset of each lid margin. Without
         it the cornea passed through the lids (324 crossings at 30 degrees down)."""
+        last = self.__dict__.get("_last_lid_values")
+        if last is not None and last[0] is values:
+            return last[1]      # the FAP layer passes one array to the product and to finish
         out = np.array(values, dtype=float)
         if self._eyes and out[24:26].any():
             for name, pitch, upper, lower in (("eyeball_l", 25, 19, 21), ("eyeball_r", 26, 20, 22)):
-                drop = self._eyeball_radius(name) * np.sin(out[pitch - 1] * tables.ANGLE_UNIT)   # mm, + down
+                if not out[pitch - 1]:
+                    continue
+                radius, up_gain, low_gain = self._gaze_lid_constants(name, upper, lower)
+                drop = radius * math.sin(out[pitch - 1] * tables.ANGLE_UNIT)   # mm the cornea moved, + down
                 if drop:
-                    up_gain, low_gain = self._lid_rim_gains(upper, lower)
                     up_follow, low_follow = (UPPER_LID_FOLLOW, LOWER_LID_FOLLOW) if drop > 0 else LIDS_FOLLOW_UP
                     out[upper - 1] += up_follow * drop / up_gain
                     out[lower - 1] -= low_follow * drop / low_gain
-        return lid_contact(out)
+        out = lid_contact(out)
+        if isinstance(values, np.ndarray) and not values.flags.writeable:
+            self._last_lid_values = (values, out)   # one tuple: safe for two threads sharing a deformer
+        return out
 
-    def _eyeball_radius(self, name: str) -> float:
-        """mm: the median of the eyeball's radius profile (its lid guard's)."""
-        for guard in self._lid_guards:
-            if (19 in guard[6]) == (name == "eyeball_l"):
-                return float(np.median(guard[5]))
-        return 0.0
-
-    def _lid_rim_gains(self, upper: int, lower: int) -> tuple[float, float]:
-        """(mm down per unit of FAP ``upper``, mm up per unit of FAP ``lower``) at their lid margins
-        (the FAT's mean vertical offset of the eye's rim vertices)."""
-        gains = self.__dict__.setdefault("_rim_gains", {})
-        if (upper, lower) not in gains:
-            rims = self._eye_rims[0 if upper == 19 else -1]
-            out = []
+    def _gaze_lid_constants(self, name: str, upper: int, lower: int) -> tuple[float, float, float]:
+        """(the eyeball's radius mm (the median of its lid guard's profile), mm down per unit of FAP
+        ``upper``, mm up per unit of FAP ``lower`` at their lid margins (the FAT's mean vertical offset
+        of the eye's rim vertices)); computed once."""
+        constants = self.__dict__.setdefault("_gaze_lids", {})
+        if name not in constants:
+            radius = next((float(np.median(g[5])) for g in self._lid_guards if (19 in g[6]) == (name == "eyeball_l")),
+                          0.0)
+            rims = self._eye_rims[0 if name == "eyeball_l" else -1]
+            gains = []
             for number, rim, sign in ((upper, rims[0], -1.0), (lower, rims[1], 1.0)):
                 column = self.matrix[:, number - 1].toarray().ravel()
-                out.append(max(sign * column[3 * rim + 1].mean() * self.fapu_vector[number - 1], 1e-6))
-            gains[(upper, lower)] = tuple(out)
-        return gains[(upper, lower)]
+                gains.append(max(sign * column[3 * rim + 1].mean() * self.fapu_vector[number - 1], 1e-6))
+            constants[name] = (radius, *gains)
+        return constants[name]
 
     def add_displacement(self, x: np.ndarray, values: np.ndarray) -> None:
         """``x`` (n, 3) float mm += :meth:`displacement` of (68,) values, in place: the rig's per-tick

@@ -158,6 +158,7 @@ class FapLayer:
         deformation (equal to :meth:`effective_values` well inside the limits)."""
         if self._limited is None:   # offset and finish both ask, once per state
             self._limited = self.deformer.limited(self.effective_values())
+            self._limited.setflags(write=False)   # shared by the product and finish (and memoised there)
         return self._limited
 
     # ------------------------------------------------------------ internals
