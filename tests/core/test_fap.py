@@ -769,3 +769,15 @@ def test_lids_follow_the_eyes_vertical_gaze(rig):
     rig.set_faps({23: 30000})
     assert np.array_equal(rig.vertices()[upper], rig.face.vertices[upper])
     rig.reset()
+
+
+def test_a_face_without_both_lid_margins_turns_its_eyes_without_moving_lids(rig):
+    """Lid-gaze coupling needs both eyes' lid margins (found from the eye-corner feature points);
+    without them a gaze change still works and leaves the lids alone instead of failing."""
+    import copy
+
+    deformer = copy.copy(rig.deformer)
+    deformer._eye_rims = deformer._eye_rims[:1]
+    values = np.zeros(68)
+    values[24] = values[25] = 26180.0
+    np.testing.assert_array_equal(deformer.lid_values(values), values)

@@ -552,7 +552,9 @@ class FapDeformer:
         if last is not None and last[0] is values:
             return last[1]      # the FAP layer passes one array to the product and to finish
         out = np.array(values, dtype=float)
-        if self._eyes and out[24:26].any():
+        # Both eyes' lid margins are needed to know which rim belongs to which eye (a face whose eye
+        # corners are not marked has none): without them the lids stay put.
+        if self._eyes and len(self._eye_rims) == 2 and out[24:26].any():
             for name, pitch, upper, lower in (("eyeball_l", 25, 19, 21), ("eyeball_r", 26, 20, 22)):
                 if not out[pitch - 1]:
                     continue
@@ -575,7 +577,7 @@ class FapDeformer:
         if name not in constants:
             radius = next((float(np.median(g[5])) for g in self._lid_guards if (19 in g[6]) == (name == "eyeball_l")),
                           0.0)
-            rims = self._eye_rims[0 if name == "eyeball_l" else -1]
+            rims = self._eye_rims[0 if name == "eyeball_l" else 1]
             gains = []
             for number, rim, sign in ((upper, rims[0], -1.0), (lower, rims[1], 1.0)):
                 column = self.matrix[:, number - 1].toarray().ravel()
