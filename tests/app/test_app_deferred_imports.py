@@ -1,0 +1,45 @@
+"""pyplot is loaded on first use, not when pyvista is imported (start-up), and still works."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def run_fresh(code: str) -> subprocess.CompletedProcess:
+    # A fresh interpreter: this test process has imported pyvista (and pyplot) already.
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=dict(os.environ, MPLBACKEND="Agg"),
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_pyvista_imports_without_pyplot_and_pyplot_works_after():
+    result = run_fresh(
+        "import sys\n"
+        "from app.deferred_imports import defer_pyplot, DeferredModule\n"
+        "assert defer_pyplot()\n"
+        "import pyvista, pyvista.plotting.charts\n"
+        "print('figure loaded at import:', 'matplotlib.figure' in sys.modules)\n"
+        "assert isinstance(sys.modules['matplotlib.pyplot'], DeferredModule)\n"
+        "assert pyvista.plotting.colors.get_cmap_safe('viridis').N == 256\n"   # colour maps need no pyplot
+        "import matplotlib.pyplot as plt\n"
+        "fig, ax = plt.subplots()\n"                                         # the first use loads the real module
+        "ax.plot([0, 1], [0, 1])\n"
+        "print('real pyplot in sys.modules:', type(sys.modules['matplotlib.pyplot']).__name__)\n"
+        "print('charts see it:', pyvista.plotting.charts.plt.subplots is plt.subplots)\n"
+        "print('cycler:', len(list(pyvista.plotting.colors.get_cycler('matplotlib'))) > 0)\n")
+    assert result.returncode == 0, result.stderr
+    assert "figure loaded at import: False" in result.stdout
+    assert "real pyplot in sys.modules: module" in result.stdout
+    assert "charts see it: True" in result.stdout
+    assert "cycler: True" in result.stdout
+
+
+def test_nothing_deferred_once_pyplot_is_imported():
+    result = run_fresh(
+        "import pyvista.plotting\n"   # imports pyplot
+        "from app.deferred_imports import defer_pyplot, defer_module\n"
+        "print(defer_pyplot(), defer_module('matplotlib.pyplot'), defer_module('no_such_module_here'))\n")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["False", "False", "False"]
