@@ -371,9 +371,18 @@ def read_ply(path: Path) -> RawMesh:
     """PLY (ASCII or binary) via trimesh; vertex colours, uv and polygon counts from its raw elements."""
     import trimesh
 
-    loaded = trimesh.load(str(path), file_type="ply", process=False, fix_texture=False, skip_materials=True)
+    header = _ply_header(path)
+    try:
+        loaded = trimesh.load(str(path), file_type="ply", process=False, fix_texture=False, skip_materials=True)
+    except Exception as exc:
+        if "unexpected length" in str(exc):   # trimesh's word for a binary body shorter or longer than its header says
+            raise PlyLengthError(_ply_length_message(path, header)) from None
+        raise
     if not isinstance(loaded, trimesh.Trimesh):
-        return RawMesh(getattr(loaded, "vertices", np.zeros((0, 3))), np.zeros((0, 3)))
+        loaded_vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))))
+        _check_ply_counts(path, header, len(loaded_vertices), 0)
+        return RawMesh(loaded_vertices, np.zeros((0, 3)))
+    _check_ply_counts(path, header, len(loaded.vertices), len(loaded.faces))
     raw = loaded.metadata.get("_ply_raw", {})
     vdata = raw.get("vertex", {}).get("data", {})
     names = set(vdata.dtype.names or ()) if isinstance(vdata, np.ndarray) else set(vdata)
@@ -440,6 +449,35 @@ def _ply_face_sizes(face_data) -> np.ndarray | None:
     if isinstance(lists, np.ndarray) and lists.dtype != object and lists.ndim == 2:
         return np.full(len(lists), lists.shape[1], dtype=np.int64)
     return None if lists is None else np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
+
+
+class PlyLengthError(ValueError):
+    """A PLY whose body does not hold what its header announces (cut short, or not a PLY body)."""
+
+
+def _ply_element_counts(header: str) -> dict[str, int]:
+    """{element name: count} as the header announces them (``element vertex 1234``)."""
+    return {name: int(n) for name, n in re.findall(r"^element\s+(\S+)\s+(\d+)\s*$", header, re.MULTILINE)}
+
+
+def _ply_length_message(path: Path, header: str) -> str:
+    counts = _ply_element_counts(header)
+    announced = ", ".join(plural(n, name, "vertices" if name == "vertex" else None)
+                          for name, n in counts.items()) or "its elements"
+    return (f"'{path.name}' does not hold what its header announces ({announced}): the file was probably cut "
+            "short by an interrupted copy, download or export. Copy or export it again.")
+
+
+def _check_ply_counts(path: Path, header: str, n_vertices: int, n_faces: int) -> None:
+    """Raise PlyLengthError when fewer vertices or faces were read than the header announces (an ASCII
+    PLY cut short reads as a smaller mesh, or a point cloud, without this)."""
+    counts = _ply_element_counts(header)
+    if n_vertices < counts.get("vertex", 0) or n_faces < counts.get("face", 0):
+        raise PlyLengthError(
+            f"'{path.name}' ends early: its header announces {plural(counts.get('vertex', 0), 'vertex', 'vertices')} "
+            f"and {plural(counts.get('face', 0), 'face')}, the file holds {plural(n_vertices, 'vertex', 'vertices')} "
+            f"and {plural(n_faces, 'face')}. It was probably cut short by an interrupted copy, download or "
+            "export; copy or export it again.")
 
 
 def _ply_header(path: Path) -> str:

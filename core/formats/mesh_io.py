@@ -38,7 +38,7 @@ import scipy.sparse.csgraph
 
 from core.face import Face, FaceMetadata
 from core.formats.atomic_files import write_atomic, write_reporting_errors, write_set_atomic  # noqa: F401
-from core.formats.mesh_formats import (PLY_MIMICA_COMMENT, PLY_PART_COMMENT, PLY_PART_PROPERTY, READERS, RawMesh, _image_to_rgb, plural,
+from core.formats.mesh_formats import (PLY_MIMICA_COMMENT, PlyLengthError, PLY_PART_COMMENT, PLY_PART_PROPERTY, READERS, RawMesh, _image_to_rgb, plural,
                                       reason, weld)
 from core.formats.text_files import check_file
 
@@ -139,6 +139,8 @@ def load_face(path, *, progress: ProgressCallback | None = None, max_triangles: 
         mesh = READERS[fmt](path)
     except MeshLoadError:
         raise
+    except PlyLengthError as exc:
+        raise MeshLoadError(str(exc)) from None
     except Exception as exc:  # the parsers raise anything from KeyError to struct.error
         raise MeshLoadError(
             f"Could not read '{path.name}' as {_A_FORMAT[fmt]} file: {reason(exc)}. The file may be damaged or "
@@ -200,6 +202,12 @@ def _repair(mesh: RawMesh, name: str, max_triangles: int,
             keep_topology: Callable[[int, np.ndarray], str | None] | None = None) -> RawMesh:
     """Validate and clean raw arrays; raise MeshLoadError or append one note per repair."""
     v, tri = mesh.vertices, mesh.triangles
+    if len(tri) == 0 and len(v) == 0:
+        raise MeshLoadError(
+            f"'{name}' holds no vertices or faces Mimica can read: it is probably not a mesh of the kind its "
+            "extension says (another kind of file renamed, or an export that failed). Open the file the mesh "
+            "was exported as, or export it again."
+        )
     if len(tri) == 0:
         raise MeshLoadError(
             f"'{name}' contains no faces ({len(v)} points only): it is a point cloud, not a surface. "
@@ -255,6 +263,12 @@ def _repair(mesh: RawMesh, name: str, max_triangles: int,
     if n_duplicates:
         notes.append(f"Removed {plural(n_duplicates, 'duplicate face')} (the same three vertices listed again).")
     tri = tri[keep & unique]
+    if len(tri) == 0 and len(v) == 0:
+        raise MeshLoadError(
+            f"'{name}' holds no vertices or faces Mimica can read: it is probably not a mesh of the kind its "
+            "extension says (another kind of file renamed, or an export that failed). Open the file the mesh "
+            "was exported as, or export it again."
+        )
     if len(tri) == 0:
         raise MeshLoadError(
             f"'{name}' has no usable faces: all {len(keep)} are degenerate (zero area or a repeated vertex). "

@@ -464,6 +464,40 @@ def test_point_cloud_ply_has_zero_faces(tmp_path):
         load_face(path)
 
 
+def test_ascii_ply_cut_short_says_so_not_point_cloud(tmp_path):
+    path = write_text(tmp_path / "cut.ply", """
+        ply
+        format ascii 1.0
+        element vertex 3
+        property float x
+        property float y
+        property float z
+        element face 1
+        property list uchar int vertex_indices
+        end_header
+        0 0 0
+        1 0 0
+    """)
+    with pytest.raises(MeshLoadError, match=r"'cut\.ply' ends early: its header announces 3 vertices and 1 face, "
+                                            r"the file holds 2 vertices and 0 faces"):
+        load_face(path)
+
+
+def test_binary_ply_cut_short_says_so(grid_face, tmp_path):
+    save_face(grid_face, tmp_path / "whole.ply")
+    data = (tmp_path / "whole.ply").read_bytes()
+    (tmp_path / "half.ply").write_bytes(data[: len(data) - 40])
+    with pytest.raises(MeshLoadError, match=rf"'half\.ply' does not hold what its header announces "
+                                            rf"\({grid_face.n_vertices} vertices, {grid_face.n_triangles} faces\): .*cut short"):
+        load_face(tmp_path / "half.ply")
+
+
+def test_obj_with_nothing_readable_is_not_called_a_point_cloud(tmp_path):
+    (tmp_path / "junk.obj").write_bytes(b"this is not a mesh\n\x00\x01garbage")
+    with pytest.raises(MeshLoadError, match=r"'junk\.obj' holds no vertices or faces Mimica can read"):
+        load_face(tmp_path / "junk.obj")
+
+
 def test_point_cloud_obj_has_zero_faces(tmp_path):
     with pytest.raises(MeshLoadError, match=r"contains no faces \(4 points only\)"):
         load_face(write_text(tmp_path / "pts.obj", SQUARE_V))
