@@ -38,8 +38,9 @@ def sheet(data: Path, out: Path, report=print) -> Path:
 
     reg = registration(data, report)
     animated = animated_scan(reg)
-    report(f"scan: {animated.n_scan} vertices, {animated.n_copies} copies along the lip cut, "
-           f"{animated.face.n_vertices - animated.n_scan - animated.n_copies} mouth-part vertices")
+    report(f"scan: {animated.n_scan} vertices, {animated.n_copies} along the lip and lid cuts, "
+           f"{animated.face.n_vertices - animated.n_scan - animated.n_copies} vertices of added parts "
+           f"({', '.join(sorted(animated.face.parts))})")
     rig = FaceRig(reg.face)
     frame = reg.face.vertices                          # the camera frames the face, not the shoulders
     rows = []

@@ -1,5 +1,6 @@
 """The registered scan itself, animated (issue 15 item 3): its lips cut apart along the lip line and
-a mouth cavity with teeth behind them, so the jaw opens the scan's own full-resolution mouth.
+a mouth cavity with teeth behind them, so the jaw opens the scan's own full-resolution mouth;
+closed eyes cut along the lid line with eyeballs behind them.
 
 A scan is one closed sheet across the mouth; carried back from the canonical face (whose inner-lip
 loop is an opening), scan vertices on either side of the lip line follow different lips and the
@@ -15,6 +16,14 @@ triangles between them stretch into a skin web instead of opening. :func:`animat
   landmarks; the cavity and upper teeth stay with the skull, the lower teeth follow the rigid
   motion (Kabsch) of the canonical chin, jaw points and lower lip, as on the default face.
 
+A scan taken with the eyes shut gets the same treatment at each closed eye (``closed_eyes``: lid
+centres closer than a share of the eye's width): canonical vertices go with the nearer lid margin
+(:func:`canonical_lid_labels`; the template's squashed eye-opening covers split along their middle),
+the scan is cut along the lid line, skin bound to a cover follows its own lid's margin (the FAPs do
+not move covers), and the default face's eyeball sits behind the closed lid, so the lid FAPs open
+the scan's own eye onto it. (The FAP units measure a closed eye's IRISD0 as an open eye's of its
+width, and the lid's opening shape is an open eye's: ``core.layers.fap``.)
+
 The texture of the added parts is the default face's, appended below the scan's texture image.
 """
 
@@ -25,8 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse
+from scipy.spatial import cKDTree
 
 from core.face import Face, SurfacePoint
+from core.layers.fap.closed_eyes import LidLine, closed_eye_side, closed_lid_lines, lid_point_sides
 from core.layers.fap.template import DenseTemplate
 from core.registration.correspondence import Registration, _adjacency, boundary_loops
 from core.registration.folds import similarity
@@ -42,6 +53,15 @@ MOUTH_POINTS = ("8.1", "8.2", "8.3", "8.4", "2.2", "2.3", "2.4", "2.5", "2.10", 
 #: and jaw line: with the chin alone the teeth swing out through the lower lip as the jaw opens).
 JAW_POINTS = ("2.1", "2.10", "2.11", "2.12", "2.13", "2.14")
 MOUTH_PARTS = ("mouth_cavity", "teeth_upper", "teeth_lower")
+#: The donor's eyeball of each eye (``closed_eyes.EYES`` keys), added behind a scan's closed lids.
+EYEBALL_PARTS = {"l": "eyeball_l", "r": "eyeball_r"}
+#: Landmarks placing a donor eyeball: the eye's corners and the brow above it (the lid centres are
+#: not used: the donor's eye is open, the scan's closed).
+EYE_POINTS = {"l": ("3.7", "3.11", "4.1", "4.3", "4.5"), "r": ("3.12", "3.8", "4.2", "4.4", "4.6")}
+#: Canonical vertices up to this many rings from a closed eye's lid margins go with the nearer lid.
+LID_RINGS = 8
+#: How far behind a closed lid's skin the added eyeball stays at rest, mm.
+EYEBALL_BEHIND_MM = 0.5
 #: The registration template whose canonical face is the FAP rig's dense template.
 FAP_TEMPLATE = "mpeg4_80"
 #: How far behind the scan's skin the placed mouth parts must stay, mm (a scan's upper lip can sit
@@ -81,10 +101,16 @@ def inner_lip_halves(triangles: np.ndarray, template_name: str) -> tuple[np.ndar
 
 def lip_labels(triangles: np.ndarray, template_name: str, rings: int = LIP_RINGS) -> np.ndarray:
     """(N,) +1 upper lip, -1 lower lip, 0 neither (or as far from both) for canonical vertices."""
+    return _nearer_side(triangles, *inner_lip_halves(triangles, template_name), rings)
+
+
+def _nearer_side(triangles: np.ndarray, upper_seeds, lower_seeds, rings: int) -> np.ndarray:
+    """(N,) +1 where the upper seeds are fewer rings away than the lower ones, -1 the other way, 0 on
+    ties or beyond ``rings`` of both."""
     n = int(triangles.max()) + 1
     adjacency, _ = _adjacency(triangles, n)
     distance = []
-    for seeds in inner_lip_halves(triangles, template_name):
+    for seeds in (upper_seeds, lower_seeds):
         reached = np.zeros(n, bool)
         reached[seeds] = True
         rings_away = np.where(reached, 0, rings + 1)
@@ -96,12 +122,64 @@ def lip_labels(triangles: np.ndarray, template_name: str, rings: int = LIP_RINGS
     return np.where(upper < lower, 1, np.where(lower < upper, -1, 0)).astype(np.int8)
 
 
+def canonical_lid_labels(canonical: Face, dense: DenseTemplate | None,
+                         lines: list[LidLine]) -> tuple[np.ndarray, scipy.sparse.csr_matrix]:
+    """(labels, carry) for the canonical vertices around closed eyes.
+
+    labels (N,): +1 upper lid, -1 lower lid, 0 elsewhere. With the fitted template (``dense``,
+    canonical vertex i = dense vertex i) the split follows the mesh: each vertex goes with the lid
+    margin fewer rings away (the squashed eye-opening covers split along their middle, the lid line),
+    within the eye's lid band; without it, the side of the geometric lid line (:func:`closed_eye_side`).
+
+    carry (N, N): what moves a canonical vertex for the scan bound to it — itself, except inside an
+    eye-opening cover, which the FAPs do not move (the lids slide over it): there the nearest vertex
+    of its own lid's margin, so the scan's skin bound to the squashed cover opens with its lid."""
+    n = canonical.n_vertices
+    identity = scipy.sparse.identity(n, format="csr")
+    if not lines:
+        return np.zeros(n, np.int8), identity
+    if dense is None or len(dense.vertices) != n:
+        return closed_eye_side(canonical, lines=lines).astype(np.int8), identity
+    base = dense.template
+    support = dense.base_coords > 1e-12
+    covered = sorted(base.eye_opening_triangles)
+    others = [i for i in range(len(base.triangles)) if i not in base.eye_opening_triangles]
+    cover = dense.in_base_triangles(covered) & ~dense.in_base_triangles(others)
+    target = np.arange(n)
+    labels = np.zeros(n, np.int8)
+    for line in lines:
+        margin = base.eye_margins[line.eye]        # corner, upper lid (3 points), corner, lower lid (3)
+        halves = []
+        for points in (margin[0:5], margin[4:] + margin[:1]):
+            ids = [base.index(p) for p in points]
+            on = np.zeros(canonical.n_vertices, bool)
+            for a, b in zip(ids, ids[1:]):   # vertices on the base edge a-b, not the corners themselves
+                pair = support[:, [a, b]]
+                on |= pair.all(axis=1) & (support.sum(axis=1) == 2)
+            on |= support[:, [base.index(p) for p in points[1:-1]]].any(axis=1) & (support.sum(axis=1) == 1)
+            halves.append(np.nonzero(on)[0])
+        side = _nearer_side(canonical.triangles, halves[0], halves[1], LID_RINGS)
+        above, inside = line.height(canonical.vertices)
+        # The middle of a squashed cover is as many rings from both margins: the lid line decides
+        # (left at 0, its vertices would hold the scan's skin half-way across the opened eye).
+        side = np.where(side == 0, np.where(above > 0, 1, -1), side)
+        labels = np.where(inside, side, labels).astype(np.int8)
+        for margin_ids, lid in zip(halves, (1, -1)):
+            snapped = np.nonzero(cover & inside & (labels == lid))[0]
+            if len(snapped) and len(margin_ids):
+                gaps = np.linalg.norm(canonical.vertices[snapped, None] - canonical.vertices[margin_ids][None], axis=2)
+                target[snapped] = margin_ids[gaps.argmin(axis=1)]
+    carry = scipy.sparse.csr_matrix((np.ones(n), (np.arange(n), target)), shape=(n, n))
+    return labels, carry
+
+
 @dataclass(frozen=True)
 class AnimatedScan:
     """The scan with cut lips and mouth parts, moved by its canonical face.
 
-    face : the scan (n_scan vertices, then ``n_copies`` cut copies, then the mouth parts), with the
-        registration's landmarks on its skin (inner-lip points on their own lip's side of the cut).
+    face : the scan (n_scan vertices, then ``n_copies`` vertices of the cuts: copies along the lip
+        line, two per crossing along closed eyes' lid lines; then the added mouth parts and eyeballs),
+        with the registration's landmarks on its skin (inner-lip and lid points on their own side).
     matrix : (n_scan + n_copies, N) sparse binding of the skin vertices to canonical vertices.
     rest_canonical : (N, 3) mm.  jaw_vertices : canonical ids whose rigid motion moves the lower teeth.
     dense : the FAP template as the registration fitted it on the scan (canonical vertex i is dense
@@ -115,6 +193,13 @@ class AnimatedScan:
     n_scan: int
     n_copies: int
     dense: DenseTemplate | None = None
+
+    def binding(self) -> scipy.sparse.csr_matrix:
+        """(n, N) the face's vertices on the canonical (dense template) vertices: the skin's rows of
+        ``matrix`` (the cut copies on their own lip or lid), none for the added parts."""
+        n_skin = self.n_scan + self.n_copies
+        return scipy.sparse.vstack([self.matrix, scipy.sparse.csr_matrix((self.face.n_vertices - n_skin,
+                                                                          self.matrix.shape[1]))]).tocsr()
 
     def vertices(self, canonical_vertices) -> np.ndarray:
         """(n, 3) mm: the face's vertices for canonical vertices (N, 3) (rest -> the scan exactly)."""
@@ -191,6 +276,80 @@ def _cut_lips(scan: Face, matrix: scipy.sparse.csr_matrix, canonical_labels: np.
     return triangles, keys // 2, (average @ matrix).tocsr()
 
 
+@dataclass
+class SkinPoints:
+    """The skin of the animated scan as it grows: positions (n, 3) mm, texture coordinates (n, 2) or
+    None, colours (n, 3) or None, binding rows (n, N) on the canonical vertices."""
+
+    positions: np.ndarray
+    uv: np.ndarray | None
+    colours: np.ndarray | None
+    rows: scipy.sparse.csr_matrix
+
+    def append(self, positions, uv, colours, rows) -> None:
+        self.positions = np.concatenate([self.positions, positions])
+        self.uv = None if self.uv is None else np.concatenate([self.uv, uv])
+        self.colours = None if self.colours is None else np.concatenate([self.colours, colours])
+        self.rows = scipy.sparse.vstack([self.rows, rows]).tocsr()
+
+
+def _cut_lids(skin: SkinPoints, triangles: np.ndarray, lines: list[LidLine]) -> tuple[np.ndarray, np.ndarray]:
+    """(triangles, lid side per skin vertex (+1 upper, -1 lower, 0 elsewhere)) of the skin cut along
+    each closed eye's lid line; ``skin`` gets the cut's new vertices.
+
+    The cut follows the line itself, not the scan's edges (a scan's 2-3 mm triangles would leave a
+    saw-toothed lid margin): every triangle the line crosses is split where the line crosses its two
+    edges, into one triangle on the lone corner's side and two on the other, and each crossing point
+    is two vertices, one per lid, moving like that lid's corner of the crossed edge."""
+    n = len(skin.positions)
+    height = np.zeros(n)
+    in_band = np.zeros(n, bool)
+    for line in lines:
+        above, inside = line.height(skin.positions)
+        height = np.where(inside, above, height)
+        in_band |= inside
+    height = np.where(in_band & (np.abs(height) < 1e-6), 1e-6, height)   # no crossing at a corner
+    side = np.where(in_band, np.sign(height), 0).astype(np.int64)
+    corner = side[triangles]
+    seam = np.nonzero((corner != 0).all(axis=1) & (corner == 1).any(axis=1) & (corner == -1).any(axis=1))[0]
+    if not len(seam):
+        return triangles, side
+    lone_sign = -np.sign(corner[seam].sum(axis=1))                         # the side with one corner
+    k = np.argmax(corner[seam] == lone_sign[:, None], axis=1)
+    tri = triangles[seam]
+    rows = np.arange(len(seam))
+    a, b, c = tri[rows, k], tri[rows, (k + 1) % 3], tri[rows, (k + 2) % 3]  # a alone; order kept
+    edges = np.concatenate([np.sort(np.column_stack([a, b]), axis=1), np.sort(np.column_stack([a, c]), axis=1)])
+    unique, which = np.unique(edges, axis=0, return_inverse=True)
+    which = which.ravel()
+    e0, e1 = unique[:, 0], unique[:, 1]
+    t = height[e0] / (height[e0] - height[e1])                             # where the line crosses, 0..1
+    points = skin.positions[e0] + t[:, None] * (skin.positions[e1] - skin.positions[e0])
+    upper_end = np.where(side[e0] > 0, e0, e1)
+    lower_end = np.where(side[e0] > 0, e1, e0)
+    m = len(unique)
+    # New vertices: the upper copies of the crossing points, then the lower copies.
+    uv = None if skin.uv is None else skin.uv[e0] + t[:, None] * (skin.uv[e1] - skin.uv[e0])
+    colours = None if skin.colours is None else np.round(
+        skin.colours[e0] + t[:, None] * (skin.colours[e1].astype(float) - skin.colours[e0])).astype(skin.colours.dtype)
+    skin.append(np.concatenate([points, points]), None if uv is None else np.concatenate([uv, uv]),
+                None if colours is None else np.concatenate([colours, colours]),
+                scipy.sparse.vstack([skin.rows[upper_end], skin.rows[lower_end]]))
+    ab, ac = which[:len(seam)], which[len(seam):]
+
+    def copy(edge, lid_side):
+        return n + edge + np.where(lid_side > 0, 0, m)
+
+    side_a = side[a]
+    lone = np.column_stack([a, copy(ab, side_a), copy(ac, side_a)])
+    pair_first = np.column_stack([copy(ab, -side_a), b, c])
+    pair_second = np.column_stack([copy(ab, -side_a), c, copy(ac, -side_a)])
+    keep = np.ones(len(triangles), bool)
+    keep[seam] = False
+    new_side = np.concatenate([side, np.ones(m, np.int64), -np.ones(m, np.int64)])
+    return np.concatenate([triangles[keep], lone, pair_first, pair_second]), new_side
+
+
 def _mouth_parts(skin: Face, scan_points: np.ndarray, donor: Face, donor_points: np.ndarray):
     """(vertices, triangles, uv, {part: local ids}) of the donor's mouth parts placed on the scan."""
     keep = np.zeros(donor.n_vertices, bool)
@@ -252,6 +411,60 @@ def _seen_from_the_front(skin_vertices, skin_triangles, points, forward) -> np.n
     return ~hit
 
 
+def _own_lid_rows(matrix: scipy.sparse.csr_matrix, side: np.ndarray, lid_labels: np.ndarray,
+                  canonical: Face) -> scipy.sparse.csr_matrix:
+    """``matrix`` (skin vertices x canonical vertices) with the weights of each lid vertex (``side``
+    +1 / -1 per row, 0 for others) on the other lid's canonical vertices dropped (the rest scaled to
+    the row's sum); a row left with nothing (a vertex above the lid line bound only to canonical lower
+    lid, where the landmarks put the line a little off the scan's) takes the nearest canonical vertex
+    of its own lid. At rest a closed eye's lids touch: scan vertices at the lid line are bound to
+    canonical triangles of both lids and would stay between them, a strip of skin across the opened eye."""
+    if not lid_labels.any() or not side.any():
+        return matrix
+    labels = lid_labels.astype(float)
+    total = np.asarray(matrix.sum(axis=1)).ravel()
+    coo = matrix.tocoo()
+    keep = ~((side[coo.row] != 0) & (labels[coo.col] == -side[coo.row]))
+    rows, cols, data = coo.row[keep], coo.col[keep], coo.data[keep]
+    kept_total = np.bincount(rows, weights=data, minlength=matrix.shape[0])
+    scale = np.where(kept_total > 1e-12, total / np.maximum(kept_total, 1e-12), 1.0)
+    data = data * scale[rows]
+    empty = np.nonzero((side != 0) & (kept_total <= 1e-12) & (total > 1e-12))[0]
+    if len(empty):
+        centre = matrix[empty] @ canonical.vertices / total[empty, None]   # where the row put the vertex
+        nearest = np.zeros(len(empty), np.int64)
+        for lid in (1, -1):
+            own = np.nonzero(lid_labels == lid)[0]
+            pick = side[empty] == lid
+            if len(own) and pick.any():
+                nearest[pick] = own[cKDTree(canonical.vertices[own]).query(centre[pick])[1]]
+        rows, cols, data = (np.concatenate([rows, empty]), np.concatenate([cols, nearest]),
+                            np.concatenate([data, total[empty]]))
+    return scipy.sparse.csr_matrix((data, (rows, cols)), shape=matrix.shape)
+
+
+def _eyeball_part(canonical: Face, donor: Face, line: LidLine):
+    """(vertices, triangles, uv, {part: local ids}) of the donor's eyeball for the closed eye of
+    ``line``, placed by a similarity on the eye's corners and brow and moved straight back until it
+    is EYEBALL_BEHIND_MM behind the closed lid everywhere; None when the donor lacks it."""
+    name = EYEBALL_PARTS[line.eye]
+    points = [p for p in EYE_POINTS[line.eye] if p in canonical.landmarks and p in donor.landmarks]
+    if name not in donor.parts or len(points) < 3:
+        return None
+    ids = np.asarray(donor.parts[name])
+    local = np.full(donor.n_vertices, -1)
+    local[ids] = np.arange(len(ids))
+    triangles = local[donor.triangles[np.isin(donor.triangles, ids).all(axis=1)]]
+    scale, rotation, shift = similarity(donor.landmark_positions(points), canonical.landmark_positions(points))
+    vertices = scale * donor.vertices[ids] @ rotation.T + shift
+    depth, _, _ = _depth_below(canonical, vertices)
+    needed = float((EYEBALL_BEHIND_MM - depth).max())
+    if needed > 0:   # rigidly, so the eyeball keeps its round front
+        vertices = vertices - needed * line.w
+    uv = None if donor.uv is None else donor.uv[ids]
+    return vertices, triangles, uv, {name: np.arange(len(ids))}
+
+
 def _stacked_texture(scan_texture: np.ndarray, donor_texture: np.ndarray) -> tuple[np.ndarray, float]:
     """(image, scan share of its height): the donor's texture resized to the scan's width, below it."""
     height, width = scan_texture.shape[:2]
@@ -271,40 +484,64 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
     scan, canonical = registration.scan, registration.face
     matrix = registration.carry_back().binding.matrix
     labels = lip_labels(canonical.triangles, registration.template)
+    # Closed eyes are cut along their lid line (after the lips: the cut splits the triangles it
+    # crosses) and get the donor's eyeballs behind the lids. cut_labels (lips and lids: far apart, no
+    # triangle spans both) keep each lip's and lid's landmarks on its own side.
+    lid_lines = [line for line in closed_lid_lines(canonical) if EYEBALL_PARTS[line.eye] not in scan.parts]
+    fitted = registration.projection.dense if registration.projection is not None else None
+    lid_labels, lid_carry = canonical_lid_labels(canonical, fitted, lid_lines)
+    cut_labels = np.where(labels != 0, labels, lid_labels).astype(np.int8)
     triangles, copy_of, copy_rows = _cut_lips(scan, matrix, labels)
     interior = _mouth_interior(scan, canonical, registration.template)
     triangles = triangles[~interior]
-    n_scan, n_copies = scan.n_vertices, len(copy_of)
-    vertices = [scan.vertices, scan.vertices[copy_of]]
-    skin_uv = None if scan.uv is None else np.concatenate([scan.uv, scan.uv[copy_of]])
-    colours = None if scan.vertex_colors is None else np.concatenate([scan.vertex_colors, scan.vertex_colors[copy_of]])
+    skin = SkinPoints(np.concatenate([scan.vertices, scan.vertices[copy_of]]),
+                      None if scan.uv is None else np.concatenate([scan.uv, scan.uv[copy_of]]),
+                      None if scan.vertex_colors is None else np.concatenate([scan.vertex_colors,
+                                                                               scan.vertex_colors[copy_of]]),
+                      scipy.sparse.vstack([matrix, copy_rows]).tocsr())
+    lid_side = np.zeros(len(skin.positions), np.int64)
+    if lid_lines:
+        triangles, lid_side = _cut_lids(skin, triangles, lid_lines)
+    n_scan, n_copies = scan.n_vertices, len(skin.positions) - scan.n_vertices
+    vertices = [skin.positions]
+    skin_uv, colours = skin.uv, skin.colours
     all_triangles = [triangles]
     parts = {name: np.array(idx) for name, idx in scan.parts.items()}
-    texture = scan.texture
+    added = []   # (vertices, local triangles, uv, {part: local ids}) of the donor's parts
     present = [p for p in MOUTH_POINTS if p in canonical.landmarks and p in donor.landmarks]
-    has_mouth = not any(name in scan.parts for name in MOUTH_PARTS) and len(present) >= 4
-    if has_mouth:
+    if not any(name in scan.parts for name in MOUTH_PARTS) and len(present) >= 4:
         part_vertices, part_triangles, part_uv, part_ids, forward = _mouth_parts(
             canonical, canonical.landmark_positions(present), donor, donor.landmark_positions(present))
-        offset = n_scan + n_copies
+        seen = _seen_from_the_front(skin.positions, triangles, part_vertices, forward)
+        added.append((part_vertices, part_triangles[~seen[part_triangles].any(axis=1)], part_uv, part_ids))
+    for line in lid_lines:
+        eyeball = _eyeball_part(canonical, donor, line)
+        if eyeball is not None:
+            added.append(eyeball)
+    offset = n_scan + n_copies
+    for part_vertices, part_triangles, _uv, part_ids in added:
         vertices.append(part_vertices)
-        seen = _seen_from_the_front(np.concatenate(vertices[:2]), triangles, part_vertices, forward)
-        all_triangles.append(part_triangles[~seen[part_triangles].any(axis=1)] + offset)
+        all_triangles.append(part_triangles + offset)
         parts.update({name: idx + offset for name, idx in part_ids.items()})
+        offset += len(part_vertices)
+    texture = scan.texture
+    if added:
+        part_uv = None if any(uv is None for _v, _t, uv, _p in added) else np.concatenate([a[2] for a in added])
+        n_added = sum(len(a[0]) for a in added)
         if skin_uv is not None and texture is not None and part_uv is not None and donor.texture is not None:
             texture, share = _stacked_texture(scan.texture, donor.texture)
             skin_uv = np.column_stack([skin_uv[:, 0], 1.0 - share * (1.0 - skin_uv[:, 1])])
             skin_uv = np.concatenate([skin_uv, np.column_stack([part_uv[:, 0], (1.0 - share) * part_uv[:, 1]])])
         elif skin_uv is not None:
-            skin_uv = np.concatenate([skin_uv, np.zeros((len(part_vertices), 2))])
+            skin_uv = np.concatenate([skin_uv, np.zeros((n_added, 2))])
         if colours is not None:
-            colours = np.concatenate([colours, _part_colours(donor, part_uv, len(part_vertices))])
-    skin_matrix = scipy.sparse.vstack([matrix, copy_rows]).tocsr()
+            colours = np.concatenate([colours, _part_colours(donor, part_uv, n_added)])
+    skin_matrix = (_own_lid_rows(skin.rows, lid_side, lid_labels, canonical) @ lid_carry).tocsr()
     all_vertices = np.concatenate(vertices)
     face = Face(all_vertices, np.concatenate(all_triangles), uv=skin_uv,
                 texture=texture if skin_uv is not None else None, vertex_colors=colours,
-                landmarks=_landmarks_on_skin(all_vertices, triangles, skin_matrix, canonical, labels,
-                                             registration.template),
+                landmarks=_landmarks_on_skin(all_vertices, triangles, skin_matrix, canonical, cut_labels,
+                                             registration.template, lid_point_sides(canonical, lid_lines)),
                 metadata=scan.metadata, parts=parts)
     base = get_template(registration.template).base
     jaw = np.union1d([base.index(p) for p in JAW_POINTS if p in base.points], np.nonzero(labels == -1)[0])
@@ -317,18 +554,21 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
 
 
 def _landmarks_on_skin(vertices, skin_triangles, skin_matrix, canonical: Face, canonical_labels,
-                       template_name: str) -> dict[str, SurfacePoint]:
+                       template_name: str, lid_sides: dict[str, int] | None = None) -> dict[str, SurfacePoint]:
     """{name: SurfacePoint} of the canonical face's landmarks on the cut scan's skin. The scan's own
     triangles under an inner-lip point may belong to either lip after the cut (they touch at rest), so
     upper-lip points are placed only on triangles with no lower-lip corner and the other way round —
-    else the point would ride on the wrong lip when the jaw opens."""
+    else the point would ride on the wrong lip when the jaw opens. ``lid_sides`` ({point: +1 / -1})
+    does the same for the lid points of closed eyes cut along their lid line."""
     total = np.asarray(skin_matrix.sum(axis=1)).ravel()
     score = (skin_matrix @ canonical_labels.astype(float)) / np.maximum(total, 1e-12)
     corner = np.where(score > 0.5, 1, np.where(score < -0.5, -1, 0))[skin_triangles]
     base = get_template(template_name).base
     names = list(canonical.landmarks)
     positions = canonical.landmark_positions(names)
-    side_of = np.array([1 if n in base.upper_lip_points else -1 if n in base.lower_lip_points else 0 for n in names])
+    lid_sides = lid_sides or {}
+    side_of = np.array([1 if n in base.upper_lip_points else -1 if n in base.lower_lip_points
+                        else lid_sides.get(n, 0) for n in names])
     out: dict[str, SurfacePoint] = {}
     for side in (0, 1, -1):
         chosen = np.nonzero(side_of == side)[0]
@@ -358,16 +598,22 @@ def scan_animation(registration: Registration, cache=None, progress=None) -> Fac
         canonical.metadata = dataclasses.replace(canonical.metadata, notes=notes)
         return canonical
     shown = animated.face
-    n_mouth = shown.n_vertices - animated.n_scan - animated.n_copies
+    n_mouth = sum(len(shown.parts.get(name, ())) for name in MOUTH_PARTS)
+    closed = [eye for eye, part in EYEBALL_PARTS.items() if part in shown.parts and part not in registration.scan.parts]
+    eyes = {("l",): "the left eye was closed: it is cut along its lid line and has an eyeball behind it",
+            ("r",): "the right eye was closed: it is cut along its lid line and has an eyeball behind it",
+            ("l", "r"): "both eyes were closed: they are cut along their lid lines and have eyeballs behind them"}
     notes = [*shown.metadata.notes, *report,
              f"Animated at full resolution ({animated.n_scan} vertices) through a {canonical.n_vertices}-vertex "
              f"canonical face; lips cut along the lip line ({animated.n_copies} vertices copied)"
              + (f", mouth cavity and teeth added ({n_mouth} vertices)." if n_mouth else ".")]
+    if closed:
+        notes.append(f"The scan's {eyes[tuple(sorted(closed))]}; the eyelid sliders (FAPs 19-22) open them.")
     shown.metadata = dataclasses.replace(shown.metadata, notes=notes)
     if animated.dense is not None and cache is not None:
         from core.layers.fap.fat import FapDeformer
 
-        FapDeformer.for_face(shown, cache, progress, dense=animated.dense)
+        FapDeformer.for_face(shown, cache, progress, dense=animated.dense, binding=animated.binding())
     return shown
 
 

@@ -88,11 +88,11 @@ def test_open_eyes_stay_open():
 
 
 def test_closed_lids_get_a_small_gap_for_the_animatable_face():
-    """Upper lids on the lid line (a closed-eye detection) give IRISD0 = 0, which the FAP rig
-    refuses: registration puts each closed upper lid CLOSED_LID x the eye's width above the lower
-    lid (1.5 mm on a 30 mm eye, "up" from the mouth to the eyes); open and swapped eyes are handled
-    as before."""
-    from core.layers.fap.tables import measure_fapu
+    """Upper lids on the lid line (a closed-eye detection): registration puts each closed upper lid
+    CLOSED_LID x the eye's width above the lower lid (1.5 mm on a 30 mm eye, "up" from the mouth to
+    the eyes), so the lids are not one point; open and swapped eyes are handled as before. IRISD0 of
+    a closed eye is that of an open eye of its width (OPEN_EYE_HEIGHT_PER_WIDTH), not its slit."""
+    from core.layers.fap.tables import OPEN_EYE_HEIGHT_PER_WIDTH, measure_fapu
     from core.registration.pipeline import CLOSED_LID, lids_in_order
 
     p = {"3.7": [45.0, 30, 0], "3.11": [15.0, 30, 0], "3.12": [-45.0, 30, 0], "3.8": [-15.0, 30, 0],
@@ -103,14 +103,17 @@ def test_closed_lids_get_a_small_gap_for_the_animatable_face():
     np.testing.assert_allclose(out["3.1"], p["3.3"] + [0, 30 * CLOSED_LID, 0])
     assert len(notes) == 1 and "left eye is closed" in notes[0]
     np.testing.assert_array_equal(out["3.2"], p["3.2"])       # open right eye (5 mm): unchanged
-    # IRISD0 (mean lid gap of both eyes, mm): (0 + 5) / 2 before, (1.5 + 5) / 2 after.
-    assert measure_fapu(p)["IRISD"] * 1024 == pytest.approx(2.5)
-    assert measure_fapu(out)["IRISD"] * 1024 == pytest.approx((30 * CLOSED_LID + 5) / 2)
+    # IRISD0 (mean of both eyes, mm): the closed left eye counts as an open 30 mm eye, the right its 5 mm gap.
+    open_left = OPEN_EYE_HEIGHT_PER_WIDTH * 30
+    assert measure_fapu(p)["IRISD"] * 1024 == pytest.approx((open_left + 5) / 2)
+    assert measure_fapu(out)["IRISD"] * 1024 == pytest.approx((open_left + 5) / 2)
     p["3.1"] = p["3.3"] + [0, 0, 0]
-    p["3.2"] = p["3.4"].copy()                                 # both eyes closed: IRISD0 = 0 is refused
-    with pytest.raises(ValueError):
-        measure_fapu(p)
-    assert measure_fapu(lids_in_order(p)[0])["IRISD"] > 0
+    p["3.2"] = p["3.4"].copy()                                 # both eyes closed: both as open eyes
+    assert measure_fapu(p)["IRISD"] * 1024 == pytest.approx(open_left)
+    assert measure_fapu(lids_in_order(p)[0])["IRISD"] * 1024 == pytest.approx(open_left)
+    swapped = dict(p, **{"3.1": p["3.3"] - [0, 8, 0], "3.2": p["3.4"] - [0, 8, 0]})   # upper lids 8 mm below
+    with pytest.raises(ValueError, match="not positive"):
+        measure_fapu(swapped)
     p["3.2"] = np.array([-30.0, 33, 2])
     p["3.2"], p["3.4"] = p["3.4"], p["3.2"]                    # swapped right lids: swapped back
     out, notes = lids_in_order(p)

@@ -51,6 +51,7 @@ from core.cache import DiskCache, fingerprint, source_version
 from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import kernels, tables
+from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side
 from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
 from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
@@ -104,9 +105,12 @@ class FapDeformer:
     """
 
     def __init__(self, face: Face, template: BaseTemplate | None = None,
-                 progress: Callable[[float, str], None] | None = None, dense: DenseTemplate | None = None):
+                 progress: Callable[[float, str], None] | None = None, dense: DenseTemplate | None = None,
+                 binding: scipy.sparse.csr_matrix | None = None):
         """``dense``: the template already fitted on ``face`` (a registration's canonical face, see
-        ``core.registration.scan_mouth.AnimatedScan.dense``) instead of densifying it here."""
+        ``core.registration.scan_mouth.AnimatedScan.dense``) instead of densifying it here;
+        ``binding`` (n, N): each face vertex's weights on ``dense``'s vertices when known (the animated
+        scan's own, cut lips and lids included: ``AnimatedScan.binding``) instead of closest points."""
         report = progress or (lambda _fraction, _message: None)
         self.face = face
         self.template = dense.template if dense is not None else (template or load_template())
@@ -118,7 +122,9 @@ class FapDeformer:
         report(0.45, "Weighting each FAP's influence region…")
         self.template_matrix, self.template_weights = self._template_fat()
         report(0.55, "Binding the skin to the template…")
-        self.binding = self._bind()
+        if binding is not None and binding.shape != (face.n_vertices, len(self.dense.vertices)):
+            raise ValueError(f"binding must have shape {(face.n_vertices, len(self.dense.vertices))}, got {binding.shape}")
+        self.binding = scipy.sparse.csr_matrix(binding) if binding is not None else self._bind()
         report(0.95, "Finishing the FAP table…")
         n = face.n_vertices
         B3 = scipy.sparse.kron(self.binding, scipy.sparse.identity(3, format="csr"), format="csr")
@@ -268,6 +274,12 @@ class FapDeformer:
         height = np.abs(v[:, 1] - np.interp(v[:, 0], ox[order], oy[order]))
         fp_height = height[self.template.index(self.specs[entry["fap"] - 1].fp)]
         profile = np.clip(height / max(fp_height, 1e-6), 0.0, 1.0)
+        left, right = v[chain, 0].min(), v[chain, 0].max()
+        if fp_height < CLOSED_EYE_GAP * (right - left):
+            # A closed eye (a scan taken with the eyes shut): its opening is a slit of noise, so the lid
+            # opens with an open eye's shape instead, an ellipse from corner to corner.
+            across = (v[:, 0] - (left + right) / 2) / max((right - left) / 2, 1e-6)
+            profile = np.sqrt(np.clip(1.0 - across * across, 0.0, 1.0))
         source = np.where(nearest >= 0, ids[np.maximum(nearest, 0)], ids)
         return np.where(chain[source], profile[source], 0.0)
 
@@ -280,11 +292,20 @@ class FapDeformer:
             in_part[idx] = True
         skin = np.nonzero(~in_part)[0]
         side = mouth_side(face, skin)
+        # A closed eye (a scan taken with the eyes shut) cut along its lid line binds each side of the
+        # cut to that lid only, as the lips: labels +2 upper lid, -2 lower lid. (An animated scan
+        # brings its own binding, see __init__; this is for one rebuilt without it.)
+        side = np.where(side == 0, 2 * closed_eye_side(face, skin, cut_only=True), side)
         base_tri_of = self._dense_triangle_base_points()
-        upper_pts = {t.index(p) for p in t.upper_lip_points}
-        lower_pts = {t.index(p) for p in t.lower_lip_points}
-        tri_upper = np.array([bool(upper_pts & s) for s in base_tri_of])
-        tri_lower = np.array([bool(lower_pts & s) for s in base_tri_of])
+
+        def touching(names) -> np.ndarray:
+            ids = {t.index(p) for p in names}
+            return np.array([bool(ids & s) for s in base_tri_of])
+
+        tri_upper, tri_lower = touching(t.upper_lip_points), touching(t.lower_lip_points)
+        # Eye margins run corner, upper lid (3 points), corner, lower lid (3 points).
+        tri_upper_lid = touching([p for margin in t.eye_margins.values() for p in margin[1:4]])
+        tri_lower_lid = touching([p for margin in t.eye_margins.values() for p in margin[5:8]])
         # Skin never binds to the covers of the eye openings: they do not move with the lids, and a
         # lid-margin vertex bound half to them would close only part of the way (a torn margin).
         skin_tris = ~self._eye_opening_interior()[d.triangles].any(axis=1)
@@ -294,7 +315,8 @@ class FapDeformer:
         outside_mm = np.zeros(n)
         outside_mm[skin] = np.linalg.norm(whole - face.vertices[skin], axis=1)
         rows, cols, vals = [], [], []
-        for label, allowed in ((0, skin_tris), (1, skin_tris & ~tri_lower), (-1, skin_tris & ~tri_upper)):
+        for label, allowed in ((0, skin_tris), (1, skin_tris & ~tri_lower), (-1, skin_tris & ~tri_upper),
+                               (2, skin_tris & ~tri_lower_lid), (-2, skin_tris & ~tri_upper_lid)):
             sel = skin[side == label]
             if not len(sel):
                 continue
@@ -473,7 +495,7 @@ class FapDeformer:
     @classmethod
     def for_face(cls, face: Face, cache: DiskCache | None = None,
                  progress: Callable[[float, str], None] | None = None,
-                 dense: DenseTemplate | None = None) -> "FapDeformer":
+                 dense: DenseTemplate | None = None, binding: scipy.sparse.csr_matrix | None = None) -> "FapDeformer":
         """The deformer of ``face``, read from ``cache`` when built before (else built and stored;
         ``progress(fraction, message)`` hears how the build goes).
 
@@ -483,14 +505,14 @@ class FapDeformer:
         so the rig built later for that face (the window's, a project's) finds it.
         """
         if cache is None:
-            return cls(face, progress=progress, dense=dense)
+            return cls(face, progress=progress, dense=dense, binding=binding)
         key = deformer_key(face)
         found = cache.get("fap", key)
         if isinstance(found, cls) and (dense is None or np.array_equal(found.dense.vertices, dense.vertices)):
             found.face = face
             found._rest = face.vertices.ravel()
             return found
-        deformer = cls(face, progress=progress, dense=dense)
+        deformer = cls(face, progress=progress, dense=dense, binding=binding)
         cache.put("fap", key, deformer)
         return deformer
 
@@ -686,6 +708,7 @@ class FapDeformer:
 
 def deformer_key(face: Face) -> str:
     """The cache key of ``face``'s FapDeformer (see :meth:`FapDeformer.for_face`)."""
+    import core.layers.fap.closed_eyes as closed_eyes_module
     import core.layers.fap.template as template_module
     import core.layers.fap.limits as limits_module
     import core.layers.fap.lip_contact as lip_contact_module
@@ -695,7 +718,7 @@ def deformer_key(face: Face) -> str:
     import core.subdivision as subdivision
 
     code = source_version(sys.modules[__name__], template_module, teeth_guard_module, lip_contact_module,
-                          limits_module, step_memo_module, tables, surface_query, subdivision)
+                          limits_module, step_memo_module, tables, surface_query, subdivision, closed_eyes_module)
     landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]

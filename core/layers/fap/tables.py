@@ -13,6 +13,8 @@ import numpy as np
 
 import resources
 
+from core.layers.fap.closed_eyes import CLOSED_EYE_GAP
+
 N_FAPS = 68
 ANGLE_UNIT = 1e-5  # rad per AU
 DOCK_GROUPS = ("jaw & chin", "inner lips", "lip corners", "outer lips", "eyelids", "eyebrows", "cheeks", "nose",
@@ -197,6 +199,15 @@ def viseme_id(name_or_id: str | int) -> int:
 
 
 # ------------------------------------------------------------------ FAP units
+#: Height of an open eye's lid opening over its width (corner to corner): adult palpebral fissure
+#: ~10.5 mm high and ~30 mm long (Farkas, Anthropometry of the Head and Face, 2nd ed., 1994: ps-pi and
+#: ex-en). Stands in for IRISD0 on an eye that is closed on the face.
+OPEN_EYE_HEIGHT_PER_WIDTH = 0.35
+#: A closed eye's lid centres may cross by up to this share of its width (detection noise); further,
+#: its upper and lower lid points are swapped.
+SWAPPED_LID_GAP = 0.05
+
+
 class FapuError(ValueError):
     """The face lacks the feature points a FAP unit is measured on."""
 
@@ -223,10 +234,22 @@ def measure_fapu(positions: dict[str, np.ndarray], frame: np.ndarray | None = No
         need(*corners)
         return (p[corners[0]] + p[corners[1]]) / 2
 
+    def lid_gap(top, bottom, corners):
+        """IRISD0 of one eye: its lid gap, or for a closed eye (a scan taken with the eyes shut: the gap
+        under CLOSED_EYE_GAP x the eye's width) the gap an open eye of that width has, so the lid FAPs
+        open it by the usual amount instead of by a share of a closed slit."""
+        gap = p[top][1] - p[bottom][1]
+        if all(c in p for c in corners):
+            width = float(np.linalg.norm(p[corners[0]] - p[corners[1]]))
+            # (A lid gap well below zero is upper and lower lid swapped: measured, and refused below.)
+            if -SWAPPED_LID_GAP * width < gap < CLOSED_EYE_GAP * width:
+                return OPEN_EYE_HEIGHT_PER_WIDTH * width
+        return gap
+
     need("3.1", "3.3", "3.2", "3.4", "9.15", "2.2", "8.3", "8.4")
     left, right = eye("l"), eye("r")
     units = {
-        "IRISD": ((p["3.1"][1] - p["3.3"][1]) + (p["3.2"][1] - p["3.4"][1])) / 2,
+        "IRISD": (lid_gap("3.1", "3.3", ("3.7", "3.11")) + lid_gap("3.2", "3.4", ("3.12", "3.8"))) / 2,
         "ES": left[0] - right[0],
         "ENS": (left[1] + right[1]) / 2 - p["9.15"][1],
         "MNS": p["9.15"][1] - p["2.2"][1],

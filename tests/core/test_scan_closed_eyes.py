@@ -1,0 +1,144 @@
+"""A scan taken with the eyes shut: its lids stay closed at rest and open with the lid FAPs, cut along
+the lid line, with the default face's eyeballs behind them (issue 15 item 3)."""
+
+import numpy as np
+import pytest
+
+from core.layers.fap import tables
+from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
+from core.registration.correspondence import SurfaceRays
+
+
+@pytest.fixture(scope="module")
+def default_face():
+    from core.default_face import load_default_face
+
+    return load_default_face(full_head=False)
+
+
+@pytest.fixture(scope="module")
+def closed_face(default_face):
+    """The default face with both upper lids at 1024 IRISD (fully closed), as a face of its own."""
+    from core.cache import DiskCache
+    from core.rig import FaceRig
+
+    rig = FaceRig(default_face, cache=DiskCache())
+    rig.set_faps({19: 1024.0, 20: 1024.0})
+    return default_face.with_vertices(np.array(rig.vertices()))
+
+
+@pytest.fixture(scope="module")
+def closed_registration(closed_face):
+    from core.registration.pipeline import register_scan
+    from core.registration.virtual_scanner import scan_face
+
+    scan = scan_face(closed_face, n_target=30_000, rng=np.random.default_rng(5)).face
+    return register_scan(scan, scan.landmarks, template="mpeg4_80")
+
+
+@pytest.fixture(scope="module")
+def animated(closed_registration):
+    from core.registration.scan_mouth import animated_scan
+
+    return animated_scan(closed_registration)
+
+
+def test_closed_eyes_are_told_from_open_ones(default_face, closed_face):
+    assert closed_lid_lines(default_face) == []
+    lines = closed_lid_lines(closed_face)
+    assert sorted(line.eye for line in lines) == ["l", "r"]
+    for line in lines:
+        assert line.v[1] > 0.9                      # up, towards the brow (the face is upright)
+        assert 20 < line.width < 40                 # corner to corner, mm
+    # Above the lid line: upper lid; below: lower lid; far away (the chin): neither.
+    left = next(line for line in lines if line.eye == "l")
+    centre = left.start + left.u * left.s_mid + left.v * left.t_mid
+    probe = np.array([centre + 3 * left.v, centre - 3 * left.v, closed_face.landmark_position("2.1")])
+    above, inside = left.height(probe)
+    assert inside[:2].all() and not inside[2]
+    assert above[0] > 0 > above[1]
+    sides = closed_eye_side(closed_face)
+    assert set(np.unique(sides)) == {-1, 0, 1}
+
+
+def test_irisd_of_a_closed_eye_is_that_of_an_open_eye_of_its_width(default_face, closed_face):
+    def units(face):
+        return tables.measure_fapu({n: face.landmark_position(n) for n in face.landmark_names})
+
+    open_gap = np.mean([default_face.landmark_position(a)[1] - default_face.landmark_position(b)[1]
+                        for a, b in (("3.1", "3.3"), ("3.2", "3.4"))])
+    assert units(default_face)["IRISD"] * 1024 == pytest.approx(open_gap)   # open eyes: the lid gap, as before
+    widths = [np.linalg.norm(closed_face.landmark_position(a) - closed_face.landmark_position(b))
+              for a, b in (("3.7", "3.11"), ("3.12", "3.8"))]
+    gaps = [closed_face.landmark_position(a)[1] - closed_face.landmark_position(b)[1]
+            for a, b in (("3.1", "3.3"), ("3.2", "3.4"))]
+    assert max(g / w for g, w in zip(gaps, widths)) < CLOSED_EYE_GAP
+    assert units(closed_face)["IRISD"] * 1024 == pytest.approx(tables.OPEN_EYE_HEIGHT_PER_WIDTH * np.mean(widths))
+
+
+def test_the_scan_is_cut_along_the_lid_lines_and_gets_eyeballs_behind_closed_lids(closed_registration, animated):
+    face = animated.face
+    assert {"eyeball_l", "eyeball_r"} <= set(face.parts)
+    np.testing.assert_array_equal(animated.vertices(closed_registration.face.vertices)[:animated.n_scan],
+                                  closed_registration.scan.vertices)          # rest is the scan itself
+    # At rest the closed lid hides the eyeball: a ray from in front of the lid centre hits skin first.
+    skin_ids = np.setdiff1d(np.arange(face.n_vertices), np.concatenate(list(face.parts.values())))
+    hit_part = _first_part_hit(face, face.vertices, _lid_centres(face, face.vertices))
+    assert hit_part == ["skin", "skin"]
+    assert len(skin_ids) == animated.n_scan + animated.n_copies
+
+
+@pytest.mark.parametrize("path", ["canonical rig carried to the scan", "rig on the animated scan"])
+def test_the_lid_faps_open_a_closed_eye_onto_its_eyeball(closed_registration, animated, path):
+    from core.layers.fap.fat import FapDeformer
+    from core.rig import FaceRig
+
+    face = animated.face
+    values = {19: -300.0, 20: -300.0}               # open both upper lids as far as the sliders go
+    if path == "canonical rig carried to the scan":
+        rig = FaceRig(closed_registration.face)
+        rig.set_faps(values)
+        moved = animated.vertices(rig.vertices())
+    else:   # the window's: a deformer on the shown face with the animated scan's own binding
+        rig = FaceRig(face, FapDeformer(face, dense=animated.dense, binding=animated.binding()))
+        rig.set_faps(values)
+        moved = rig.vertices()
+    rest_lids = face.landmark_positions(["3.1", "3.3", "3.2", "3.4"])
+    lids = face.landmark_positions(["3.1", "3.3", "3.2", "3.4"], moved)
+    rise = (lids - rest_lids)[:, 1]
+    irisd = tables.measure_fapu({n: face.landmark_position(n) for n in face.landmark_names})["IRISD"]
+    assert rise[[0, 2]] == pytest.approx(300 * irisd, rel=0.25)   # upper lids up by 300 IRISD units
+    assert np.abs(rise[[1, 3]]).max() < 0.5                       # lower lids stay
+    # Through the opening a ray now meets the eyeball, and no skin is stretched across it.
+    assert _first_part_hit(face, moved, _lid_centres(face, moved)) == ["eyeball_l", "eyeball_r"]
+    n_skin = animated.n_scan + animated.n_copies
+    skin = face.triangles[(face.triangles < n_skin).all(axis=1)]
+    growth = _edge_growth(face.vertices, moved, skin)
+    assert growth.max() < 300 * irisd                             # no skin web spanning the opening
+
+
+def _lid_centres(face, vertices) -> np.ndarray:
+    """(2, 3) mm: the middle between each eye's upper and lower lid centres."""
+    p = face.landmark_positions(["3.1", "3.3", "3.2", "3.4"], vertices)
+    return np.array([(p[0] + p[1]) / 2, (p[2] + p[3]) / 2])
+
+
+def _first_part_hit(face, vertices, targets) -> list[str]:
+    """The part (or "skin") of the first triangle hit by a ray from 30 mm in front of each target."""
+    rays = SurfaceRays(vertices, face.triangles)
+    if rays.engine != "embree":
+        pytest.skip("ray casting needs embreex")
+    origins = targets + np.array([0.0, 0.0, 30.0])
+    _, tri, hit = rays.first_hits(origins, np.tile([0.0, 0.0, -1.0], (len(targets), 1)))
+    assert hit.all()
+    names = []
+    for t in tri:
+        corner = face.triangles[t, 0]
+        names.append(next((name for name, ids in face.parts.items() if corner in set(ids.tolist())), "skin"))
+    return names
+
+
+def _edge_growth(rest, moved, triangles) -> np.ndarray:
+    def lengths(v):
+        return np.linalg.norm(v[triangles] - v[np.roll(triangles, 1, axis=1)], axis=2)
+    return (lengths(moved) - lengths(rest)).max(axis=1)
