@@ -681,7 +681,7 @@ def test_disgust_does_not_cross_the_lips_at_the_corners(rig):
 
 @pytest.mark.parametrize("expression", ["joy", "sadness"])
 def test_corner_motion_keeps_the_skin_out_of_the_mouth_cavity(rig, expression):
-    """The mouth cavity has no FAT rows: skin moved into the head shows it through the cheek. A
+    """Skin moved into the head shows the mouth cavity through the cheek. A
     corner raise region reaching down to the chin with the jaw line not pinned did that in joy (593
     crossing pairs)."""
     from core.mesh_quality import intersecting_pairs
@@ -699,6 +699,36 @@ def test_corner_motion_keeps_the_skin_out_of_the_mouth_cavity(rig, expression):
     rig.set_expression(expression, 1.0)
     try:
         assert len(intersecting_pairs(rig.vertices(), near, cavity_tris)[0]) == 0
+    finally:
+        rig.reset()
+
+
+@pytest.mark.parametrize("faps", [{15: 400}, {15: -400}, {39: -300, 40: -300}, {18: 400}, {57: 800, 58: 800}])
+def test_the_mouth_cavity_lining_follows_the_skin_moved_inward(rig, faps):
+    """The lining held still let skin pass through it at these slider ends (default face: shift_jaw
+    400 209 crossing pairs, puff_cheek -300 202, depress_chin 400 94, raise_b_lip_lm_o 800 121): it
+    now follows the skin it lies behind, and no mouth skin crosses it. The back of the mouth (the
+    lining farthest behind the skin) stays where it is."""
+    from core.layers.fap.fat import CAVITY_FOLLOW_FAR_MM
+    from core.mesh_quality import FaceQualityProbe
+    from core.surface_query import TriangleSet
+
+    face = rig.face
+    rig.reset()
+    for number, value in faps.items():
+        rig.set_fap(number, value)
+    try:
+        x = rig.vertices()
+        assert FaceQualityProbe(face).measure(x).cavity_intersections == 0
+        cavity = face.parts["mouth_cavity"]
+        in_part = np.zeros(face.n_vertices, bool)
+        for idx in face.parts.values():
+            in_part[idx] = True
+        skin = face.triangles[~in_part[face.triangles].any(axis=1)]
+        gap = np.linalg.norm(TriangleSet(face.vertices, skin).closest(face.vertices[cavity])[0]
+                             - face.vertices[cavity], axis=1)
+        far = cavity[gap >= CAVITY_FOLLOW_FAR_MM]
+        assert len(far) > 100 and np.abs(x[far] - face.vertices[far]).max() == 0
     finally:
         rig.reset()
 

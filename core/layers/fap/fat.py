@@ -24,7 +24,9 @@ Built once per face (about a second for the 50k-vertex default face):
    (``forward_tilt``) so they slide over the eyeball rather than through it;
 3. the face's skin vertices are bound to the dense template (closest point, barycentric; lip
    vertices only to their own lip so the jaw never drags the upper lip) and the lower teeth to the
-   jaw; eyeballs, upper teeth and the mouth cavity have no rows (rigid or fixed).
+   jaw; the mouth cavity's lining follows the skin it lies behind (its closest skin point's rows,
+   in full within ``CAVITY_FOLLOW_NEAR_MM`` of the skin, fading to none at ``CAVITY_FOLLOW_FAR_MM``:
+   the back of the mouth stays with the skull); eyeballs and upper teeth have no rows (rigid).
 
 Then ``x = rest + F · (fap_values ∘ fapu)`` with F of shape (3n, 68), mm per FAP unit.
 
@@ -80,6 +82,13 @@ GUARD_SLIDE_MM = 2.0
 UPPER_LID_FOLLOW = 0.6
 LOWER_LID_FOLLOW = 0.3
 LIDS_FOLLOW_UP = (0.3, 0.1)
+# The mouth cavity's lining follows the skin it lies behind: in full within NEAR of it, not at all
+# beyond FAR (smoothly in between). Fixed, it let skin moved inward pass through it (default face:
+# shift_jaw 400 209 crossing pairs, puff_cheek -300 202, depress_chin 400 94). A lining vertex d mm
+# behind the skin keeps a gap of d - (1 - follow(d)) x the skin's travel, positive for any travel
+# shorter than FAR.
+CAVITY_FOLLOW_NEAR_MM = 4.0
+CAVITY_FOLLOW_FAR_MM = 20.0
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 
 
@@ -124,6 +133,7 @@ class FapDeformer:
         B3 = scipy.sparse.kron(self.binding, scipy.sparse.identity(3, format="csr"), format="csr")
         F = (B3 @ self.template_matrix).tocsr()
         F = F + self._lower_teeth_rows()
+        F = F + self._cavity_rows(F)
         self.matrix = F.tocsr()
         self.matrix.eliminate_zeros()
         self.fapu_vector = np.array([self.fapu.get(s.unit, 0.0) for s in self.specs])
@@ -331,6 +341,26 @@ class FapDeformer:
             return scipy.sparse.csr_matrix((3 * n, N_FAPS))
         return scipy.sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                        shape=(3 * n, N_FAPS)).tocsr()
+
+    def _cavity_rows(self, F: scipy.sparse.csr_matrix) -> scipy.sparse.csr_matrix:
+        """(3n, 68) rows of the mouth cavity's vertices: each follows its closest skin point's rows of
+        ``F`` (barycentric), scaled from 1 within ``CAVITY_FOLLOW_NEAR_MM`` of the skin to 0 at
+        ``CAVITY_FOLLOW_FAR_MM`` (smoothstep); zero for a face without a cavity."""
+        face = self.face
+        n = face.n_vertices
+        idx = np.asarray(face.parts.get("mouth_cavity", np.zeros(0, np.int64)), dtype=np.int64)
+        in_part = self._in_any_part()
+        skin_tris = face.triangles[~in_part[face.triangles].any(axis=1)]
+        if not len(idx) or not len(skin_tris):
+            return scipy.sparse.csr_matrix((3 * n, N_FAPS))
+        pos, tri, bary = TriangleSet(face.vertices, skin_tris).closest(face.vertices[idx], k=24)
+        gap = np.linalg.norm(pos - face.vertices[idx], axis=1)
+        t = np.clip((CAVITY_FOLLOW_FAR_MM - gap) / (CAVITY_FOLLOW_FAR_MM - CAVITY_FOLLOW_NEAR_MM), 0.0, 1.0)
+        follow = t * t * (3 - 2 * t)
+        W = scipy.sparse.coo_matrix(((bary * follow[:, None]).ravel(), (np.repeat(idx, 3), skin_tris[tri].ravel())),
+                                    shape=(n, n)).tocsr()
+        W3 = scipy.sparse.kron(W, scipy.sparse.identity(3, format="csr"), format="csr")
+        return (W3 @ F).tocsr()
 
     def _eyeball_pivots(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """part name -> (vertex indices, centre (3,)) for eyeballs, centre by a least-squares sphere fit."""
