@@ -166,12 +166,13 @@ def spread_pushes(x, watched, slots, offsets, indptr, indices, data):  # pragma:
 
 
 @_JIT
-def rotate_rows(x, rows, centre, rotation):  # pragma: no cover - compiled
-    """x[rows] = (x[rows] - centre) @ rotation.T + centre, in place (an eyeball's gaze)."""
+def rotate_rows(x, rows, centre, rotation, target):  # pragma: no cover - compiled
+    """x[rows] = (x[rows] - centre) @ rotation.T + target, in place (an eyeball's gaze: turned
+    about ``centre``, which goes to ``target``)."""
     for r in rows:
         px, py, pz = x[r, 0] - centre[0], x[r, 1] - centre[1], x[r, 2] - centre[2]
         for c in range(3):
-            x[r, c] = px * rotation[c, 0] + py * rotation[c, 1] + pz * rotation[c, 2] + centre[c]
+            x[r, c] = px * rotation[c, 0] + py * rotation[c, 1] + pz * rotation[c, 2] + target[c]
 
 
 @_JIT

@@ -24,7 +24,9 @@ Built once per face (about a second for the 50k-vertex default face):
    (``forward_tilt``) so they slide over the eyeball rather than through it;
 3. the face's skin vertices are bound to the dense template (closest point, barycentric; lip
    vertices only to their own lip so the jaw never drags the upper lip) and the lower teeth to the
-   jaw; eyeballs, upper teeth and the mouth cavity have no rows (rigid or fixed).
+   jaw; the mouth cavity's lining follows the skin it lies behind (its closest skin point's rows,
+   in full within ``CAVITY_FOLLOW_NEAR_MM`` of the skin, fading to none at ``CAVITY_FOLLOW_FAR_MM``:
+   the back of the mouth stays with the skull); eyeballs and upper teeth have no rows (rigid).
 
 Then ``x = rest + F · (fap_values ∘ fapu)`` with F of shape (3n, 68), mm per FAP unit.
 
@@ -78,9 +80,26 @@ GUARD_SLIDE_MM = 2.0
 # up. Measured on the default face (core.mesh_quality, lid/eyeball crossings, folded triangles): both
 # eyes 15 deg down 208 -> 0 crossings, 0 folds; 30 deg down 324 -> 27 (53 folds; 0.9/0.4 left 39 and
 # 60); 30 deg up 135 -> 75 (5 folds; following 0.7/0.3 up folded 130 triangles of the raised lid).
-UPPER_LID_FOLLOW = 0.6
-LOWER_LID_FOLLOW = 0.3
-LIDS_FOLLOW_UP = (0.3, 0.1)
+# With the ball pitched about its own centre (_eyeball_pitch_centres) it no longer swings into the
+# socket, and what crossed was the lids' own skin moved that far: both eyes 30 deg down, 0.6/0.3 54
+# crossings and 106 folds, 0.4/0.2 0 and 6 (generated face 18/20 -> 0/2); 30 deg up, 0.3/0.1 28
+# crossings and 10 folds, 0.2/0.1 0 and 2 (generated 24/0 -> 0/0).
+UPPER_LID_FOLLOW = 0.4
+LOWER_LID_FOLLOW = 0.2
+LIDS_FOLLOW_UP = (0.2, 0.1)
+# The mouth cavity's lining follows the skin it lies behind: in full within NEAR of it, not at all
+# beyond FAR (smoothly in between). Fixed, it let skin moved inward pass through it (default face:
+# shift_jaw 400 209 crossing pairs, puff_cheek -300 202, depress_chin 400 94). A lining vertex d mm
+# behind the skin keeps a gap of d - (1 - follow(d)) x the skin's travel, positive for any travel
+# shorter than FAR.
+CAVITY_FOLLOW_NEAR_MM = 4.0
+CAVITY_FOLLOW_FAR_MM = 20.0
+# The brow FAPs of each eye (raise inner/middle/outer, squeeze): lowered, they push the upper lid's
+# skin into the eyeball (default face, brows at -400: 88-172 crossing pairs per FAP), so the lid guard
+# also holds the skin they move near the ball.
+BROW_FAPS = ((31, 33, 35, 37), (32, 34, 36, 38))
+# FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
+LID_GUARD_COLUMNS = np.array([18, 19, 20, 21, 40, 41, *range(30, 38)])
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 
 
@@ -130,11 +149,13 @@ class FapDeformer:
         B3 = scipy.sparse.kron(self.binding, scipy.sparse.identity(3, format="csr"), format="csr")
         F = (B3 @ self.template_matrix).tocsr()
         F = F + self._lower_teeth_rows()
+        F = F + self._cavity_rows(F)
         self.matrix = F.tocsr()
         self.matrix.eliminate_zeros()
         self.fapu_vector = np.array([self.fapu.get(s.unit, 0.0) for s in self.specs])
         self._rest = face.vertices.ravel()
         self._eyes = self._eyeball_pivots()
+        self._pitch_centres = self._eyeball_pitch_centres()
         self._lid_guards = self._lid_guards_over_eyeballs()
         self._eye_rims = self._eye_rims_of_skin()
         skin = ~self._in_any_part()
@@ -354,8 +375,29 @@ class FapDeformer:
         return scipy.sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                        shape=(3 * n, N_FAPS)).tocsr()
 
+    def _cavity_rows(self, F: scipy.sparse.csr_matrix) -> scipy.sparse.csr_matrix:
+        """(3n, 68) rows of the mouth cavity's vertices: each follows its closest skin point's rows of
+        ``F`` (barycentric), scaled from 1 within ``CAVITY_FOLLOW_NEAR_MM`` of the skin to 0 at
+        ``CAVITY_FOLLOW_FAR_MM`` (smoothstep); zero for a face without a cavity."""
+        face = self.face
+        n = face.n_vertices
+        idx = np.asarray(face.parts.get("mouth_cavity", np.zeros(0, np.int64)), dtype=np.int64)
+        in_part = self._in_any_part()
+        skin_tris = face.triangles[~in_part[face.triangles].any(axis=1)]
+        if not len(idx) or not len(skin_tris):
+            return scipy.sparse.csr_matrix((3 * n, N_FAPS))
+        pos, tri, bary = TriangleSet(face.vertices, skin_tris).closest(face.vertices[idx], k=24)
+        gap = np.linalg.norm(pos - face.vertices[idx], axis=1)
+        t = np.clip((CAVITY_FOLLOW_FAR_MM - gap) / (CAVITY_FOLLOW_FAR_MM - CAVITY_FOLLOW_NEAR_MM), 0.0, 1.0)
+        follow = t * t * (3 - 2 * t)
+        W = scipy.sparse.coo_matrix(((bary * follow[:, None]).ravel(), (np.repeat(idx, 3), skin_tris[tri].ravel())),
+                                    shape=(n, n)).tocsr()
+        W3 = scipy.sparse.kron(W, scipy.sparse.identity(3, format="csr"), format="csr")
+        return (W3 @ F).tocsr()
+
     def _eyeball_pivots(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """part name -> (vertex indices, centre (3,)) for eyeballs, centre by a least-squares sphere fit."""
+        """part name -> (vertex indices, centre (3,)) for eyeballs, centre by a least-squares sphere fit
+        (the lid guards' centre and the eye's yaw pivot)."""
         out = {}
         for name in ("eyeball_l", "eyeball_r"):
             idx = self.face.parts.get(name)
@@ -366,6 +408,26 @@ class FapDeformer:
             sol, *_ = np.linalg.lstsq(A, (p ** 2).sum(axis=1), rcond=None)
             out[name] = (idx, sol[:3])
         return out if len(out) == 2 else {}
+
+    def _eyeball_pitch_centres(self) -> dict[str, np.ndarray]:
+        """part name -> the eyeball's pitch pivot (3,): the centre of a least-squares axis-aligned
+        ellipsoid through its vertices (the sphere's centre for a spherical ball).
+
+        An eyeball wider than it is high (the default face's fills the palpebral opening: 15.6 x 12 x
+        12 mm) is its own image under a pitch about the ellipsoid's centre; about the sphere fit's
+        centre, 2.6 mm further back, looking up 30 degrees swung its wide outer side 3 mm up into the
+        socket skin (61 crossing pairs per eye). Its yaw stays about the sphere fit's centre: about
+        the ellipsoid's, the long axis swings its ends forward through the corners (85-92 pairs at
+        35 degrees, none about the sphere's)."""
+        out = {}
+        for name, (idx, sphere_centre) in self._eyes.items():
+            p = self.face.vertices[idx]
+            mid = p.mean(axis=0)
+            q = p - mid     # centred: the quadric's terms are of one scale
+            coef, *_ = np.linalg.lstsq(np.column_stack([q ** 2, q]), np.ones(len(q)), rcond=None)
+            # A cap too flat to fix three axes keeps the sphere's centre.
+            out[name] = mid - coef[3:] / (2 * coef[:3]) if (coef[:3] > 0).all() else sphere_centre
+        return out
 
     def _lid_guards_over_eyeballs(self) -> list[tuple]:
         """Guards that keep each eye's lids outside its eyeball.
@@ -386,8 +448,9 @@ class FapDeformer:
         vertices at rest (k, 3) mm).
         """
         guards = []
-        # The cheek lift (41/42) pushes the lower lid up over the ball as well (joy's AU 6).
-        for name, faps in (("eyeball_l", (19, 21, 41)), ("eyeball_r", (20, 22, 42))):
+        # The cheek lift (41/42) pushes the lower lid up over the ball as well (joy's AU 6), and the
+        # lowered or squeezed brows (31-38) push the upper lid's skin down onto it (AU 4).
+        for name, faps, brows in (("eyeball_l", (19, 21, 41), BROW_FAPS[0]), ("eyeball_r", (20, 22, 42), BROW_FAPS[1])):
             if name not in self._eyes:
                 continue
             idx, centre = self._eyes[name]
@@ -397,12 +460,13 @@ class FapDeformer:
                 return np.asarray(weights) > 1e-6
 
             lids_move = moved_by(faps[:2])
-            candidates = np.nonzero(lids_move | moved_by(faps[2:]))[0]
+            candidates = np.nonzero(lids_move | moved_by(faps[2:] + brows))[0]
             r = self.face.vertices[candidates] - centre
             length = np.linalg.norm(r, axis=1)
             angle = np.arccos(np.clip(r[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0))
             rest_gap = length - np.interp(angle, angles, radii)
-            # The cheek lift's wide region only where it can reach the ball (the guard runs per tick).
+            # The cheek lift's and brows' wide regions only where they can reach the ball (the guard
+            # runs per tick).
             near = lids_move[candidates] | (rest_gap < CHEEK_GUARD_REACH_MM)
             lid, r, length, angle, rest_gap = candidates[near], r[near], length[near], angle[near], rest_gap[near]
             clearance = np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM)
@@ -631,7 +695,7 @@ class FapDeformer:
             for upper, lower in self._eye_rims:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
-        if values[18:22].any() or values[40:42].any():
+        if values[18:22].any() or values[40:42].any() or values[30:38].any():
             compiled = kernels.get()
             for lid, centre, rest_clearance, full_clearance, angles, radii, faps, rest in self._lid_guards:
                 # From the rest gap to the full clearance as the eye closes (opening lids leave it).
@@ -672,7 +736,7 @@ class FapDeformer:
         # at the last tick: a slider that moves a brow leaves the mouth's steps' inputs unchanged.
         memos = self._memos
         if "lids" in memos:
-            memos["lids"].run(x, lambda y: self._close_lids(y, values), values[[18, 19, 20, 21, 40, 41]].tobytes())
+            memos["lids"].run(x, lambda y: self._close_lids(y, values), values[LID_GUARD_COLUMNS].tobytes())
         # Lips that were moved into each other press on each other instead (both give way).
         if "lips" in memos:
             memos["lips"].run(x, self._lip_contact.apply)
@@ -684,14 +748,18 @@ class FapDeformer:
             for name, (yaw, pitch) in (("eyeball_l", (23, 25)), ("eyeball_r", (24, 26))):
                 a, b = values[yaw - 1] * tables.ANGLE_UNIT, values[pitch - 1] * tables.ANGLE_UNIT
                 if a or b:
+                    # Pitched about its pitch centre, then yawed about the sphere fit's centre (see
+                    # _eyeball_pitch_centres): one turn about the pitch centre, which goes to ``target``.
                     idx, centre = self._eyes[name]
+                    pitch_centre = self._pitch_centres[name]
                     R = _yaw_pitch(a, b)
+                    target = _yaw_pitch(a, 0.0) @ (pitch_centre - centre) + centre
                     compiled = kernels.get()
                     if compiled is not None and x.dtype == np.float64:
-                        compiled.rotate_rows(x, np.asarray(idx, dtype=np.int64), np.asarray(centre, dtype=float),
-                                            np.ascontiguousarray(R, dtype=float))
+                        compiled.rotate_rows(x, np.asarray(idx, dtype=np.int64), pitch_centre,
+                                             np.ascontiguousarray(R, dtype=float), target)
                     else:
-                        x[idx] = (x[idx] - centre) @ R.T + centre
+                        x[idx] = (x[idx] - pitch_centre) @ R.T + target
         head = values[47:50] * tables.ANGLE_UNIT
         if head.any():
             R = _rotation((0, 1, 0), head[1]) @ _rotation((1, 0, 0), head[0]) @ _rotation((0, 0, 1), head[2])

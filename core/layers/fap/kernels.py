@@ -55,7 +55,7 @@ def _warm(k: SimpleNamespace) -> None:
     k.spread_pushes(x, rows, rows, np.zeros((3, 3)), np.arange(4, dtype=np.int64), rows, np.ones(3))
     eyeball = rows.copy()
     eyeball.setflags(write=False)      # as a face's parts are: a type of its own to numba
-    k.rotate_rows(x, eyeball, np.zeros(3), np.eye(3))
+    k.rotate_rows(x, eyeball, np.zeros(3), np.eye(3), np.zeros(3))
     k.rows_equal(x, rows, x.copy())
     k.put_rows(x, rows, x.copy())
 
