@@ -28,6 +28,7 @@ Positions are in the scan's units; transforms are (4, 4) matrices on column vect
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -210,6 +211,8 @@ def find_orientation(scan: Face, model: Face, *, iterations: int = 20, rng=0) ->
                     key=lambda x: x[0])
     best, best_T = unturned, T_id
     for _, k in starts[:ORIENTATION_FINALISTS]:
+        if np.allclose(cube_rotations()[k], np.eye(3)):
+            continue   # the fit as the scan lies, done above
         score, T = fit(cube_rotations()[k], sample, iterations, coarse_target)
         if score < best:
             best, best_T = score, T
@@ -278,7 +281,20 @@ def _nose_candidates(points: np.ndarray) -> np.ndarray:
 
 def _dense_target(scan: Face):
     """(points, normals, boundary, KD-tree) of the scan's vertices and triangle centroids: a coarse
-    scan's vertices alone are several mm apart, which would hide the fit's quality."""
+    scan's vertices alone are several mm apart, which would hide the fit's quality. The last scan's
+    target is kept (weakly): detection asks for it twice (orientation search, then the skin check)."""
+    last = _LAST_TARGET[0] if _LAST_TARGET else None
+    if last is not None and last[0]() is scan and last[1] is scan.vertices and last[2] is scan.triangles:
+        return last[3]
+    target = _build_dense_target(scan)
+    _LAST_TARGET[:] = [(weakref.ref(scan), scan.vertices, scan.triangles, target)]
+    return target
+
+
+_LAST_TARGET: list = []
+
+
+def _build_dense_target(scan: Face):
     used = np.unique(scan.triangles)
     tri = scan.triangles
     boundary_v = boundary_vertex_mask(tri, scan.n_vertices)

@@ -269,9 +269,19 @@ def farthest_point_sampling(points, count: int, start: int | None = None) -> np.
         start = int(np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
     chosen = np.empty(count, dtype=np.int64)
     chosen[0] = start
-    dist = np.linalg.norm(pts - pts[start], axis=1)
+    # Squared distances on contiguous coordinate columns with preallocated buffers: the same picks
+    # as Euclidean distances, ~6x faster than np.linalg.norm per step (1500 steps per scan).
+    x, y, z = (np.ascontiguousarray(pts[:, k]) for k in range(3))
+    dist = (x - x[start]) ** 2 + (y - y[start]) ** 2 + (z - z[start]) ** 2
+    d, t = np.empty_like(dist), np.empty_like(dist)
     for i in range(1, count):  # count iterations over a vectorised distance update
         j = int(np.argmax(dist))
         chosen[i] = j
-        np.minimum(dist, np.linalg.norm(pts - pts[j], axis=1), out=dist)
+        np.subtract(x, x[j], out=d)
+        np.multiply(d, d, out=d)
+        for c in (y, z):
+            np.subtract(c, c[j], out=t)
+            np.multiply(t, t, out=t)
+            d += t
+        np.minimum(dist, d, out=dist)
     return chosen

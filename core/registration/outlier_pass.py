@@ -5,8 +5,8 @@ Without texture (the geometry-only path) the patch search compares shape alone, 
 point such as an outer eye corner can latch onto the brow ridge or the temple 12-20 mm away (SFM
 virtual scans, untextured: 3.7/3.12 at confidence 0.18-0.3). Such a point is re-predicted from the
 anchors (the steep pass's propagation of the confident matches' displacements along the template
-graph) and put on the scan; its source becomes "prediction" and its evidence 0, so it stays low
-confidence and the picker lists it for checking."""
+graph) and put on the scan at the point closest to that prediction; its source becomes
+"prediction" and its evidence 0, so it stays low confidence and the picker lists it for checking."""
 
 from __future__ import annotations
 
@@ -43,4 +43,6 @@ def outlier_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -
     weak = (confidence < OUTLIER_CONFIDENCE) & far & ~steep & ~anchor & ~ctx.fixed
     if not weak.any():
         return SurfaceMoves.none()
-    return predictions_on_scan(ctx, np.nonzero(weak)[0], pred, outline)
+    # At the closest scan point, not the frontal ray: beside the eye the surface turns away from the
+    # view, and a ray through a prediction a few mm off lands far back on the temple.
+    return predictions_on_scan(ctx, np.nonzero(weak)[0], pred, np.ones(len(names), bool))

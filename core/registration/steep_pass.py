@@ -63,13 +63,14 @@ def steep_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> 
     return predictions_on_scan(ctx, np.nonzero(steep)[0], pred, outline)
 
 
-def predictions_on_scan(ctx: MatchContext, points, pred: np.ndarray, outline: np.ndarray) -> SurfaceMoves:
-    """Moves putting each of ``points`` at its prediction ``pred`` (P, 3) on the scan: outline points
-    (``outline`` (P,) bool) at the closest scan point, the others at the surface seen at the
-    prediction's frontal pixel (the closest point where none is); source "prediction", evidence 0."""
+def predictions_on_scan(ctx: MatchContext, points, pred: np.ndarray, closest: np.ndarray) -> SurfaceMoves:
+    """Moves putting each of ``points`` at its prediction ``pred`` (P, 3) on the scan: those marked
+    in ``closest`` (P,) bool (the steep pass: outline points) at the closest scan point, the others
+    at the surface seen at the prediction's frontal pixel (the closest point where none is); source
+    "prediction", evidence 0."""
     index, tri, bary, pos = [], [], [], []
     for i in points:
-        hit = None if outline[i] else raster_hit(ctx.scan_raster, pred[i])
+        hit = None if closest[i] else raster_hit(ctx.scan_raster, pred[i])
         if hit is None:
             t, b, p = ctx.closest(pred[i][None])
             t, b, p = t[0], b[0], p[0]
