@@ -302,7 +302,9 @@ class Registration:
         return (f"{self.face.n_vertices} vertices / {self.face.n_triangles} triangles; {int(folded.sum())} folded "
                 f"({forced} inside template triangles the landmarks turn over); distance to the scan mean "
                 f"{d.mean():.2f} mm, 95th percentile {np.percentile(d, 95):.2f} mm; "
-                f"{self.fallbacks} vertices took the closest point (normal ray missed)")
+                f"{self.fallbacks} vertices took the closest point (normal ray missed)"
+                + (f"; landmarks moved by the fit up to {self.landmark_shift.max():.2f} mm"
+                   if len(self.landmark_shift) else ""))
 
     def carry_back(self, **kwargs) -> "CarryBack":
         """The CarryBack binding the scan's vertices to this canonical face (built once)."""
@@ -734,7 +736,8 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
         names = sorted({"-".join(base.points[i] for i in base.triangles[k % len(base.triangles)])
                         for k in np.nonzero(forced)[0]})
         report.append(f"the landmarks turn {len(names)} template triangle(s) over ({', '.join(names[:6])}"
-                      f"{' ...' if len(names) > 6 else ''}): the canonical mesh folds there; check those landmarks")
+                      f"{' ...' if len(names) > 6 else ''}): the fit bends the canonical mesh around them (or moves them, "
+                      "see above) so that it does not fold; check those landmarks")
     return registration
 
 
