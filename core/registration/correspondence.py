@@ -24,7 +24,11 @@ Choices the thesis leaves open (written down here):
 * The mouth stays an opening (the template's inner-lip loop is a boundary); the eyes are covered
   by the template's eye-opening triangles, projected onto whatever the scan has there (eyeball or
   lid), because an annulus is the only topology the thesis's counts allow (see the templates).
-* Texture coordinates come from the scan at each vertex's hit point; the texture is the scan's.
+* After projection the canonical mesh is fitted onto the scan without folds
+  (:func:`fit_without_folds`, ``core.registration.fold_free``): from the template registered on
+  the default face, ARAP-regularised, landmarks as soft targets; a landmark that would turn a
+  triangle over stays short of where it was given (``Registration.landmark_shift``, reported).
+* Texture coordinates come from the scan at each vertex's closest point; the texture is the scan's.
 * Carry-back: each scan vertex is bound to its closest canonical surface point (triangle,
   barycentric); it moves by the interpolated displacement of that triangle, so the rest pose is
   reproduced exactly. Vertices farther than ``near_mm`` from the canonical surface (ears, neck,
@@ -571,6 +575,11 @@ def fit_without_folds(scan: Face, projection: Projection, template_name: str,
     # The detected landmarks are soft targets; the template's extras (points computed from them)
     # are free like any other vertex.
     targets = {i: v[i] for i, name in enumerate(base.points) if name not in base.extras}
+    # The mouth's rim (the inner lip line; every boundary loop but the outline) stays where
+    # projection snapped it: the scan is cut there to open the mouth (core.registration.scan_mouth).
+    loops = sorted(boundary_loops(np.asarray(t)), key=len)[:-1]
+    for i in (np.concatenate(loops).tolist() if loops else []):
+        targets.setdefault(i, v[i])
     targets.update(held or {})
     surface = TriangleSet(scan.vertices, scan.triangles)
     fit = fold_free_fit(prior, t, targets, v, surface, scan.face_normals)
