@@ -551,6 +551,8 @@ def _adjacency(triangles: np.ndarray, n: int) -> tuple[scipy.sparse.csr_matrix, 
 
 #: A landmark the fit moves farther than this (mm) from where it was given is named in the report.
 LANDMARK_SHIFT_NOTE_MM = 1.0
+#: Weight of the mouth rim's targets (a landmark's is fold_free.LANDMARK_WEIGHT, a closest point's 1).
+RIM_WEIGHT = 10.0
 
 
 def fit_without_folds(scan: Face, projection: Projection, template_name: str,
@@ -578,11 +580,11 @@ def fit_without_folds(scan: Face, projection: Projection, template_name: str,
     # The mouth's rim (the inner lip line; every boundary loop but the outline) stays where
     # projection snapped it: the scan is cut there to open the mouth (core.registration.scan_mouth).
     loops = sorted(boundary_loops(np.asarray(t)), key=len)[:-1]
-    for i in (np.concatenate(loops).tolist() if loops else []):
-        targets.setdefault(i, v[i])
+    rim = {i: RIM_WEIGHT for i in (np.concatenate(loops).tolist() if loops else []) if i not in targets}
+    targets.update({i: v[i] for i in rim})
     targets.update(held or {})
     surface = TriangleSet(scan.vertices, scan.triangles)
-    fit = fold_free_fit(prior, t, targets, v, surface, scan.face_normals)
+    fit = fold_free_fit(prior, t, targets, v, surface, scan.face_normals, target_weight=rim)
     x = fit.vertices
     shift = np.linalg.norm(x[:n_base] - v[:n_base], axis=1)
     shift[[base.index(name) for name in base.extras]] = 0.0

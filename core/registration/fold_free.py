@@ -149,14 +149,15 @@ def _rest_edges(x: np.ndarray, reference: np.ndarray, edges: np.ndarray, weight:
 
 def fold_free_fit(reference: np.ndarray, triangles: np.ndarray, targets: dict[int, np.ndarray],
                   first: np.ndarray, surface: TriangleSet, surface_normals: np.ndarray,
-                  free_ok: np.ndarray | None = None) -> FitResult:
+                  free_ok: np.ndarray | None = None, target_weight: dict[int, float] | None = None) -> FitResult:
     """Fit the mesh (``reference`` (N, 3), aligned and fold-free, ``triangles`` (T, 3)) onto a surface.
 
     targets : {vertex: (3,) mm} held softly with ``LANDMARK_WEIGHT`` (landmarks, outline).
     first : (N, 3) the other vertices' targets in the first stage (the projection's points).
     surface, surface_normals : the scan (closest points) and its unit triangle normals (T_scan, 3).
     free_ok : (N,) bool vertices whose first targets count (e.g. not the projection's fallbacks);
-    all by default. Returns a :class:`FitResult`; no triangle of ``vertices`` faces against its
+    all by default; target_weight : {vertex: weight} for targets held more softly than landmarks.
+    Returns a :class:`FitResult`; no triangle of ``vertices`` faces against its
     reference triangle or has less than ``MARGIN`` of its area along that normal (unless the
     reference itself had, then no less than there).
     """
@@ -177,6 +178,8 @@ def fold_free_fit(reference: np.ndarray, triangles: np.ndarray, targets: dict[in
     goal = np.array(first, float)
     weight = np.ones(n) if free_ok is None else free_ok.astype(float)
     goal[held], weight[held] = held_at, LANDMARK_WEIGHT
+    for i, w in (target_weight or {}).items():
+        weight[i] = w
     free = np.nonzero(~is_held)[0]
     blocked = np.zeros(n, bool)
     full_goal = goal.copy()
