@@ -24,7 +24,11 @@ Choices the thesis leaves open (written down here):
 * The mouth stays an opening (the template's inner-lip loop is a boundary); the eyes are covered
   by the template's eye-opening triangles, projected onto whatever the scan has there (eyeball or
   lid), because an annulus is the only topology the thesis's counts allow (see the templates).
-* Texture coordinates come from the scan at each vertex's hit point; the texture is the scan's.
+* After projection the canonical mesh is fitted onto the scan without folds
+  (:func:`fit_without_folds`, ``core.registration.fold_free``): from the template registered on
+  the default face, ARAP-regularised, landmarks as soft targets; a landmark that would turn a
+  triangle over stays short of where it was given (``Registration.landmark_shift``, reported).
+* Texture coordinates come from the scan at each vertex's closest point; the texture is the scan's.
 * Carry-back: each scan vertex is bound to its closest canonical surface point (triangle,
   barycentric); it moves by the interpolated displacement of that triangle, so the rest pose is
   reproduced exactly. Vertices farther than ``near_mm`` from the canonical surface (ears, neck,
@@ -40,7 +44,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse
-import scipy.sparse.linalg
 
 from core.face import Face, FaceMetadata, SurfacePoint, vertex_normals
 from core.layers.fap.template import DenseTemplate, TemplateError, _edge_vertices, skin_triangles
@@ -268,6 +271,7 @@ class Registration:
     template: str
     report: list[str] = field(default_factory=list)
     _carry: "CarryBack | None" = None
+    landmark_shift: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def distances_to_scan(self) -> np.ndarray:
         """(T,) mm: how far each canonical triangle's centroid lies from the scan's surface (the fit's
@@ -302,7 +306,9 @@ class Registration:
         return (f"{self.face.n_vertices} vertices / {self.face.n_triangles} triangles; {int(folded.sum())} folded "
                 f"({forced} inside template triangles the landmarks turn over); distance to the scan mean "
                 f"{d.mean():.2f} mm, 95th percentile {np.percentile(d, 95):.2f} mm; "
-                f"{self.fallbacks} vertices took the closest point (normal ray missed)")
+                f"{self.fallbacks} vertices took the closest point (normal ray missed)"
+                + (f"; landmarks moved by the fit up to {self.landmark_shift.max():.2f} mm"
+                   if len(self.landmark_shift) else ""))
 
     def carry_back(self, **kwargs) -> "CarryBack":
         """The CarryBack binding the scan's vertices to this canonical face (built once)."""
@@ -455,7 +461,7 @@ def rounded_outline(scan: Face, projection: Projection, template_name: str) -> d
     through the template's outline landmarks (centripetal Catmull-Rom, each vertex at its arc-length
     fraction between its two landmarks), snapped onto the scan. The template's outline is straight
     between its landmarks, so every registered face had a pointed forehead at 11.1 (and corners at
-    the temples and the jaw); the fit (:func:`regularise`) holds these positions."""
+    the temples and the jaw); the fit (:func:`fit_without_folds`) aims at these positions."""
     v = np.asarray(projection.dense.vertices, float)
     n_base = len(get_template(template_name).base.points)
     loops = boundary_loops(np.asarray(projection.dense.triangles))
@@ -504,19 +510,10 @@ def rounded_outline(scan: Face, projection: Projection, template_name: str) -> d
     return dict(zip(ids, snapped))
 
 
-# The regularised fit (see :func:`regularise`): stiffness per round, from stiff to close to the scan
-# (units: a vertex's Laplacian-coordinate error in mm weighs this much against its distance to the scan).
-FIT_STIFFNESS = (8.0, 3.0, 1.0, 0.4)
-LANDMARK_WEIGHT = 1e3
-ROBUST_GAP_MM = 1.0
-MIN_FACING = 0.5   # cosine between a vertex's normal and the scan's at its closest point
-SNAP_MM = 0.1
-
-
 @functools.cache
 def _reference_mesh(template_name: str) -> tuple[np.ndarray, np.ndarray] | None:
     """(vertices (N, 3), triangles) of ``template_name`` registered on Mimica's default face: a
-    fold-free face of that topology whose local shape is the prior of :func:`regularise`; None when
+    fold-free face of that topology, the start and shape prior of :func:`fit_without_folds`; None when
     the default face lacks the template's landmarks."""
     from core.default_face import load_default_face
     from core.registration.templates import template_positions
@@ -552,85 +549,50 @@ def _adjacency(triangles: np.ndarray, n: int) -> tuple[scipy.sparse.csr_matrix, 
     return adjacency, np.asarray(adjacency.sum(axis=1)).ravel()
 
 
-def _umbrella(triangles: np.ndarray, n: int) -> scipy.sparse.csr_matrix:
-    """(n, n) uniform graph Laplacian: x_i minus the mean of its neighbours."""
-    adjacency, degree = _adjacency(triangles, n)
-    return (scipy.sparse.identity(n, format="csr") - scipy.sparse.diags(1.0 / np.maximum(degree, 1)) @ adjacency).tocsr()
+#: A landmark the fit moves farther than this (mm) from where it was given is named in the report.
+LANDMARK_SHIFT_NOTE_MM = 1.0
+#: Weight of the mouth rim's targets (a landmark's is fold_free.LANDMARK_WEIGHT, a closest point's 1).
+RIM_WEIGHT = 10.0
 
 
-def regularise(scan: Face, projection: Projection, template_name: str,
-               held: dict[int, np.ndarray] | None = None) -> tuple[Projection, int, int]:
-    """(projection, triangles turned over before, after) after a regularised non-rigid fit: the canonical
-    mesh is pulled onto the scan (its closest points) while keeping the local shape of the same
-    mesh on Mimica's default face (Laplacian coordinates of the reference, aligned by a similarity on
-    the landmarks), over rounds of decreasing stiffness; landmarks stay put. Projection alone folds
-    the mesh where rays cross (concave mouth corners, nostrils, a scan's own creases); this keeps the
-    triangles the way they face on a face; at the end each vertex within ``SNAP_MM`` of the scan goes
-    onto it (uv and colour come from the closest scan point in any case). ``held``: {vertex: (3,)
-    position} kept like the landmarks (the rounded outline, :func:`rounded_outline`)."""
+def fit_without_folds(scan: Face, projection: Projection, template_name: str,
+                      held: dict[int, np.ndarray] | None = None) -> tuple[Projection, int, int, np.ndarray]:
+    """(projection, triangles turned over by projection, after the fit (0), landmark shift (n_base,) mm):
+    the canonical mesh fitted onto the scan from the fold-free reference
+    (:func:`core.registration.fold_free.fold_free_fit`): the landmarks (the projection's base
+    vertices) and ``held`` (the rounded outline) are soft targets, the projection's points the first
+    targets of the others, then their closest scan points. Without a reference for the template the
+    projection is returned as it is."""
+    from core.registration.fold_free import fold_free_fit
+
     v = np.array(projection.dense.vertices, float)
     t = projection.dense.triangles
     n_base = len(get_template(template_name).base.points)
     found = _reference_mesh(template_name)
     if found is None or len(found[0]) != len(v) or not np.array_equal(found[1], t):
-        return projection, 0, 0
+        return projection, 0, 0, np.zeros(n_base)
     prior = aligned_reference(found[0], v, n_base)
-    lap = _umbrella(t, len(v))
-    target = lap @ prior
-    ref_normals = triangle_normals(prior, t)
-
-    def turned(x):
-        return int(folded_triangles(x, t, ref_normals).sum())
-
-    before = turned(v)
-    fixed = np.zeros(len(v), bool)
-    fixed[:n_base] = True
-    v = v.copy()
-    if held:
-        ids = np.fromiter(held, np.int64, len(held))
-        fixed[ids] = True
-        v[ids] = np.array([held[i] for i in ids.tolist()])
-    free = np.nonzero(~fixed)[0]
-    weights = np.ones(len(v))
-    weights[fixed] = LANDMARK_WEIGHT
-    anchors = v.copy()          # data term: where the projection put each vertex, then its closest scan point
+    before = int(folded_triangles(v, t, triangle_normals(prior, t)).sum())
+    base = get_template(template_name).base
+    # The detected landmarks are soft targets; the template's extras (points computed from them)
+    # are free like any other vertex.
+    targets = {i: v[i] for i, name in enumerate(base.points) if name not in base.extras}
+    # The mouth's rim (the inner lip line; every boundary loop but the outline) stays where
+    # projection snapped it: the scan is cut there to open the mouth (core.registration.scan_mouth).
+    loops = sorted(boundary_loops(np.asarray(t)), key=len)[:-1]
+    rim = {i: RIM_WEIGHT for i in (np.concatenate(loops).tolist() if loops else []) if i not in targets}
+    targets.update({i: v[i] for i in rim})
+    targets.update(held or {})
     surface = TriangleSet(scan.vertices, scan.triangles)
-    scan_normals = scan.face_normals
-    lt = (lap.T @ lap).tocsc()
-    x = v
-    for stiffness in FIT_STIFFNESS:
-        system = (scipy.sparse.diags(weights) + stiffness * lt).tocsc()
-        solve = scipy.sparse.linalg.factorized(system)
-        rhs = weights[:, None] * anchors + stiffness * (lap.T @ target)
-        x = np.column_stack([solve(rhs[:, k]) for k in range(3)])
-        # Near-surface points: the nearest centroids hold the answer (no widening pass; 5x faster).
-        closest, tri, _ = surface.closest(x[free], k=12, widen=False)
-        anchors = anchors.copy()
-        anchors[free] = closest
-        # Robust (Cauchy) data weights: a vertex far from its closest scan point — beyond the scan's
-        # border, over a hole — follows the prior instead of piling onto the border; and a closest
-        # point whose surface faces another way (the outer lip for the template's inner lip, the far
-        # side of a nostril) is no correspondence at all.
-        gap = np.linalg.norm(closest - x[free], axis=1)
-        facing = np.einsum("kd,kd->k", scan_normals[tri], vertex_normals(x, t)[free])
-        weights[free] = (facing > MIN_FACING) / (1.0 + (gap / ROBUST_GAP_MM) ** 2)
-    x[fixed] = v[fixed]
-    # Onto the scan where the fit is within SNAP_MM of it (most vertices: median 0.03 mm on
-    # LeePerrySmith); farther, the prior held a vertex off a crease or a hole of the scan, and
-    # snapping it would fold the mesh again (LeePerrySmith's self-intersections: projection alone
-    # 5,003; fitted 1,821; snapped within 0.1 mm 2,069; every vertex snapped 4,208).
-    snapped, tri, bary = surface.closest(x, k=24, widen=False)
-    near = np.linalg.norm(snapped - x, axis=1) < SNAP_MM
-    x[near] = snapped[near]
-    # Folds the fit left (where the scan's own shape or the landmarks force them): untangled patch
-    # by patch, each put back on the scan where that keeps it the right way round.
-    # The outline stays where rounded_outline put it (on the scan, around the landmarks next to it).
-    x, _, _, _ = unfold(x, t, prior, ref_normals, fixed, surface)
-
+    fit = fold_free_fit(prior, t, targets, v, surface, scan.face_normals, target_weight=rim)
+    x = fit.vertices
+    shift = np.linalg.norm(x[:n_base] - v[:n_base], axis=1)
+    shift[[base.index(name) for name in base.extras]] = 0.0
+    after = int(folded_triangles(x, t, triangle_normals(prior, t)).sum())
     tri, bary = surface.closest(x, k=24, widen=False)[1:]
-    tri[:n_base], bary[:n_base] = projection.scan_triangle[:n_base], projection.scan_bary[:n_base]
     dense = dataclasses.replace(projection.dense, vertices=x, face_triangle=tri)
-    return dataclasses.replace(projection, dense=dense, scan_triangle=tri, scan_bary=bary), before, turned(x)
+    return (dataclasses.replace(projection, dense=dense, scan_triangle=tri, scan_bary=bary), before, after,
+            shift)
 
 
 def _base_mask(n: int, n_base: int) -> np.ndarray:
@@ -756,7 +718,8 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
         raise CorrespondenceError("the scan has no triangles")
     proj = project_template(scan, template, positions, rays=rays)
     proj, untangled, left = untangle(scan, proj, template)
-    proj, turned_before, turned_after = regularise(scan, proj, template, rounded_outline(scan, proj, template))
+    proj, turned_before, turned_after, shift = fit_without_folds(scan, proj, template,
+                                                                 rounded_outline(scan, proj, template))
     face = canonical_face(scan, proj, template)
     total = int(sum(proj.fallbacks))
     report = [f"dense correspondence ({template}): {face.n_vertices} vertices, {face.n_triangles} triangles; "
@@ -767,17 +730,25 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
                       + (f"; {left} triangles still have (almost) no area: check the landmarks near them" if left else ""))
     if turned_before:
         report.append(f"{turned_before} canonical triangles faced the other way than on a face after projection; "
-                      f"the regularised fit and untangling left {turned_after}")
+                      f"the fold-free fit left {turned_after}")
+    moved = np.nonzero(shift > LANDMARK_SHIFT_NOTE_MM)[0]
+    if len(moved):
+        base = get_template(template).base
+        names = ", ".join(f"{base.points[i]} {shift[i]:.1f} mm" for i in moved[np.argsort(-shift[moved])][:6])
+        report.append(f"{len(moved)} landmark(s) could not be reached without folding the mesh and moved by more "
+                      f"than {LANDMARK_SHIFT_NOTE_MM:g} mm ({names}{' ...' if len(moved) > 6 else ''}): "
+                      "check them with the landmark picker")
     if proj.engine != "embree":
         report.append("embreex is not available: projection used the slower numpy ray test")
-    registration = Registration(face, total, proj, scan, template, report)
+    registration = Registration(face, total, proj, scan, template, report, landmark_shift=shift)
     forced = registration.forced()
     if forced.any():
         base = get_template(template).base
         names = sorted({"-".join(base.points[i] for i in base.triangles[k % len(base.triangles)])
                         for k in np.nonzero(forced)[0]})
         report.append(f"the landmarks turn {len(names)} template triangle(s) over ({', '.join(names[:6])}"
-                      f"{' ...' if len(names) > 6 else ''}): the canonical mesh folds there; check those landmarks")
+                      f"{' ...' if len(names) > 6 else ''}): the fit bends the canonical mesh around them (or moves them, "
+                      "see above) so that it does not fold; check those landmarks")
     return registration
 
 

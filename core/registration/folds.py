@@ -5,7 +5,9 @@ the median — or when it faces against the same triangle of a reference mesh: t
 registered on Mimica's default face, brought onto the scan's landmarks by a similarity (so a
 scan that is merely turned or larger has no folds).
 
-:func:`unfold` removes them after projection and the regularised fit: each round takes the
+:func:`unfold` removes most of them from a mesh that has them (it builds the reference itself,
+from the projection on the default face; registration no longer needs it: its fit starts from
+the reference and never folds, ``core.registration.fold_free``): each round takes the
 folded triangles' vertices and a few rings around them (growing each round), lets that patch
 take the reference's local shape as-rigidly-as-possible (ARAP with a scale per vertex; the rest
 of the mesh, the landmarks and the outline held), then puts each patch vertex back onto its
