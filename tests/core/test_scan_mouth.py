@@ -77,9 +77,20 @@ def test_teeth_and_cavity_sit_behind_the_lips_and_the_lower_teeth_follow_the_jaw
     # Placed by the landmarks alone, 19 % of the upper teeth's vertices were less than half a
     # millimetre behind the canonical face (or in front of it); a few stay where the lips part (the
     # depth under the opening's edge has no clear sign).
+    # (With the fold-free fit the rim of the canonical mouth sits a little differently: 1-2 % of the
+    # teeth's vertices end 1 mm from the rim's edge, where that depth's sign says little.) What
+    # counts: at rest, seen from the front, no vertex of the mouth parts shows in front of the skin.
+    from core.registration.correspondence import SurfaceRays
+
+    rays = SurfaceRays(face.vertices, face.triangles)
+    skin_triangle = (face.triangles < animated.n_scan + animated.n_copies).all(axis=1)
     for name in ("mouth_cavity", "teeth_upper", "teeth_lower"):
-        depth, _, _ = _depth_below(registration.face, face.vertices[face.parts[name]])
-        assert (depth < BEHIND_SKIN_MM / 2).mean() < 0.01, name
+        points = face.vertices[face.parts[name]]
+        depth, _, _ = _depth_below(registration.face, points)
+        assert (depth < BEHIND_SKIN_MM / 2).mean() < 0.02, name
+        if rays.engine == "embree":
+            _, tri, hit = rays.first_hits(points + [0.0, 0.0, 50.0], np.tile([0.0, 0.0, -1.0], (len(points), 1)))
+            assert not (hit & ~skin_triangle[np.maximum(tri, 0)]).any(), f"{name} shows through the closed lips"
     moved = animated.vertices(jaw_open) - face.vertices
     assert np.abs(moved[face.parts["teeth_upper"]]).max() == 0
     assert np.abs(moved[face.parts["mouth_cavity"]]).max() == 0
