@@ -7,8 +7,9 @@ triplegangers.com) at run time and writes only the rendered sheet ``docs/scan_an
 The scan goes through the project's own pipeline (automatic landmarks -> the unit scale they
 suggest -> registration, as ``mimica landmarks`` / ``mimica register --scale`` do); the FAP rig
 drives the canonical face and ``core.registration.scan_mouth.animated_scan`` carries it back to every
-vertex of the scan (lips cut, the default face's mouth cavity and teeth behind them). Rows: neutral,
-jaw open (FAP 3 open_jaw), joy; columns front and three-quarter.
+vertex of the scan (lips cut, the default face's mouth cavity and teeth behind them; the closed eyes cut
+along their lid lines, eyeballs behind them). Rows: neutral, jaw open (FAP 3 open_jaw), joy, eyelids
+opened; columns front and three-quarter.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from blend_transfer_figure import registration  # noqa: E402 - the same LeePerrySmith pipeline
 
 TILE = (420, 420)
-POSES = (("neutral", {}, None), ("jaw open (FAP 3 = 500)", {"fap:3": 500.0}, None), ("joy 80 %", {}, "joy"))
+POSES = (("neutral", {}, None), ("jaw open (FAP 3 = 500)", {"fap:3": 500.0}, None), ("joy 80 %", {}, "joy"),
+         ("eyelids opened (FAPs 19, 20 = -300)", {"fap:19": -300.0, "fap:20": -300.0}, None))
 VIEWS = ("front", "three-quarter")
 
 
@@ -45,7 +47,7 @@ def sheet(data: Path, out: Path, report=print) -> Path:
     frame = reg.face.vertices                          # the camera frames the face, not the shoulders
     rows = []
     for label, values, expression in POSES:
-        rig.set_values({"fap:3": 0.0, **values})
+        rig.set_values({"fap:3": 0.0, "fap:19": 0.0, "fap:20": 0.0, **values})
         rig.set_expression(expression, 0.8 if expression else 1.0)
         posed = animated.face.with_vertices(animated.vertices(rig.vertices()))
         tiles = [render_face_image(posed, view=view, size=TILE, frame_points=frame) for view in VIEWS]

@@ -142,3 +142,21 @@ def _edge_growth(rest, moved, triangles) -> np.ndarray:
     def lengths(v):
         return np.linalg.norm(v[triangles] - v[np.roll(triangles, 1, axis=1)], axis=2)
     return (lengths(moved) - lengths(rest)).max(axis=1)
+
+
+def test_a_closed_eye_closes_no_further(closed_registration, animated):
+    """Its lids already meet: closing values (19-22 > 0) leave them where they are, as lid contact does
+    for an open eye whose lids meet; the other eye's and opening values are unaffected."""
+    from core.layers.fap.fat import FapDeformer, lid_contact
+    from core.rig import FaceRig
+
+    face = animated.face
+    rig = FaceRig(face, FapDeformer(face, dense=animated.dense, binding=animated.binding()))
+    rig.set_faps({19: 600.0, 21: 600.0, 20: 600.0, 22: 600.0})
+    lids = ["3.1", "3.3", "3.2", "3.4"]
+    np.testing.assert_allclose(face.landmark_positions(lids, rig.vertices()), face.landmark_positions(lids), atol=1e-6)
+    values = np.zeros(68)
+    values[[18, 20, 19, 21]] = (600.0, -200.0, 700.0, 700.0)
+    out = lid_contact(values, closed=((19, 21),))                  # left eye closed, right open
+    assert out[18] == 0.0 and out[20] == -200.0
+    np.testing.assert_allclose(out[[19, 21]], 1024.0 / 1400.0 * 700.0)   # the open eye's lids meet

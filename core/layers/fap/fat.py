@@ -53,7 +53,7 @@ from core.cache import DiskCache, fingerprint, source_version
 from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import kernels, tables
-from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side
+from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
 from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
 from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
@@ -103,9 +103,13 @@ LID_GUARD_COLUMNS = np.array([18, 19, 20, 21, 40, 41, *range(30, 38)])
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 
 
-def lid_contact(values: np.ndarray) -> np.ndarray:
-    """(68,) FAP values with each eye's closing values scaled so the lids meet instead of crossing."""
+def lid_contact(values: np.ndarray, closed: tuple[tuple[int, int], ...] = ()) -> np.ndarray:
+    """(68,) FAP values with each eye's closing values scaled so the lids meet instead of crossing.
+    ``closed``: the (upper, lower) FAP pairs of eyes closed on the face at rest (a scan taken with the
+    eyes shut), whose lids already meet: their closing values do nothing (opening ones still open)."""
     out = np.array(values, dtype=float)
+    for upper, lower in closed:
+        out[upper - 1], out[lower - 1] = min(out[upper - 1], 0.0), min(out[lower - 1], 0.0)
     for upper, lower in LID_PAIRS:
         t, b = max(out[upper - 1], 0.0), max(out[lower - 1], 0.0)
         total = (t + b) / 1024.0
@@ -155,6 +159,9 @@ class FapDeformer:
         self.fapu_vector = np.array([self.fapu.get(s.unit, 0.0) for s in self.specs])
         self._rest = face.vertices.ravel()
         self._eyes = self._eyeball_pivots()
+        # Eyes closed at rest (a scan taken with them shut): their lids already meet (lid_contact).
+        self._closed_lid_pairs = tuple(pair for eye, pair in (("l", LID_PAIRS[0]), ("r", LID_PAIRS[1]))
+                                       if eye in {line.eye for line in closed_lid_lines(face)})
         self._pitch_centres = self._eyeball_pitch_centres()
         self._lid_guards = self._lid_guards_over_eyeballs()
         self._eye_rims = self._eye_rims_of_skin()
@@ -650,7 +657,7 @@ class FapDeformer:
                     up_follow, low_follow = (UPPER_LID_FOLLOW, LOWER_LID_FOLLOW) if drop > 0 else LIDS_FOLLOW_UP
                     out[upper - 1] += up_follow * drop / up_gain
                     out[lower - 1] -= low_follow * drop / low_gain
-        out = lid_contact(out)
+        out = lid_contact(out, self.__dict__.get("_closed_lid_pairs", ()))
         if isinstance(values, np.ndarray) and not values.flags.writeable:
             self._last_lid_values = (values, out)   # one tuple: safe for two threads sharing a deformer
         return out
