@@ -90,8 +90,13 @@ def test_add_the_current_face_as_a_pose(qtbot, win, error_boxes):
     rig.set_values({"blend:joy": 0.0, "fap:3": 0.0, "fap:12": 0.0})
     rig.set_values({"blend:jaw_smile": 100.0})
     error = np.linalg.norm(np.array(rig.vertices()) - posed, axis=1)
-    moved = np.linalg.norm(posed - rig.face.vertices, axis=1) > 1.0
-    assert moved.sum() > 500 and np.median(error[moved]) < 0.1 and np.percentile(error[moved], 95) < 1.0
+    skin = np.ones(rig.face.n_vertices, bool)
+    for ids in rig.face.parts.values():   # the FAPs now move the mouth cavity's lining too; a pose is skin
+        skin[ids] = False
+    moved = (np.linalg.norm(posed - rig.face.vertices, axis=1) > 1.0) & skin
+    # (Through the 4560-vertex canonical face: median 0.12 mm with the library rebuilt on the FACS
+    # presets, whose joy has finer detail than the canonical resolution carries; 0.08 before.)
+    assert moved.sum() > 500 and np.median(error[moved]) < 0.15 and np.percentile(error[moved], 95) < 1.0
     assert not dock.add_current_pose("not a name!")
     assert error_boxes and "pose" in error_boxes[-1][1].lower()
 
