@@ -366,23 +366,15 @@ def test_greyscale_texture_expanded_to_rgb(tmp_path):
     assert (load_face(path).texture == 123).all()
 
 
+def ascii_ply(n_vertices: int, n_faces: int, body: str) -> str:
+    """An ASCII PLY announcing ``n_vertices`` (x y z) and ``n_faces`` (vertex lists), then ``body``."""
+    return ("ply\nformat ascii 1.0\n"
+            f"element vertex {n_vertices}\nproperty float x\nproperty float y\nproperty float z\n"
+            f"element face {n_faces}\nproperty list uchar int vertex_indices\nend_header\n{body}\n")
+
+
 def test_ply_quad_is_triangulated_with_note(tmp_path):
-    path = write_text(tmp_path / "q.ply", """
-        ply
-        format ascii 1.0
-        element vertex 4
-        property float x
-        property float y
-        property float z
-        element face 1
-        property list uchar int vertex_indices
-        end_header
-        0 0 0
-        200 0 0
-        200 200 0
-        0 200 0
-        4 0 1 2 3
-    """)
+    path = write_text(tmp_path / "q.ply", ascii_ply(4, 1, "0 0 0\n200 0 0\n200 200 0\n0 200 0\n4 0 1 2 3"))
     face = load_face(path)
     assert face.n_triangles == 2 and face.n_vertices == 4
     assert face.metadata.notes == ["1 polygon with more than 3 corners (quads or n-gons) was split into triangles."]
@@ -465,19 +457,7 @@ def test_point_cloud_ply_has_zero_faces(tmp_path):
 
 
 def test_ascii_ply_cut_short_says_so_not_point_cloud(tmp_path):
-    path = write_text(tmp_path / "cut.ply", """
-        ply
-        format ascii 1.0
-        element vertex 3
-        property float x
-        property float y
-        property float z
-        element face 1
-        property list uchar int vertex_indices
-        end_header
-        0 0 0
-        1 0 0
-    """)
+    path = write_text(tmp_path / "cut.ply", ascii_ply(3, 1, "0 0 0\n1 0 0"))   # 2 of 3 vertices, no face
     with pytest.raises(MeshLoadError, match=r"'cut\.ply' ends early: its header announces 3 vertices and 1 face, "
                                             r"the file holds 2 vertices and 0 faces"):
         load_face(path)
