@@ -350,15 +350,21 @@ def _cut_lids(skin: SkinPoints, triangles: np.ndarray, lines: list[LidLine]) -> 
     return np.concatenate([triangles[keep], lone, pair_first, pair_second]), new_side
 
 
-def _mouth_parts(skin: Face, scan_points: np.ndarray, donor: Face, donor_points: np.ndarray):
-    """(vertices, triangles, uv, {part: local ids}) of the donor's mouth parts placed on the scan."""
+def _donor_parts(donor: Face, names) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(donor vertex ids (k,), donor id -> local id or -1 (n,), local triangles (m, 3)) of the donor's
+    parts ``names``."""
     keep = np.zeros(donor.n_vertices, bool)
-    for name in MOUTH_PARTS:
+    for name in names:
         keep |= donor.part_mask(name)
     ids = np.nonzero(keep)[0]
     local = np.full(donor.n_vertices, -1)
     local[ids] = np.arange(len(ids))
-    triangles = local[donor.triangles[keep[donor.triangles].all(axis=1)]]
+    return ids, local, local[donor.triangles[keep[donor.triangles].all(axis=1)]]
+
+
+def _mouth_parts(skin: Face, scan_points: np.ndarray, donor: Face, donor_points: np.ndarray):
+    """(vertices, triangles, uv, {part: local ids}) of the donor's mouth parts placed on the scan."""
+    ids, local, triangles = _donor_parts(donor, MOUTH_PARTS)
     scale, rotation, shift = similarity(donor_points, scan_points)
     vertices = scale * donor.vertices[ids] @ rotation.T + shift
     forward = rotation @ np.array([0.0, 0.0, 1.0])    # the donor faces +z
@@ -451,10 +457,7 @@ def _eyeball_part(canonical: Face, donor: Face, line: LidLine):
     points = [p for p in EYE_POINTS[line.eye] if p in canonical.landmarks and p in donor.landmarks]
     if name not in donor.parts or len(points) < 3:
         return None
-    ids = np.asarray(donor.parts[name])
-    local = np.full(donor.n_vertices, -1)
-    local[ids] = np.arange(len(ids))
-    triangles = local[donor.triangles[np.isin(donor.triangles, ids).all(axis=1)]]
+    ids, _, triangles = _donor_parts(donor, (name,))
     scale, rotation, shift = similarity(donor.landmark_positions(points), canonical.landmark_positions(points))
     vertices = scale * donor.vertices[ids] @ rotation.T + shift
     depth, _, _ = _depth_below(canonical, vertices)
