@@ -1,11 +1,12 @@
 """Modules imported by our dependencies at start-up but used only later, loaded on first use.
 
-pyvista imports ``matplotlib.pyplot`` when it is imported (``pyvista.plotting.colors`` and
-``charts``) but calls it only for matplotlib charts and the colour cycler, which Mimica's window
-never needs to show a face. Loading pyplot (and with it ``matplotlib.figure``) costs ~0.4 s of the
-window's start-up on a 2-core machine; :func:`defer_module` puts a stand-in in ``sys.modules``
+pyvista imports ``matplotlib.pyplot`` and ``matplotlib.backends.backend_agg`` when it is imported
+(``pyvista.plotting.colors`` and ``charts``) but uses them only for matplotlib charts and the colour
+cycler, which Mimica's window never needs to show a face; scipy imports ``numpy.f2py`` and
+``numpy.testing`` (its array-API layer reads every attribute of numpy). Together ~0.5 s of the
+window's start-up on a 2-core machine. :func:`defer_module` puts a stand-in in ``sys.modules``
 that imports the real module the first time one of its attributes is read, so everything that uses
-it still works, only later.
+it still works, only later; :func:`defer_startup_imports` defers all of them.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import sys
 import threading
 import types
 
-_LOCK = threading.Lock()
+_LOCK = threading.RLock()   # re-entrant: loading one deferred module may load another
 
 
 class DeferredModule(types.ModuleType):
@@ -32,17 +33,33 @@ class DeferredModule(types.ModuleType):
     def __getattr__(self, attr: str):
         if attr.startswith("__") and attr.endswith("__"):
             raise AttributeError(attr)   # introspection (copy, pickle, pydoc) does not load the module
+        return getattr(self.load(), attr)
+
+    def load(self) -> types.ModuleType:
+        """Import the real module (once) and take over its namespace; returns the real module."""
         with _LOCK:
             if sys.modules.get(self.__name__) is self:
                 del sys.modules[self.__name__]
             real = importlib.import_module(self.__name__)
             self.__dict__.update({k: v for k, v in vars(real).items() if k not in ("__spec__", "__loader__")})
-        return getattr(real, attr)
+        return real
 
 
-def defer_module(name: str) -> bool:
+def _class_loaded_on_call(stand_in: DeferredModule, name: str) -> type:
+    """A stand-in for class ``name`` of a deferred module, for a ``from module import name`` at
+    import time: calling it loads the module and returns an instance of the real class."""
+
+    def new(_cls, *args, **kwargs):
+        return getattr(stand_in.load(), name)(*args, **kwargs)
+
+    return type(name, (), {"__new__": new, "__module__": stand_in.__name__,
+                           "__doc__": f"Loads {stand_in.__name__} and makes a real {name} when called."})
+
+
+def defer_module(name: str, classes: tuple[str, ...] = ()) -> bool:
     """Load module ``name`` on first use instead of when it is imported; False when it is already
-    imported (nothing to defer) or cannot be found."""
+    imported (nothing to defer) or cannot be found. ``classes``: classes that importers take with
+    ``from name import cls`` but only call later (see :func:`_class_loaded_on_call`)."""
     with _LOCK:
         if name in sys.modules:
             return False
@@ -55,6 +72,8 @@ def defer_module(name: str) -> bool:
             return False
         stand_in = DeferredModule(name)
         stand_in.__spec__ = importlib.machinery.ModuleSpec(name, None)
+        for cls in classes:
+            setattr(stand_in, cls, _class_loaded_on_call(stand_in, cls))
         sys.modules[name] = stand_in
         if parent and parent in sys.modules:   # `import a.b as c` reads c from the parent package
             setattr(sys.modules[parent], name.rpartition(".")[2], stand_in)
@@ -65,3 +84,13 @@ def defer_pyplot() -> bool:
     """Defer ``matplotlib.pyplot`` (see the module docstring); call before ``pyvista.plotting`` is
     imported (False when pyplot is imported already)."""
     return defer_module("matplotlib.pyplot")
+
+
+def defer_startup_imports() -> None:
+    """Defer every module of the module docstring; call before scipy and pyvista are imported."""
+    defer_module("numpy.f2py")
+    defer_module("numpy.testing")
+    defer_pyplot()
+    # pyvista.plotting.charts: ``from matplotlib.backends.backend_agg import FigureCanvasAgg``,
+    # called only when a matplotlib chart is made.
+    defer_module("matplotlib.backends.backend_agg", classes=("FigureCanvasAgg",))

@@ -27,6 +27,10 @@ import sys
 from pathlib import Path
 from typing import Callable
 
+from app.deferred_imports import defer_startup_imports
+
+defer_startup_imports()   # before scipy and pyvista are imported: ~0.5 s of start-up they never use
+
 from PySide6.QtCore import QEvent, QSettings, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QActionGroup, QKeySequence
 from PySide6.QtWidgets import (
@@ -84,9 +88,6 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         # The first frames in numpy: numba (~1 s to import and load its machine code) is loaded in the
         # background once the face is animatable (_on_rig_arrived), not before the face can be seen.
         lazy_numba.defer_until_warm()
-        from app.deferred_imports import defer_pyplot
-
-        defer_pyplot()   # pyvista imports pyplot but the window never needs it: ~0.4 s of start-up
         from pyvistaqt import QtInteractor
 
         from app import scene

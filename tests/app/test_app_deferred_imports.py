@@ -43,3 +43,24 @@ def test_nothing_deferred_once_pyplot_is_imported():
         "print(defer_pyplot(), defer_module('matplotlib.pyplot'), defer_module('no_such_module_here'))\n")
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == ["False", "False", "False"]
+
+
+def test_startup_deferrals_leave_numpy_scipy_and_matplotlib_charts_working():
+    result = run_fresh(
+        "import sys\n"
+        "from app.deferred_imports import defer_startup_imports, DeferredModule\n"
+        "defer_startup_imports()\n"
+        "import scipy.sparse, scipy.spatial, pyvista.plotting.charts\n"
+        "real = [m for m in ('numpy.f2py', 'numpy.testing', 'matplotlib.backends.backend_agg')\n"
+        "        if not isinstance(sys.modules[m], DeferredModule)]\n"
+        "print('loaded at import:', real)\n"
+        "from numpy.testing import assert_allclose\n"                       # first use loads the real module
+        "assert_allclose([1.0], [1.0])\n"
+        "import matplotlib.pyplot as plt\n"
+        "fig = plt.figure()\n"
+        "canvas = pyvista.plotting.charts.FigureCanvasAgg(fig)\n"             # the name charts imported
+        "from matplotlib.backends.backend_agg import FigureCanvasAgg as Real\n"
+        "print('real canvas:', type(canvas) is Real)\n")
+    assert result.returncode == 0, result.stderr
+    assert "loaded at import: []" in result.stdout
+    assert "real canvas: True" in result.stdout
