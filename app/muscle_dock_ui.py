@@ -27,9 +27,9 @@ NO_PRESET_EDITED = "Custom"
 
 def _force_unit_dyn() -> float | None:
     try:
-        from core.layers.muscles.model import load_params
+        from core.layers.muscles.specs import force_unit_dyn
 
-        return float(load_params().force_unit)
+        return force_unit_dyn()
     except Exception:  # noqa: BLE001 - decorates a tooltip only
         return None
 

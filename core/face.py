@@ -17,14 +17,15 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Iterable, Mapping
+from typing import TYPE_CHECKING, Iterable, Mapping
 
 import numpy as np
 import scipy.sparse
-import scipy.sparse.csgraph
-from scipy.spatial import cKDTree
 
 from core import normal_kernels
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,8 @@ class _TopologyCache:
     @property
     def components(self) -> tuple[int, np.ndarray]:
         if self._components is None:
+            import scipy.sparse.csgraph   # here, not at module level: ~0.3 s of the window's start-up
+
             self._components = scipy.sparse.csgraph.connected_components(
                 self.adjacency, directed=False
             )
@@ -292,6 +295,8 @@ class Face:
     def kdtree(self) -> cKDTree:
         """KD-tree over the vertices, for nearest-vertex queries."""
         if self._kdtree is None:
+            from scipy.spatial import cKDTree   # here: scipy.spatial costs ~0.15 s of start-up
+
             self._kdtree = cKDTree(self._vertices)
         return self._kdtree
 

@@ -28,7 +28,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 # Where a pose stops looking like skin. Real facial skin strains by up to about 30-40 % in
 # expressions (skin-strain studies of smiling/mouth opening); twice the rest length is well past
@@ -157,6 +156,8 @@ def _candidate_pairs(ca: np.ndarray, rad_a: np.ndarray, cb: np.ndarray, rad_b: n
         large = rad > np.percentile(rad, _LARGE_PERCENTILE)
         return [idx for idx in (np.flatnonzero(~large), np.flatnonzero(large)) if len(idx)]
 
+    from scipy.spatial import cKDTree   # here: the window imports this module (through the FAP limits)
+                                        # at start-up, and scipy.spatial costs ~0.3 s to import
     classes_a = classes(rad_a)
     classes_b = classes_a if same else classes(rad_b)
     found_a, found_b = [], []

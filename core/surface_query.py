@@ -8,7 +8,6 @@ tests run vectorised over (points x candidates).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 
 class TriangleSet:
@@ -18,6 +17,8 @@ class TriangleSet:
         self.vertices = np.asarray(vertices, float)
         self.triangles = np.asarray(triangles, np.int64)
         self.corners = self.vertices[self.triangles]                    # (m, 3, 3)
+        from scipy.spatial import cKDTree   # here: importing scipy.spatial costs ~0.3 s of the window's start-up
+
         self.tree = cKDTree(self.corners.mean(axis=1))
         edges = np.linalg.norm(self.corners - self.corners.mean(axis=1, keepdims=True), axis=2)
         self.reach = float(edges.max()) if len(edges) else 0.0          # centroid-to-corner bound

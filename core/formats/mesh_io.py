@@ -34,7 +34,6 @@ from typing import Callable, Mapping
 
 import numpy as np
 import scipy.sparse
-import scipy.sparse.csgraph
 
 from core.face import Face, FaceMetadata
 from core.formats.atomic_files import write_atomic, write_reporting_errors, write_set_atomic  # noqa: F401
@@ -307,6 +306,8 @@ def _count_components(triangles: np.ndarray, n_vertices: int) -> int:
     rows = triangles[:, [0, 1, 2]].ravel()
     cols = triangles[:, [1, 2, 0]].ravel()
     graph = scipy.sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n_vertices, n_vertices))
+    import scipy.sparse.csgraph   # here, not at module level: the window imports this module at start-up
+
     _, labels = scipy.sparse.csgraph.connected_components(graph, directed=False)
     return len(np.unique(labels[triangles.ravel()]))
 

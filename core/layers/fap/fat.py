@@ -46,7 +46,6 @@ from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse
-from scipy.sparse.csgraph import dijkstra
 
 import resources
 from core.cache import DiskCache, fingerprint, source_version
@@ -59,6 +58,15 @@ from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
 from core.layers.fap.teeth_guard import TeethGuard
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
+
+
+def dijkstra(*args, **kwargs):
+    """``scipy.sparse.csgraph.dijkstra``, imported on first use: binding a face needs it, reading a
+    bound rig from the cache (the window's start-up) does not, and the import costs ~0.2 s."""
+    from scipy.sparse.csgraph import dijkstra as scipy_dijkstra
+
+    return scipy_dijkstra(*args, **kwargs)
+
 
 N_FAPS = tables.N_FAPS
 LID_PAIRS = ((19, 21), (20, 22))  # (upper, lower) per eye

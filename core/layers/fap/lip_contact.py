@@ -15,7 +15,6 @@ compared along x, as the FAP tables assume.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from core.face import Face
 from core.layers.fap import kernels
@@ -123,6 +122,8 @@ def _lip_line(face: Face) -> tuple[np.ndarray, np.ndarray]:
 def _zone(vertices: np.ndarray, lip: np.ndarray, rim: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(ids, weights): the ``lip`` vertices within GIVE_REACH_MM of the ``rim``, and how much each
     gives way (1 on the rim, a Gaussian of the distance)."""
+    from scipy.spatial import cKDTree   # here, not at module level: ~0.3 s of the window's start-up
+
     ids = np.flatnonzero(lip)
     distance, _ = cKDTree(vertices[rim]).query(vertices[ids], distance_upper_bound=GIVE_REACH_MM)
     near = np.isfinite(distance)

@@ -24,7 +24,6 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse
-from scipy.spatial import cKDTree
 
 from core.layers.fap import kernels
 
@@ -192,6 +191,8 @@ class TeethGuard:
 
     def __init__(self, face, skin: np.ndarray):
         self.rows: list[GuardedRow] = []
+        from scipy.spatial import cKDTree   # here, not at module level: ~0.3 s of the window's start-up
+
         rest = face.vertices
         for name in ("teeth_upper", "teeth_lower"):
             idx = face.parts.get(name)

@@ -19,7 +19,7 @@ _MODULE_OF = {
     "ForceFileError": "force_file", "ForceSet": "force_file", "load_force_set": "force_file",
     "preset": "force_file", "preset_names": "force_file", "save_force_set": "force_file",
     "LayerSnapshot": "layer", "MuscleLayer": "layer", "MuscleModelError": "model",
-    "MuscleSpec": "muscles", "control_keys": "muscles", "jaw_range": "muscles", "muscle_specs": "muscles",
+    "MuscleSpec": "specs", "control_keys": "specs", "jaw_range": "specs", "muscle_specs": "specs",
     "RelaxReport": "solver", "SolverDiverged": "solver",
 }
 

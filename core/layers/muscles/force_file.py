@@ -30,7 +30,7 @@ from pathlib import Path
 
 import resources
 
-from core.layers.muscles.muscles import check_control, control_keys, jaw_range, spec_by_name
+from core.layers.muscles.specs import check_control, control_keys, jaw_range, spec_by_name
 
 FORMAT = "mimica-muscle-forces"
 VERSION = 1

@@ -70,6 +70,7 @@ import resources
 from core.face import Face, vertex_normals
 from core.layers.fap import tables
 from core.layers.fap.template import DenseTemplate, densify, mouth_side
+from core.layers.muscles.specs import load_definitions
 from core.subdivision import unique_edges
 from core.surface_query import TriangleSet
 
@@ -114,12 +115,6 @@ def load_params() -> TissueParams:
         fat_mm=float(d["layer_thickness_mm"]["fat"]), muscle_mm=float(d["layer_thickness_mm"]["muscle"]),
         head_centre=d["head_centre"], force_unit=float(d["force_unit_dyn"]), tau=float(d["activation_tau_s"]),
     )
-
-
-@functools.cache
-def load_definitions() -> dict:
-    """The muscle/jaw definitions (``resources/muscles/muscles.json``), parsed once (do not mutate)."""
-    return resources.get_json("muscles/muscles.json")
 
 
 class MuscleModelError(ValueError):

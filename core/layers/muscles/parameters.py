@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from core.layer import register_layer
 from core.parameters import Parameter, ParameterError, ParameterKind, ParamKey, parse, register_kind
-from core.layers.muscles.muscles import SIDES, jaw_range, spec_by_name
+from core.layers.muscles.specs import SIDES, jaw_range, spec_by_name
 
 _SYNTAX = "muscle:<name>:<left|right>"
 
