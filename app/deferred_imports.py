@@ -1,12 +1,14 @@
 """Modules imported by our dependencies at start-up but used only later, loaded on first use.
 
-pyvista imports ``matplotlib.pyplot`` and ``matplotlib.backends.backend_agg`` when it is imported
-(``pyvista.plotting.colors`` and ``charts``) but uses them only for matplotlib charts and the colour
-cycler, which Mimica's window never needs to show a face; scipy imports ``numpy.f2py`` and
-``numpy.testing`` (its array-API layer reads every attribute of numpy). Together ~0.5 s of the
-window's start-up on a 2-core machine. :func:`defer_module` puts a stand-in in ``sys.modules``
-that imports the real module the first time one of its attributes is read, so everything that uses
-it still works, only later; :func:`defer_startup_imports` defers all of them.
+pyvista imports ``matplotlib.pyplot`` and ``matplotlib.backends.backend_agg`` (``pyvista.plotting.
+colors`` and ``charts``) but uses them only for matplotlib charts and the colour cycler, which
+Mimica's window never needs to show a face, and ``pooch`` only to download files; scipy imports
+``numpy.f2py`` and ``numpy.testing`` (its array-API layer reads every attribute of numpy);
+pyvistaqt imports ``qtpy.QtCore``/``QtGui``/``QtWidgets``, whose ``from PySide6.QtX import *``
+makes PySide create every class of the module (PySide creates them on first use otherwise).
+Together ~0.8 s of the window's start-up on a 2-core machine. :func:`defer_module` puts a stand-in
+in ``sys.modules`` that imports the real module the first time one of its attributes is read, so
+everything that uses it still works, only later; :func:`defer_startup_imports` defers all of them.
 """
 
 from __future__ import annotations
@@ -80,6 +82,54 @@ def defer_module(name: str, classes: tuple[str, ...] = ()) -> bool:
         return True
 
 
+class QtpyFromPySide(DeferredModule):
+    """Stands in for ``qtpy.<module>`` when qtpy wraps PySide6: a name is read from the PySide6
+    modules in ``sources`` (the first that has it); only a name none of them has (a qtpy addition)
+    loads the real qtpy module. The objects are the same ones qtpy would give: on PySide6, qtpy's
+    modules re-export PySide6's classes (patching a few methods Mimica and pyvistaqt do not call)."""
+
+    sources: tuple[str, ...] = ()
+
+    def __getattr__(self, attr: str):
+        if attr.startswith("__") and attr.endswith("__"):
+            raise AttributeError(attr)
+        for source in self.sources:
+            module = importlib.import_module(source)
+            if hasattr(module, attr):
+                value = getattr(module, attr)
+                setattr(self, attr, value)
+                return value
+        return getattr(self.load(), attr)
+
+
+# qtpy module -> the PySide6 modules its names come from (Qt 6 moved QAction and friends to QtGui).
+_QTPY_SOURCES = {
+    "qtpy.QtCore": ("PySide6.QtCore",),
+    "qtpy.QtGui": ("PySide6.QtGui",),
+    "qtpy.QtWidgets": ("PySide6.QtWidgets", "PySide6.QtGui"),
+    "qtpy.QtOpenGLWidgets": ("PySide6.QtOpenGLWidgets",),
+}
+
+
+def shortcut_qtpy() -> bool:
+    """Put :class:`QtpyFromPySide` stand-ins for qtpy's Qt modules in ``sys.modules`` (False when
+    qtpy is missing, wraps another binding, or its modules are imported already)."""
+    with _LOCK:
+        try:
+            import qtpy
+        except ImportError:
+            return False
+        if getattr(qtpy, "API_NAME", "") != "PySide6" or any(name in sys.modules for name in _QTPY_SOURCES):
+            return False
+        for name, sources in _QTPY_SOURCES.items():
+            stand_in = QtpyFromPySide(name)
+            stand_in.sources = sources
+            stand_in.__spec__ = importlib.machinery.ModuleSpec(name, None)
+            sys.modules[name] = stand_in
+            setattr(qtpy, name.rpartition(".")[2], stand_in)
+        return True
+
+
 def defer_pyplot() -> bool:
     """Defer ``matplotlib.pyplot`` (see the module docstring); call before ``pyvista.plotting`` is
     imported (False when pyplot is imported already)."""
@@ -94,3 +144,5 @@ def defer_startup_imports() -> None:
     # pyvista.plotting.charts: ``from matplotlib.backends.backend_agg import FigureCanvasAgg``,
     # called only when a matplotlib chart is made.
     defer_module("matplotlib.backends.backend_agg", classes=("FigureCanvasAgg",))
+    defer_module("pooch")   # pyvista's reader registry: downloads of URLs only
+    shortcut_qtpy()

@@ -45,13 +45,14 @@ def test_nothing_deferred_once_pyplot_is_imported():
     assert result.stdout.split() == ["False", "False", "False"]
 
 
-def test_startup_deferrals_leave_numpy_scipy_and_matplotlib_charts_working():
+def test_startup_deferrals_keep_every_deferred_module_working():
     result = run_fresh(
         "import sys\n"
         "from app.deferred_imports import defer_startup_imports, DeferredModule\n"
         "defer_startup_imports()\n"
-        "import scipy.sparse, scipy.spatial, pyvista.plotting.charts\n"
-        "real = [m for m in ('numpy.f2py', 'numpy.testing', 'matplotlib.backends.backend_agg')\n"
+        "import scipy.sparse, scipy.spatial, pyvista.plotting.charts, pyvistaqt\n"
+        "real = [m for m in ('numpy.f2py', 'numpy.testing', 'matplotlib.backends.backend_agg', 'pooch',\n"
+        "                    'qtpy.QtCore', 'qtpy.QtGui', 'qtpy.QtWidgets')\n"
         "        if not isinstance(sys.modules[m], DeferredModule)]\n"
         "print('loaded at import:', real)\n"
         "from numpy.testing import assert_allclose\n"                       # first use loads the real module
@@ -60,7 +61,13 @@ def test_startup_deferrals_leave_numpy_scipy_and_matplotlib_charts_working():
         "fig = plt.figure()\n"
         "canvas = pyvista.plotting.charts.FigureCanvasAgg(fig)\n"             # the name charts imported
         "from matplotlib.backends.backend_agg import FigureCanvasAgg as Real\n"
-        "print('real canvas:', type(canvas) is Real)\n")
+        "print('real canvas:', type(canvas) is Real)\n"
+        "import PySide6.QtGui, PySide6.QtWidgets, qtpy.QtWidgets\n"
+        "print('qtpy names:', qtpy.QtWidgets.QAction is PySide6.QtGui.QAction,\n"        # Qt 6 moved QAction
+        "      qtpy.QtWidgets.QFrame is PySide6.QtWidgets.QFrame)\n"
+        "print('pooch works:', callable(sys.modules['pooch'].retrieve))\n")
     assert result.returncode == 0, result.stderr
     assert "loaded at import: []" in result.stdout
     assert "real canvas: True" in result.stdout
+    assert "qtpy names: True True" in result.stdout
+    assert "pooch works: True" in result.stdout
