@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Hashable, Iterable
 
 from PySide6.QtCore import QEvent, QObject, QSignalBlocker, Qt, Signal
-from PySide6.QtGui import QFontMetrics
+from PySide6.QtGui import QFocusEvent, QFontMetrics
 from PySide6.QtWidgets import QAbstractSpinBox, QHBoxLayout, QLabel, QSizePolicy, QToolButton, QWidget
 
 from app.widgets import ScrollFriendlySlider, ScrollFriendlySpinBox
@@ -239,7 +239,7 @@ class ParameterRow(QWidget):
         super().mouseDoubleClickEvent(event)
 
     def eventFilter(self, watched: QObject, event: QEvent) -> bool:  # noqa: N802 - Qt override
-        if event.type() in (QEvent.Type.FocusIn, QEvent.Type.FocusOut):
+        if isinstance(event, QFocusEvent) and event.type() in (QEvent.Type.FocusIn, QEvent.Type.FocusOut):
             self.focus_changed.emit(self.key, event.type() == QEvent.Type.FocusIn)
         return False
 
