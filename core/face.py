@@ -106,9 +106,9 @@ class _TopologyCache:
     @property
     def components(self) -> tuple[int, np.ndarray]:
         if self._components is None:
-            import scipy.sparse.csgraph   # here, not at module level: ~0.3 s of the window's start-up
+            from scipy.sparse.csgraph import connected_components   # here: ~0.3 s of the window's start-up
 
-            self._components = scipy.sparse.csgraph.connected_components(
+            self._components = connected_components(
                 self.adjacency, directed=False
             )
         return self._components

@@ -306,9 +306,9 @@ def _count_components(triangles: np.ndarray, n_vertices: int) -> int:
     rows = triangles[:, [0, 1, 2]].ravel()
     cols = triangles[:, [1, 2, 0]].ravel()
     graph = scipy.sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n_vertices, n_vertices))
-    import scipy.sparse.csgraph   # here, not at module level: the window imports this module at start-up
+    from scipy.sparse.csgraph import connected_components   # here: the window imports this module at start-up
 
-    _, labels = scipy.sparse.csgraph.connected_components(graph, directed=False)
+    _, labels = connected_components(graph, directed=False)
     return len(np.unique(labels[triangles.ravel()]))
 
 
