@@ -439,10 +439,17 @@ class MainWindow(FaceFilesMixin, FaceViewMixin, ScanToolsMixin, QMainWindow):
         self._disconnect_rig()
         self._set_rig(rig)   # the dock shows document.rig_message; the loader words the status bar
         if rig is not None and not MainWindow._kernels_warming:
-            MainWindow._kernels_warming = True     # once per process: the kernels are shared
-            from app.document import warm_up_kernels
+            # From the event loop, after the docks have taken the rig (the FAP rows are built on this
+            # thread): a Python thread started now would take half of their time (GIL).
+            QTimer.singleShot(0, self, self._warm_up_kernels)
 
-            self.jobs.start(lambda _job: warm_up_kernels(), lambda _result: None)
+    def _warm_up_kernels(self) -> None:
+        from app.document import warm_up_kernels
+
+        if self._closing or MainWindow._kernels_warming:
+            return
+        MainWindow._kernels_warming = True     # once per process: the kernels are shared
+        self.jobs.start(lambda _job: warm_up_kernels(), lambda _result: None)
 
     def _set_rig(self, rig, message: str = "") -> None:
         self._shown_overlay = (None, None)

@@ -140,6 +140,7 @@ class MuscleSimulation(QObject):
         self._layer_face = None  # the face self.layer was built for (kept for re-use)
         self._layer_signature: tuple | None = None  # its landmarks and vertices when built
         self._builds = JobRunner(self, supersede=True)   # a newer face's build supersedes the older one
+        self._pending_build: tuple | None = None   # (face, build) waiting for the event loop to start it
         self._closed = False
         self._animating = False
         self._anim_elapsed = 0.0
@@ -271,6 +272,7 @@ class MuscleSimulation(QObject):
             return
         face, rig = document.face, document.rig
         self._builds.cancel()  # builds still running are for an older face
+        self._pending_build = None
         if face is None:
             self._release_layer()
             self.set_layer(None, NO_FACE_MESSAGE)
@@ -303,7 +305,16 @@ class MuscleSimulation(QObject):
             except ValueError as exc:  # the face does not fit the model: a message, not a bug
                 raise ValueError(f"The muscle model cannot be built for this face: {exc}") from None
 
-        self._builds.start(build, self._on_built, self._on_build_failed)
+        # Started from the event loop, after the handlers of this change (the FAP dock building its
+        # rows, the first frame): a Python thread started now would take half of their time (GIL).
+        self._pending_build = pending = (face, build)
+
+        def start() -> None:
+            if self._pending_build is pending and not self._closed:
+                self._pending_build = None
+                self._builds.start(build, self._on_built, self._on_build_failed)
+
+        QTimer.singleShot(0, self, start)
 
     def _shared_template(self, rig):
         """The rig's densified template when it is the one the layer needs: the layer then skips
