@@ -66,6 +66,8 @@ for var in ("XDG_CONFIG_HOME", "XDG_DATA_HOME", "XDG_STATE_HOME"):
 if args.cold:
     os.environ["MIMICA_CACHE_DIR"] = os.path.join(_home, "cache")
 
+# The window's module first, as `mimica` imports it (it orders its imports for start-up).
+from app.main_window import MainWindow  # noqa: E402
 from PySide6.QtCore import QEvent, QPoint, QPointF, QSettings, Qt  # noqa: E402
 from PySide6.QtGui import QMouseEvent  # noqa: E402
 from PySide6.QtTest import QTest  # noqa: E402
@@ -73,7 +75,6 @@ from PySide6.QtWidgets import QApplication  # noqa: E402
 
 app = QApplication(sys.argv)
 
-from app.main_window import MainWindow  # noqa: E402
 from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: E402
 from vtkmodules.vtkCommonCore import vtkUnsignedCharArray  # noqa: E402
 
