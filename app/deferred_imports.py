@@ -8,7 +8,7 @@ pyvistaqt imports ``qtpy.QtCore``/``QtGui``/``QtWidgets``, whose ``from PySide6.
 makes PySide create every class of the module (PySide creates them on first use otherwise).
 Together ~0.8 s of the window's start-up on a 2-core machine. :func:`defer_module` puts a stand-in
 in ``sys.modules`` that imports the real module the first time one of its attributes is read, so
-everything that uses it still works, only later; :func:`defer_startup_imports` defers all of them.
+everything that uses it still works, only later. :func:`prepare_startup_imports` does all of it.
 """
 
 from __future__ import annotations
@@ -136,7 +136,7 @@ def defer_pyplot() -> bool:
     return defer_module("matplotlib.pyplot")
 
 
-def defer_startup_imports() -> None:
+def prepare_startup_imports() -> None:
     """Defer every module of the module docstring, then import what the window does need that does
     not need Qt (:func:`import_before_qt`); call before scipy, pyvista and PySide6 are imported."""
     defer_module("numpy.f2py")

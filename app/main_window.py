@@ -27,9 +27,9 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from app.deferred_imports import defer_startup_imports
+from app.deferred_imports import prepare_startup_imports
 
-defer_startup_imports()   # before scipy and pyvista are imported: ~0.5 s of start-up they never use
+prepare_startup_imports()   # ~0.8 s of start-up: modules deferred, numpy/scipy/pyvista before PySide6
 
 from PySide6.QtCore import QEvent, QSettings, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QActionGroup, QKeySequence

@@ -48,8 +48,8 @@ def test_nothing_deferred_once_pyplot_is_imported():
 def test_startup_deferrals_keep_every_deferred_module_working():
     result = run_fresh(
         "import sys\n"
-        "from app.deferred_imports import defer_startup_imports, DeferredModule\n"
-        "defer_startup_imports()\n"
+        "from app.deferred_imports import prepare_startup_imports, DeferredModule\n"
+        "prepare_startup_imports()\n"
         "import scipy.sparse, scipy.spatial, pyvista.plotting.charts, pyvistaqt\n"
         "real = [m for m in ('numpy.f2py', 'numpy.testing', 'matplotlib.backends.backend_agg', 'pooch',\n"
         "                    'qtpy.QtCore', 'qtpy.QtGui', 'qtpy.QtWidgets')\n"
