@@ -238,7 +238,8 @@ class FapDock(QDockWidget):
             group = FapGroup(name, self._groups_widget)
             group.reset_requested.connect(self.reset_group)
             for spec in members:
-                row = fap_row(spec, fapu, self._fp_names, group.body, rig.deformer.limit_note(spec.number))
+                row = fap_row(spec, fapu, self._fp_names, group.body, rig.deformer.limit_note(spec.number),
+                              rig.describe(f"fap:{spec.number}"))
                 row.edited.connect(self._row_edited)
                 row.reset_requested.connect(self.reset_fap)
                 row.hover_changed.connect(self._row_hover)

@@ -13,6 +13,7 @@ from core.layers.fap import tables
 from core.layers.fap.parameters import fap_label as row_label  # noqa: F401 - re-exported
 
 if TYPE_CHECKING:  # pragma: no cover
+    from core import parameters as P
     from core.layers.fap.tables import FapSpec
 
 _GROUP_TITLES = {"jaw & chin": "Jaw && chin"}  # QToolButton text: '&' marks a mnemonic
@@ -32,10 +33,12 @@ def _mm(value: float) -> str:
 
 
 def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = None,
-                limit_note: str | None = None) -> str:
+                limit_note: str | None = None, param: "P.Parameter | None" = None) -> str:
     """Rich-text tooltip: full MPEG-4 name, feature point, direction, range and unit size on this face,
-    and ``limit_note`` when the face eases the FAP before a slider end (``FapDeformer.limit_note``)."""
+    and ``limit_note`` when the face eases the FAP before a slider end (``FapDeformer.limit_note``).
+    ``param``: the face's own description (``FaceRig.describe``) when its range is not the table's."""
     fp_names = fp_names if fp_names is not None else _feature_point_descriptions()
+    low, high = (param.minimum, param.maximum) if param is not None else (spec.minimum, spec.maximum)
     fps = [p for p in spec.fp.split(";") if p]
     where = ", ".join(f"{p} ({fp_names[p].rstrip('.')})" if p in fp_names else p for p in fps)
     lines = [f"<b>FAP {spec.number} {spec.name}</b>",
@@ -44,14 +47,14 @@ def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = N
     lines.append(f"Positive direction: {spec.direction} ({'bidirectional' if spec.bidirectional else 'one-way'},"
                  f" {sign})")
     if spec.is_rotation:
-        lo, hi = spec.minimum * DEG_PER_AU, spec.maximum * DEG_PER_AU
-        lines.append(f"Range {spec.minimum:g} to {spec.maximum:g} AU = {lo:.1f}° to {hi:.1f}°")
+        lines.append(f"Range {low:g} to {high:g} AU = {low * DEG_PER_AU:.1f}° to {high * DEG_PER_AU:.1f}°")
         lines.append(f"1 AU = 10⁻⁵ rad = {DEG_PER_AU:.5f}°; the box shows degrees, the slider AU")
     else:
         unit_mm = float(fapu.get(spec.unit, float("nan")))
-        lines.append(f"Range {spec.minimum:g} to {spec.maximum:g} {spec.unit}"
-                     f" = {_mm(spec.minimum * unit_mm)} to {_mm(spec.maximum * unit_mm)} mm")
+        lines.append(f"Range {low:g} to {high:g} {spec.unit} = {_mm(low * unit_mm)} to {_mm(high * unit_mm)} mm")
         lines.append(f"1 {spec.unit} unit = {_mm(unit_mm)} mm on this face")
+    if param is not None and param.note:
+        lines.append(f"On this face: {param.note}")
     if limit_note:
         lines.append(f"On this face: {limit_note}")
     if spec.pair is not None:
@@ -62,10 +65,11 @@ def fap_tooltip(spec: "FapSpec", fapu: dict, fp_names: dict[str, str] | None = N
 
 # ------------------------------------------------------------------ one FAP
 def fap_row(spec: "FapSpec", fapu: dict, fp_names: dict[str, str], parent: QWidget | None = None,
-            limit_note: str | None = None) -> ParameterRow:
-    """The row of one FAP (``fap:<n>``): the registry's label and range, the face's tooltip."""
-    return ParameterRow(f"fap:{spec.number}", parent, tooltip=fap_tooltip(spec, fapu, fp_names, limit_note),
-                        name=f"fap{spec.number}")
+            limit_note: str | None = None, param: "P.Parameter | None" = None) -> ParameterRow:
+    """The row of one FAP (``fap:<n>``): the registry's label, the face's range (``param``, from
+    ``FaceRig.describe``; the registry's when None) and tooltip."""
+    return ParameterRow(f"fap:{spec.number}", parent, param=param, name=f"fap{spec.number}",
+                        tooltip=fap_tooltip(spec, fapu, fp_names, limit_note, param))
 
 
 def fap_number(row: ParameterRow) -> int:

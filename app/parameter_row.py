@@ -90,6 +90,8 @@ def parameter_tooltip(param: P.Parameter, notes: Iterable[str] = ()) -> str:
     if param.description:
         lines.append(param.description)
     lines.append(f"Range {param.minimum:g} to {param.maximum:g}{unit}")
+    if param.note:
+        lines.append(f"On this face: {param.note}")
     lines += [n for n in notes if n]
     return "<br>".join(lines)
 
@@ -101,6 +103,8 @@ class ParameterRow(QWidget):
     text : the label's text (the registry's label by default; the muscle dock shows the side only)
     tooltip : rich text for the row (``parameter_tooltip(param)`` by default)
     name : object-name stem (``<name>Slider``, ``<name>Spin``, ``<name>Reset``, ``<name>Label``)
+    param : the parameter's description on the face shown (``FaceRig.describe``: its own range) when
+        it is not the registry's
     """
 
     edited = Signal(str, float)          # key, new value
@@ -109,9 +113,9 @@ class ParameterRow(QWidget):
     focus_changed = Signal(str, bool)    # key, slider or spin box got (True) / lost (False) focus
 
     def __init__(self, key: Hashable, parent: QWidget | None = None, *, text: str | None = None,
-                 tooltip: str | None = None, name: str | None = None):
+                 tooltip: str | None = None, name: str | None = None, param: P.Parameter | None = None):
         super().__init__(parent)
-        self.param = P.describe(key)
+        self.param = param if param is not None else P.describe(key)
         self.key: str = self.param.key
         self.format = fmt = row_format(self.param)
         self.minimum, self.maximum = float(fmt.minimum), float(fmt.maximum)

@@ -20,7 +20,9 @@ line all name parameters this way.
 Each family (a :class:`ParameterKind`) is registered by the module that animates it (its rig
 layer) with :func:`register_kind`; :func:`describe` gives a parameter's label, unit, range,
 default, description and left/right mirror (what "Link left/right" moves with it),
-:func:`check_value` validates a value (never clamps). The built-in kinds are defined in
+:func:`check_value` validates a value (never clamps). A rig may describe a parameter of its face
+differently (``FaceRig.describe``: a range of its own); the docks, the timeline and the command
+line ask the rig when there is one. The built-in kinds are defined in
 ``core.layers.fap.parameters`` and ``core.layers.muscles.parameters`` and load on first use.
 """
 
@@ -68,6 +70,7 @@ class Parameter:
     simulated: bool = False  # drives a dynamic layer (its value at t depends on the history)
     description: str = ""    # one sentence on what it does (tooltips)
     mirror: str | None = None  # the canonical key of its left/right partner ("Link left/right"), if any
+    note: str = ""      # why a face's description differs from the registry's (e.g. its own range)
 
 
 @dataclass(frozen=True)
@@ -162,9 +165,13 @@ def is_simulated(spelling: Hashable) -> bool:
     return _KINDS[parse(spelling).kind].simulated
 
 
-def check_value(spelling: Hashable, value) -> float:
-    """``value`` as a float if the parameter allows it; ParameterError naming the parameter otherwise."""
-    p = describe(spelling)
+def check_value(spelling: Hashable, value, parameter: Parameter | None = None) -> float:
+    """``value`` as a float if the parameter allows it; ParameterError naming the parameter otherwise.
+
+    ``parameter``: the description to check against when a face has its own (a rig's ``describe``:
+    e.g. the lids of an eye closed in the scan open further than the table's range); the registry's
+    otherwise."""
+    p = parameter if parameter is not None else describe(spelling)
     if isinstance(value, bool):
         raise ParameterError(f"{p.key} ({p.label}): values are numbers, got {value!r}")
     try:

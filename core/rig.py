@@ -151,7 +151,12 @@ class FaceRig:
         return {k: name for name, layer in self._layers.items() for k in layer.parameters()}
 
     def describe(self, key) -> P.Parameter:
-        return P.describe(key)
+        """``key``'s description on this face: its layer's when the layer has its own (a range that
+        depends on the face), else the registry's."""
+        name = self._owners().get(P.key_of(key))
+        layer = self._layers.get(name) if name is not None else None
+        describe = getattr(layer, "describe", None)
+        return describe(key) if describe is not None else P.describe(key)
 
     def owner(self, key) -> RigLayer:
         """The layer that animates ``key``; ParameterError saying why when none does."""
@@ -187,7 +192,7 @@ class FaceRig:
         for spelling, value in values.items():
             k = P.key_of(spelling)
             name = owners.get(k) or self.owner(k).name   # owner() raises the reason
-            groups.setdefault(name, {})[k] = P.check_value(k, value)
+            groups.setdefault(name, {})[k] = P.check_value(k, value, self.describe(k))
         if "faps" in groups:   # FAPs have a face-specific check beyond the range (animated here?)
             for k, v in groups["faps"].items():
                 if k.startswith("fap:"):

@@ -223,6 +223,29 @@ def test_out_of_range_entry_cannot_reach_the_rig(qtbot, dock, rig):
         rig.check_fap(3, 5000)
 
 
+def test_a_faces_own_range_reaches_the_row(qtbot, dock, rig, monkeypatch):
+    """A face whose rig describes a FAP with its own range (a scan's closed eye: the upper lid opens
+    to -1324 instead of the table's -300) gets it on the slider, the box and the tooltip."""
+    import dataclasses
+
+    from core import parameters as P
+
+    own = dataclasses.replace(P.describe("fap:19"), minimum=-1324.0, note="this eye is closed at rest")
+    table = rig.faps.describe
+    monkeypatch.setattr(rig.faps, "describe", lambda key: own if P.key_of(key) == "fap:19" else table(key))
+    dock.set_rig(rig)
+    row, other = dock.row(19), dock.row(20)
+    assert row.minimum == -1324.0 and other.minimum == -300.0
+    assert row.spin.minimum() == pytest.approx(-1324.0 * row.display_scale)
+    assert row.slider.minimum() == round(-1324.0 * row.slider_scale)
+    assert "On this face: this eye is closed at rest" in row.slider.toolTip()
+    assert "Range -1324 to 1024 IRISD" in row.slider.toolTip()
+    row.slider.setValue(round(-1200 * row.slider_scale))
+    assert rig.fap_value(19) == -1200.0
+    other.slider.setValue(other.slider.minimum() - 1000)      # the other lid keeps the table's end
+    assert rig.fap_value(20) == -300.0
+
+
 def test_refused_edit_shows_a_message_and_snaps_back(qtbot, dock, rig, monkeypatch):
     def refuse(values):
         raise ValueError("open_jaw refused for this test")

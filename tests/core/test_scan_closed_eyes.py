@@ -160,3 +160,43 @@ def test_a_closed_eye_closes_no_further(closed_registration, animated):
     out = lid_contact(values, closed=((19, 21),))                  # left eye closed, right open
     assert out[18] == 0.0 and out[20] == -200.0
     np.testing.assert_allclose(out[[19, 21]], 1024.0 / 1400.0 * 700.0)   # the open eye's lids meet
+
+
+def test_a_closed_eyes_upper_lid_opens_it_fully_within_the_faces_own_range(default_face, animated):
+    """The table's -300 IRISD lifts a closed lid a tenth of the eye's width (a sleepy slit): on a face
+    whose eyes are closed at rest the upper-lid FAPs run 1024 further, to -1324 (an open eye's lids
+    meet when their values add up to 1024), while the lower lids and an open-eyed face keep the
+    table's range and refuse such values with the range in the message."""
+    from core import parameters as P
+    from core.cache import DiskCache
+    from core.layers.fap.fat import FapDeformer
+    from core.rig import FaceRig
+
+    face = animated.face
+    rig = FaceRig(face, FapDeformer(face, dense=animated.dense, binding=animated.binding()))
+    for number in (19, 20):
+        param = rig.describe(f"fap:{number}")
+        assert (param.minimum, param.maximum) == (-1324.0, 1024.0)
+        assert "closed at rest" in param.note
+    for key in ("fap:21", "fap:22", "fap:3"):
+        assert rig.describe(key) == P.describe(key)                     # the registry's
+    with pytest.raises(P.ParameterError, match="outside its range -1324 to 1024"):
+        rig.set_faps({19: -1400.0})
+    with pytest.raises(P.ParameterError, match="outside its range -300 to 1024"):
+        rig.set_values({"fap:21": -700.0})
+    rig.set_values({"fap:19": -1024.0, "fap:20": -1024.0})
+    moved = rig.vertices()
+    lids = ["3.1", "3.3", "3.2", "3.4"]
+    rest, now = face.landmark_positions(lids), face.landmark_positions(lids, moved)
+    irisd = tables.measure_fapu({n: face.landmark_position(n) for n in face.landmark_names})["IRISD"]
+    opening = (now[[0, 2], 1] - now[[1, 3], 1]) - (rest[[0, 2], 1] - rest[[1, 3], 1])
+    assert opening == pytest.approx(1024 * irisd, rel=0.25)           # an open eye's height, about
+    assert _first_part_hit(face, moved, _lid_centres(face, moved)) == ["eyeball_l", "eyeball_r"]
+    n_skin = animated.n_scan + animated.n_copies
+    skin = face.triangles[(face.triangles < n_skin).all(axis=1)]
+    assert _edge_growth(face.vertices, moved, skin).max() < 1024 * irisd   # no skin web across the eye
+
+    open_rig = FaceRig(default_face, cache=DiskCache())
+    assert open_rig.describe("fap:19").minimum == -300.0 and not open_rig.describe("fap:19").note
+    with pytest.raises(P.ParameterError, match="outside its range -300 to 1024"):
+        open_rig.set_faps({19: -700.0})

@@ -622,6 +622,11 @@ class FapDeformer:
         not simply add up: lips pressed into each other give way)."""
         return self._lip_contact.zone(self.face.n_vertices)
 
+    @property
+    def closed_lid_faps(self) -> frozenset[int]:
+        """The lid FAPs (19-22) of the eyes closed at rest on this face (a scan taken with them shut)."""
+        return frozenset(n for pair in self.__dict__.get("_closed_lid_pairs", ()) for n in pair)
+
     def limited(self, values: np.ndarray) -> np.ndarray:
         """(68,) FAP values eased into this face's clean limits (``limits.soft_limit``): unchanged
         well inside them, never past them."""

@@ -13,6 +13,7 @@ rotations) after every layer's offset.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, Mapping
 
 import numpy as np
@@ -25,6 +26,12 @@ from core.layers.fap import tables
 from core.layers.fap.fat import FapDeformer
 
 N_FAPS = tables.N_FAPS
+# How much further (IRISD units) the upper-lid FAP of an eye closed at rest may open it than the
+# table lets an open eye's: an open eye's lids meet when their two values add up to 1024 (see
+# fat.lid_contact), and the upper lid makes most of that travel, so -1024 opens a closed eye about
+# as wide as an open one and the table's -300 then widens it as it would an open eye.
+CLOSED_LID_OPENING = 1024.0
+UPPER_LIDS = (19, 20)
 Mix = tuple[tuple[int, float], ...]
 NEUTRAL: Mix = ((0, 0.0),)
 
@@ -114,7 +121,22 @@ class FapLayer:
         if spec.number not in self.animated_faps:
             why = self.deformer.why_not_animated(spec.number)
             raise P.ParameterError(f"FAP {spec.number} ({spec.name}) cannot be animated on this face: {why}")
-        return spec.number, P.check_value(f"fap:{spec.number}", value)
+        key = f"fap:{spec.number}"
+        return spec.number, P.check_value(key, value, self.describe(key))
+
+    def describe(self, key) -> P.Parameter:
+        """The registry's description of ``key``, with this face's own range: the upper-lid FAP of an
+        eye closed at rest runs ``CLOSED_LID_OPENING`` further down than the table's -300 IRISD (which
+        lifts a closed lid a tenth of the eye's width: a sleepy slit); closing it further does nothing
+        (its lids already meet)."""
+        p = P.describe(key)
+        k = P.parse(key)
+        if k.kind == "fap" and int(k.id) in UPPER_LIDS and int(k.id) in self.deformer.closed_lid_faps:
+            low = p.minimum - CLOSED_LID_OPENING
+            return dataclasses.replace(p, minimum=low, note=(
+                f"this eye is closed at rest: -{CLOSED_LID_OPENING:g} opens it about as wide as an open "
+                f"eye, down to {low:g} wider still (the table's {p.minimum:g} opens it to a slit)"))
+        return p
 
     def reset_faps(self, numbers=None) -> None:
         new = self._values.copy()
