@@ -29,7 +29,7 @@ from blend_transfer_figure import registration  # noqa: E402 - the same LeePerry
 
 TILE = (420, 420)
 POSES = (("neutral", {}, None), ("jaw open (FAP 3 = 500)", {"fap:3": 500.0}, None), ("joy 80 %", {}, "joy"),
-         ("eyelids opened (FAPs 19, 20 = -300)", {"fap:19": -300.0, "fap:20": -300.0}, None))
+         ("eyelids opened (FAPs 19, 20 = -1024)", {"fap:19": -1024.0, "fap:20": -1024.0}, None))
 VIEWS = ("front", "three-quarter")
 
 
