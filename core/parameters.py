@@ -71,6 +71,9 @@ class Parameter:
     description: str = ""    # one sentence on what it does (tooltips)
     mirror: str | None = None  # the canonical key of its left/right partner ("Link left/right"), if any
     note: str = ""      # why a face's description differs from the registry's (e.g. its own range)
+    # The widest range any face may give it (None: minimum..maximum); keys and files are checked
+    # against it, a rig against its own face's (``FaceRig.describe``).
+    outer: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -170,8 +173,10 @@ def check_value(spelling: Hashable, value, parameter: Parameter | None = None) -
 
     ``parameter``: the description to check against when a face has its own (a rig's ``describe``:
     e.g. the lids of an eye closed in the scan open further than the table's range); the registry's
-    otherwise."""
+    otherwise, which allows the widest range any face gives it (its ``outer`` range: a timeline key or
+    a file is not tied to one face)."""
     p = parameter if parameter is not None else describe(spelling)
+    low, high = (p.minimum, p.maximum) if parameter is not None or p.outer is None else p.outer
     if isinstance(value, bool):
         raise ParameterError(f"{p.key} ({p.label}): values are numbers, got {value!r}")
     try:
@@ -180,9 +185,8 @@ def check_value(spelling: Hashable, value, parameter: Parameter | None = None) -
         raise ParameterError(f"{p.key} ({p.label}): values are numbers, got {value!r}") from None
     if not math.isfinite(value):
         raise ParameterError(f"{p.key} ({p.label}): values must be finite numbers, got {value}")
-    if not p.minimum <= value <= p.maximum:
-        raise ParameterError(
-            f"{p.key} ({p.label}) = {value:g} is outside its range {p.minimum:g} to {p.maximum:g} {p.unit}".rstrip())
+    if not low <= value <= high:
+        raise ParameterError(f"{p.key} ({p.label}) = {value:g} is outside its range {low:g} to {high:g} {p.unit}".rstrip())
     return value
 
 

@@ -117,3 +117,23 @@ def test_a_project_saves_and_reloads_a_new_layer(rig, tmp_path):
     assert fresh.value("offset:z") == -3.25 and fresh.value("fap:3") == 120.0
     np.testing.assert_array_equal(fresh.vertices(), rig.vertices())
     assert RigSettings.from_rig(fresh) == RigSettings({"fap:3": 120.0, "offset:z": -3.25})
+
+
+def test_a_range_a_face_may_widen_is_kept_by_keys_and_files_and_checked_by_each_rig(rig, tmp_path):
+    """fap:19's table range is -300..1024, but an eye closed at rest (a scan taken with it shut) opens
+    to -1324: a key or a file may hold such a value (it is not tied to one face); each rig checks it
+    against its own face's range and says so."""
+    p = P.describe("fap:19")
+    assert (p.minimum, p.maximum, p.outer) == (-300.0, 1024.0, (-1324.0, 1024.0))
+    assert P.describe("fap:21").outer is None                      # the lower lids keep the table's
+    assert P.check_value("fap:19", -900) == -900.0
+    with pytest.raises(P.ParameterError, match="outside its range -1324 to 1024"):
+        P.check_value("fap:19", -1400)
+    timeline = Timeline(2.0, 30)
+    timeline.replace_tracks({"fap:19": Track("fap:19", [(0.0, 0.0), (1.0, -900.0)])})
+    path = tmp_path / "closed_eye_take.mimica"
+    save_project(path, Project.from_state(rig.face, FaceRef.default_face(), rig, timeline))
+    assert list(load_project(path).timeline.tracks["fap:19"].values) == [0.0, -900.0]
+    with pytest.raises(P.ParameterError, match="outside its range -300 to 1024"):   # the default face's eyes are open
+        rig.set_values({"fap:19": -900.0})
+    assert rig.describe("fap:19") == p and rig.value("fap:19") == 0.0

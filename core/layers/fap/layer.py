@@ -22,16 +22,11 @@ from psygnal import Signal
 from core import parameters as P
 from core.layer import ParameterChange
 from core.layers.fap import parameters as _kinds  # noqa: F401 - registers the fap/expression/viseme kinds
+from core.layers.fap.parameters import CLOSED_LID_OPENING, UPPER_LIDS
 from core.layers.fap import tables
 from core.layers.fap.fat import FapDeformer
 
 N_FAPS = tables.N_FAPS
-# How much further (IRISD units) the upper-lid FAP of an eye closed at rest may open it than the
-# table lets an open eye's: an open eye's lids meet when their two values add up to 1024 (see
-# fat.lid_contact), and the upper lid makes most of that travel, so -1024 opens a closed eye about
-# as wide as an open one and the table's -300 then widens it as it would an open eye.
-CLOSED_LID_OPENING = 1024.0
-UPPER_LIDS = (19, 20)
 Mix = tuple[tuple[int, float], ...]
 NEUTRAL: Mix = ((0, 0.0),)
 
@@ -132,7 +127,7 @@ class FapLayer:
         p = P.describe(key)
         k = P.parse(key)
         if k.kind == "fap" and int(k.id) in UPPER_LIDS and int(k.id) in self.deformer.closed_lid_faps:
-            low = p.minimum - CLOSED_LID_OPENING
+            low = p.outer[0]
             return dataclasses.replace(p, minimum=low, note=(
                 f"this eye is closed at rest: -{CLOSED_LID_OPENING:g} opens it about as wide as an open "
                 f"eye, down to {low:g} wider still (the table's {p.minimum:g} opens it to a slit)"))

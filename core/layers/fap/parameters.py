@@ -11,6 +11,14 @@ import math
 from core.parameters import Parameter, ParameterError, ParameterKind, ParamKey, register_kind, split_words
 from core.layers.fap import tables
 
+# How much further (IRISD units) the upper-lid FAP of an eye closed at rest (a scan taken with the
+# eyes shut) may open it than the table lets an open eye's: an open eye's lids meet when their two
+# values add up to 1024 (core.layers.fap.fat.lid_contact) and the upper lid makes most of that
+# travel, so -1024 opens a closed eye about as wide as an open one, and the table's -300 then widens
+# it as it would an open eye. The FAP layer gives such a face that range (FapLayer.describe).
+CLOSED_LID_OPENING = 1024.0
+UPPER_LIDS = (19, 20)
+
 _WORDS = {"t": "top", "b": "bottom", "i": "inner", "m": "middle", "o": "outer", "lm": "left-mid", "rm": "right-mid",
           "l": "left", "r": "right", "cornerlip": "lip corner", "midlip": "mid-lip", "eyebrow": "brow"}
 
@@ -49,9 +57,10 @@ def _fap_describe(key: ParamKey) -> Parameter:
     verb = "rotates about" if spec.is_rotation else "moves"
     description = (f"FAP {spec.number} {spec.name} {verb} feature point {spec.fp.strip(';').replace(';', ', ')};"
                    f" positive is {spec.direction}.")
+    outer = (spec.minimum - CLOSED_LID_OPENING, spec.maximum) if spec.number in UPPER_LIDS else None
     return Parameter(str(key), fap_label(spec), spec.unit, float(spec.minimum), float(spec.maximum), 0.0,
                      spec.dock, description=description,
-                     mirror=f"fap:{spec.pair}" if spec.pair is not None else None)
+                     mirror=f"fap:{spec.pair}" if spec.pair is not None else None, outer=outer)
 
 
 def _preset_key(kind: str, to_id, usage: str, neutral: str, name_of):
