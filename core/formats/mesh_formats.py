@@ -12,6 +12,7 @@ malformed file; :func:`core.formats.mesh_io.load_face` turns those into
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -423,6 +424,8 @@ PLY_MIMICA_COMMENT = "comment Written by Mimica"
 #: ``property ushort mimica_part`` (0 = skin, k = the part of ``comment MimicaPart k NAME``).
 PLY_PART_PROPERTY = "mimica_part"
 PLY_PART_COMMENT = "MimicaPart"
+#: The header comment holding the face's name (JSON, so any name fits the ASCII header).
+PLY_NAME_COMMENT = "MimicaName"
 
 
 def _ply_parts(path: Path, labels) -> dict[str, np.ndarray]:
@@ -484,6 +487,17 @@ def _ply_header(path: Path) -> str:
     """The PLY's header text (up to ``end_header``, at most 64 KiB)."""
     with open(path, "rb") as fh:
         return fh.read(1 << 16).split(b"end_header", 1)[0].decode("latin-1")
+
+
+def ply_face_name(path: Path) -> str | None:
+    """The face's name as Mimica wrote it (``comment MimicaName "<JSON string>"``: a project's embedded
+    face is named by its project file, the face it holds is not), None when the file has none."""
+    match = re.search(rf"^comment\s+{PLY_NAME_COMMENT}\s+(.+?)\s*$", _ply_header(path), re.MULTILINE)
+    try:
+        name = json.loads(match.group(1)) if match else None
+    except ValueError:
+        return None
+    return name if isinstance(name, str) and name.strip() else None
 
 
 def _ply_texture_name(path: Path) -> str | None:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
 from pathlib import Path
 from typing import Callable, Mapping
@@ -37,8 +38,8 @@ import scipy.sparse
 
 from core.face import Face, FaceMetadata
 from core.formats.atomic_files import write_atomic, write_reporting_errors, write_set_atomic  # noqa: F401
-from core.formats.mesh_formats import (PLY_MIMICA_COMMENT, PlyLengthError, PLY_PART_COMMENT, PLY_PART_PROPERTY, READERS, RawMesh, _image_to_rgb, plural,
-                                      reason, weld)
+from core.formats.mesh_formats import (PLY_MIMICA_COMMENT, PLY_NAME_COMMENT, PlyLengthError, PLY_PART_COMMENT, PLY_PART_PROPERTY,
+                                      READERS, RawMesh, _image_to_rgb, plural, ply_face_name, reason, weld)
 from core.formats.text_files import check_file
 
 __all__ = ["MeshLoadError", "MeshSaveError", "load_face", "load_texture_image", "save_face", "LOAD_FORMATS",
@@ -121,7 +122,7 @@ def load_face(path, *, progress: ProgressCallback | None = None, max_triangles: 
     -------
     Face
         Vertices in mm, ``metadata.units == "mm"``, ``metadata.source`` the
-        path, ``metadata.name`` the file stem, ``metadata.notes`` one sentence
+        path, ``metadata.name`` the file stem (or the name a PLY Mimica wrote keeps), ``metadata.notes`` one sentence
         per conversion or repair.
 
     Raises
@@ -157,7 +158,8 @@ def load_face(path, *, progress: ProgressCallback | None = None, max_triangles: 
         uv=mesh.uv,
         texture=mesh.texture,
         vertex_colors=mesh.vertex_colors,
-        metadata=FaceMetadata(source=str(path), units="mm", notes=mesh.notes, name=path.stem),
+        metadata=FaceMetadata(source=str(path), units="mm", notes=mesh.notes,
+                              name=(ply_face_name(path) if fmt == "PLY" else None) or path.stem),
         parts=mesh.parts,
     )
     report(1.0, f"Loaded {path.name}")
@@ -425,6 +427,8 @@ def _write_ply(face: Face, path: Path) -> None:
     ply_type = {"<f8": "double", "u1": "uchar", "<u2": "ushort"}
     header = ["ply", "format binary_little_endian 1.0", f"{PLY_MIMICA_COMMENT}; units: millimetres"]
     header += [f"comment {PLY_PART_COMMENT} {k} {name}" for k, name in enumerate(part_names, start=1)]
+    if face.metadata.name:
+        header.append(f"comment {PLY_NAME_COMMENT} {json.dumps(face.metadata.name)}")
     companions: dict[Path, bytes] = {}
     if face.texture is not None and face.uv is not None:
         companions[path.with_suffix(".png")] = _png_bytes(face.texture)

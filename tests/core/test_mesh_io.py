@@ -86,6 +86,22 @@ def test_a_mimica_ply_keeps_named_parts_and_every_triangle_as_written(grid_face,
     assert sorted(repaired.parts) == ["eye", "teeth"], "the parts still follow the vertices left"
 
 
+def test_a_mimica_ply_keeps_the_faces_name_not_its_file_stem(grid_face, tmp_path):
+    """A project's autosave embeds its face as <project>.face.ply: recovered, the face is still called
+    what it was ("LeePerrySmith"), any name fitting the ASCII header; other PLYs are named by their stem."""
+    import re
+
+    from core.face import FaceMetadata
+
+    for name in ("LeePerrySmith", 'José "scan" 2'):
+        named = Face(grid_face.vertices, grid_face.triangles, metadata=FaceMetadata(name=name))
+        save_face(named, tmp_path / "untitled-1.mimica.autosave.face.ply")
+        assert load_face(tmp_path / "untitled-1.mimica.autosave.face.ply").metadata.name == name
+    written = (tmp_path / "untitled-1.mimica.autosave.face.ply").read_bytes()
+    (tmp_path / "plain.ply").write_bytes(re.sub(rb"comment MimicaName [^\n]*\n", b"", written, count=1))
+    assert load_face(tmp_path / "plain.ply").metadata.name == "plain"        # a PLY without the comment
+
+
 def test_ply_vertex_colours_survive_without_texture(grid_face, tmp_path):
     coloured = Face(grid_face.vertices, grid_face.triangles, vertex_colors=grid_face.vertex_colors)
     save_face(coloured, tmp_path / "c.ply")
