@@ -29,9 +29,11 @@ from core.registration.folds import similarity, triangle_normals
 #: of its reference area (flat is not turned).
 TURNED_RATIO = 1e-6
 #: A landmark is released only when its prediction is farther than this many of its ring's mean
-#: edge lengths (a shape difference moves a landmark a fraction of an edge; a point found on the
-#: wrong lip, more than one).
-RELEASE_EDGES = 0.5
+#: edge lengths. Ground truth lies up to 2/3 of an edge from its prediction (the synthetic faces'
+#: and the Surrey Face Model's shapes and expressions against the default face's: 0.66 at most, on
+#: the SFM's lip corners and nostrils); the lower-lip points found on the upper lip of open mouths,
+#: 0.9-1.4 edges.
+RELEASE_EDGES = 0.8
 #: The prediction's similarity is refitted without neighbours farther than this many times the
 #: median misfit (twice at most).
 TRIM = 2.0

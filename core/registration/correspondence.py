@@ -28,7 +28,7 @@ Choices the thesis leaves open (written down here):
   (:func:`fit_without_folds`, ``core.registration.fold_free``): from the template registered on
   the default face, ARAP-regularised, landmarks as soft targets; a landmark that would turn a
   triangle over stays short of where it was given (``Registration.landmark_shift``, reported).
-  A landmark that contradicts its template neighbours by more than half an edge (turning their
+  A landmark that contradicts its template neighbours by most of an edge (turning their
   triangles over: open mouths' lower-lip points detected on the upper lip) is released first
   (``core.registration.consistency``): no target, the scan and its neighbours place it; named in
   the report, its shift from where it was given counted like the others'.
