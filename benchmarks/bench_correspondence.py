@@ -5,7 +5,7 @@ for the Surrey Face Model, whose truth has 21 points, detection steered by those
 canonical face as OBJ, reload it as `mimica` does, build its rig and pose joy at 80 %. Prints per scan
 
     <data> <scan>: folds=<n> forced=<k> dist_mean_mm=<x> dist_p95_mm=<y> landmark_shift_max_mm=<z> (<j> > 1 mm)
-        animatable=<yes|no> (register <s> s, <s> s)
+        released=<names|-> animatable=<yes|no> (register <s> s, <s> s)
 
 where folds counts the canonical triangles ``Registration.folded()`` reports: collapsed (area < 1e-3
 of the median) or facing against the same triangle of the registration's reference (the template
@@ -14,7 +14,9 @@ helper/folds it was the FAP rig's densified default face, unaligned); forced of 
 template triangle the landmarks themselves turn over (``Registration.forced()``). The distance is
 from the canonical triangles' centroids to the scan surface (how far the canonical surface leaves
 the scan between its vertices); the landmark shift is how far the fit moved the canonical
-landmark vertices from the given landmarks (where they would fold the mesh); then per data set and overall
+landmark vertices from the given landmarks (where they would fold the mesh), released names the landmarks
+that contradicted their template neighbours and were placed by the fit (``core.registration.consistency``;
+their shift is counted too); then per data set and overall
 
     animatable=<k>/<n> folds=<total> mean_mm=<x> p95_mm=<y>
 
@@ -37,8 +39,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
 def measure(scan, landmarks, folder: Path, label: str):
-    """(folds, forced folds, centroid distances (T,), landmark shifts (n_base,) mm, animatable, registration
-    seconds, seconds) of one scan."""
+    """(folds, forced folds, centroid distances (T,), landmark shifts (n_base,) mm, released landmarks,
+    animatable, registration seconds, seconds) of one scan."""
     from core.formats.mesh_io import save_face
     from core.registration.correspondence import load_face_or_canonical
     from core.registration.pipeline import register_scan
@@ -59,7 +61,8 @@ def measure(scan, landmarks, folder: Path, label: str):
         animatable = bool(np.abs(rig.vertices() - rig.face.vertices).max() > 1.0)
     except ValueError:
         animatable = False
-    return folds, forced, distance, registration.landmark_shift, animatable, register_s, time.perf_counter() - t0
+    return (folds, forced, distance, registration.landmark_shift, registration.released, animatable, register_s,
+            time.perf_counter() - t0)
 
 
 def synthetic_cases(people: int):
@@ -90,7 +93,8 @@ def report(data: str, cases, folder: Path) -> tuple[int, int, int, list[np.ndarr
     distances = []
     for label, scan, landmarks in cases:
         try:
-            f, forced, d, shift, animatable, register_s, seconds = measure(scan, landmarks, folder, f"{data}_{label}")
+            f, forced, d, shift, released, animatable, register_s, seconds = measure(scan, landmarks, folder,
+                                                                                    f"{data}_{label}")
         except ValueError as exc:
             print(f"{data} {label}: registration failed: {exc}", flush=True)
             n += 1
@@ -101,7 +105,7 @@ def report(data: str, cases, folder: Path) -> tuple[int, int, int, list[np.ndarr
         distances.append(d)
         print(f"{data} {label}: folds={f} forced={forced} dist_mean_mm={d.mean():.3f} "
               f"dist_p95_mm={np.percentile(d, 95):.3f} landmark_shift_max_mm={shift.max(initial=0.0):.2f} "
-              f"({int((shift > 1.0).sum())} > 1 mm) "
+              f"({int((shift > 1.0).sum())} > 1 mm) released={','.join(released) or '-'} "
               f"animatable={'yes' if animatable else 'no'} (register {register_s:.1f} s, {seconds:.1f} s)", flush=True)
     return ok, n, folds, distances
 

@@ -28,6 +28,10 @@ Choices the thesis leaves open (written down here):
   (:func:`fit_without_folds`, ``core.registration.fold_free``): from the template registered on
   the default face, ARAP-regularised, landmarks as soft targets; a landmark that would turn a
   triangle over stays short of where it was given (``Registration.landmark_shift``, reported).
+  A landmark that contradicts its template neighbours by most of an edge (turning their
+  triangles over: open mouths' lower-lip points detected on the upper lip) is released first
+  (``core.registration.consistency``): no target, the scan and its neighbours place it; named in
+  the report, its shift from where it was given counted like the others'.
 * Texture coordinates come from the scan at each vertex's closest point; the texture is the scan's.
 * Carry-back: each scan vertex is bound to its closest canonical surface point (triangle,
   barycentric); it moves by the interpolated displacement of that triangle, so the rest pose is
@@ -262,6 +266,9 @@ class Registration:
     projection : the Projection (dense template, where each canonical vertex lies on the scan).
     scan : the scan it was registered on (for :meth:`carry_back`).
     report : human-readable lines (fallbacks, engine, timings).
+    landmark_shift : (n_base,) mm how far the fit left each given landmark from where it was given.
+    released : landmarks that contradicted their template neighbours, placed by the fit instead
+        (``core.registration.consistency``).
     """
 
     face: Face
@@ -272,6 +279,7 @@ class Registration:
     report: list[str] = field(default_factory=list)
     _carry: "CarryBack | None" = None
     landmark_shift: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    released: list[str] = field(default_factory=list)
 
     def distances_to_scan(self) -> np.ndarray:
         """(T,) mm: how far each canonical triangle's centroid lies from the scan's surface (the fit's
@@ -556,43 +564,57 @@ RIM_WEIGHT = 10.0
 
 
 def fit_without_folds(scan: Face, projection: Projection, template_name: str,
-                      held: dict[int, np.ndarray] | None = None) -> tuple[Projection, int, int, np.ndarray]:
-    """(projection, triangles turned over by projection, after the fit (0), landmark shift (n_base,) mm):
-    the canonical mesh fitted onto the scan from the fold-free reference
+                      held: dict[int, np.ndarray] | None = None
+                      ) -> tuple[Projection, int, int, np.ndarray, list[str]]:
+    """(projection, triangles turned over by projection, after the fit (0), landmark shift (n_base,) mm,
+    released landmarks): the canonical mesh fitted onto the scan from the fold-free reference
     (:func:`core.registration.fold_free.fold_free_fit`): the landmarks (the projection's base
     vertices) and ``held`` (the rounded outline) are soft targets, the projection's points the first
-    targets of the others, then their closest scan points. Without a reference for the template the
-    projection is returned as it is."""
+    targets of the others, then their closest scan points. Landmarks that turn template triangles
+    over (:func:`core.registration.consistency.inconsistent_landmarks`) are released: no target,
+    their neighbours' prediction as first target, then the scan like any vertex. Without a
+    reference for the template the projection is returned as it is."""
+    from core.registration.consistency import inconsistent_landmarks
     from core.registration.fold_free import fold_free_fit
 
     v = np.array(projection.dense.vertices, float)
     t = projection.dense.triangles
-    n_base = len(get_template(template_name).base.points)
+    base = get_template(template_name).base
+    n_base = len(base.points)
     found = _reference_mesh(template_name)
     if found is None or len(found[0]) != len(v) or not np.array_equal(found[1], t):
-        return projection, 0, 0, np.zeros(n_base)
-    prior = aligned_reference(found[0], v, n_base)
+        return projection, 0, 0, np.zeros(n_base), []
+    given = np.array([name not in base.extras for name in base.points])
+    outline = np.array([name in base.outline for name in base.points])
+    released, corrected = inconsistent_landmarks(v[:n_base], aligned_reference(found[0][:n_base], v, n_base),
+                                                 base.triangles, given, outline)
+    # The prior faces the way the consistent landmarks say: aligned with the released ones at
+    # their prediction (where the fit will put them, about), so the fold measure's alignment on
+    # the result (Registration.folded) is the one the fit guarded against.
+    prior = aligned_reference(found[0], corrected, n_base)
     before = int(folded_triangles(v, t, triangle_normals(prior, t)).sum())
-    base = get_template(template_name).base
+    first = v.copy()
+    first[released] = corrected[released]
     # The detected landmarks are soft targets; the template's extras (points computed from them)
-    # are free like any other vertex.
-    targets = {i: v[i] for i, name in enumerate(base.points) if name not in base.extras}
+    # and the released landmarks are free like any other vertex.
+    targets = {i: v[i] for i in np.nonzero(given)[0].tolist() if i not in released}
     # The mouth's rim (the inner lip line; every boundary loop but the outline) stays where
     # projection snapped it: the scan is cut there to open the mouth (core.registration.scan_mouth).
     loops = sorted(boundary_loops(np.asarray(t)), key=len)[:-1]
-    rim = {i: RIM_WEIGHT for i in (np.concatenate(loops).tolist() if loops else []) if i not in targets}
+    rim = {i: RIM_WEIGHT for i in (np.concatenate(loops).tolist() if loops else [])
+           if i not in targets and i not in released}
     targets.update({i: v[i] for i in rim})
     targets.update(held or {})
     surface = TriangleSet(scan.vertices, scan.triangles)
-    fit = fold_free_fit(prior, t, targets, v, surface, scan.face_normals, target_weight=rim)
+    fit = fold_free_fit(prior, t, targets, first, surface, scan.face_normals, target_weight=rim)
     x = fit.vertices
     shift = np.linalg.norm(x[:n_base] - v[:n_base], axis=1)
-    shift[[base.index(name) for name in base.extras]] = 0.0
+    shift[~given] = 0.0
     after = int(folded_triangles(x, t, triangle_normals(prior, t)).sum())
     tri, bary = surface.closest(x, k=24, widen=False)[1:]
     dense = dataclasses.replace(projection.dense, vertices=x, face_triangle=tri)
     return (dataclasses.replace(projection, dense=dense, scan_triangle=tri, scan_bary=bary), before, after,
-            shift)
+            shift, [base.points[i] for i in released])
 
 
 def _base_mask(n: int, n_base: int) -> np.ndarray:
@@ -718,8 +740,8 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
         raise CorrespondenceError("the scan has no triangles")
     proj = project_template(scan, template, positions, rays=rays)
     proj, untangled, left = untangle(scan, proj, template)
-    proj, turned_before, turned_after, shift = fit_without_folds(scan, proj, template,
-                                                                 rounded_outline(scan, proj, template))
+    proj, turned_before, turned_after, shift, released = fit_without_folds(scan, proj, template,
+                                                                           rounded_outline(scan, proj, template))
     face = canonical_face(scan, proj, template)
     total = int(sum(proj.fallbacks))
     report = [f"dense correspondence ({template}): {face.n_vertices} vertices, {face.n_triangles} triangles; "
@@ -731,16 +753,24 @@ def dense_correspondence(scan: Face, positions: dict[str, np.ndarray], *, templa
     if turned_before:
         report.append(f"{turned_before} canonical triangles faced the other way than on a face after projection; "
                       f"the fold-free fit left {turned_after}")
-    moved = np.nonzero(shift > LANDMARK_SHIFT_NOTE_MM)[0]
+    base = get_template(template).base
+    if released:
+        names = ", ".join(f"{name} {shift[base.index(name)]:.1f} mm" for name in released)
+        report.append(f"{len(released)} landmark(s) turned template triangles over, far from where their neighbours "
+                      f"put them; the fit placed them from the scan and their neighbours instead, this far from "
+                      f"where they were given ({names}): check them with the landmark picker")
+    held_shift = shift.copy()
+    held_shift[[base.index(name) for name in released]] = 0.0
+    moved = np.nonzero(held_shift > LANDMARK_SHIFT_NOTE_MM)[0]
     if len(moved):
-        base = get_template(template).base
         names = ", ".join(f"{base.points[i]} {shift[i]:.1f} mm" for i in moved[np.argsort(-shift[moved])][:6])
         report.append(f"{len(moved)} landmark(s) could not be reached without folding the mesh and moved by more "
                       f"than {LANDMARK_SHIFT_NOTE_MM:g} mm ({names}{' ...' if len(moved) > 6 else ''}): "
                       "check them with the landmark picker")
     if proj.engine != "embree":
         report.append("embreex is not available: projection used the slower numpy ray test")
-    registration = Registration(face, total, proj, scan, template, report, landmark_shift=shift)
+    registration = Registration(face, total, proj, scan, template, report, landmark_shift=shift,
+                                released=released)
     forced = registration.forced()
     if forced.any():
         base = get_template(template).base

@@ -173,7 +173,7 @@ def test_the_fit_folds_nothing_where_projection_alone_folds(monkeypatch):
     other = scan_face(generate_face(FaceParameters.random(np.random.default_rng(3), spread=0.8), full_head=False),
                       n_target=30_000, rng=np.random.default_rng(4)).face
     registration = register_scan(other, other.landmarks)
-    monkeypatch.setattr(C, "fit_without_folds", lambda scan, proj, template, held: (proj, 0, 0, np.zeros(80)))
+    monkeypatch.setattr(C, "fit_without_folds", lambda scan, proj, template, held: (proj, 0, 0, np.zeros(80), []))
     projected = register_scan(other, other.landmarks)
     assert registration.folded().sum() == 0 and projected.folded().sum() > 100, projected.folded().sum()
     assert count_intersections(registration.face.vertices, registration.face.triangles) <= count_intersections(
