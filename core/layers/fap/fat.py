@@ -55,7 +55,7 @@ from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import kernels, tables
 from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
-from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
+from core.layers.fap.limits import BISECTION_STEPS, EASE_START, FOLD_REASON, clean_limits, keeping, soft_limit
 from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
 from core.layers.fap.teeth_guard import TeethGuard
@@ -102,6 +102,12 @@ BROW_FAPS = ((31, 33, 35, 37), (32, 34, 36, 38))
 # FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
 LID_GUARD_COLUMNS = np.array([18, 19, 20, 21, 40, 41, *range(30, 38)])
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
+# An upper lid opened past about 250 IRISD rises under its crease and folds through it (default face
+# 14 crossing pairs per eye at close_t -300, generated identity 23): that slider end is eased to the
+# value where the crossings begin (FapDeformer._lid_crease_limit), from this share of it on, so
+# fear's -200 still passes as authored (from 0.7 of it, the global ease, it would have to reach 286).
+LID_OPENING_EASE_START = 0.85
+CREASE_REASON = "the lid would fold through its crease"
 # (cheek lift, lower lid) FAP pairs: a raised cheek carries its eye's lower lid up (see lid_values).
 CHEEK_LIDS = ((41, 21), (42, 22))
 # The lower lid rises at least this many IRISD per ENS of cheek lift, a smaller share than FACS's
@@ -223,7 +229,18 @@ class FapDeformer:
         lids = {n for pair in LID_PAIRS for n in pair}
         limits, self.limit_reasons = clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
                                                   self.specs, [n for n in self.animated_faps if n not in lids])
-        self.clean_limits = keeping(limits, presets)
+        # The upper lids' opening ends also stop where a lid folds through its own crease (a linear
+        # fold check does not see it: the lid skin rises under the crease and crosses it).
+        self.ease_start = np.full((N_FAPS, 2), EASE_START)
+        from core.mesh_quality import FaceQualityProbe
+
+        probe = FaceQualityProbe(face)
+        for number, side in ((19, "left"), (20, "right")):
+            crease = self._lid_crease_limit(probe, number, side)
+            if crease > limits[number - 1, 0]:      # both negative: the crease comes first
+                limits[number - 1, 0], self.limit_reasons[number - 1, 0] = crease, CREASE_REASON
+                self.ease_start[number - 1, 0] = LID_OPENING_EASE_START
+        self.clean_limits = keeping(limits, presets, self.ease_start)
         assert self.matrix.shape == (3 * n, N_FAPS)
 
     # ------------------------------------------------------------ building
@@ -657,7 +674,34 @@ class FapDeformer:
     def limited(self, values: np.ndarray) -> np.ndarray:
         """(68,) FAP values eased into this face's clean limits (``limits.soft_limit``): unchanged
         well inside them, never past them."""
-        return soft_limit(values, self.clean_limits)
+        return soft_limit(values, self.clean_limits, self.ease_start)
+
+    def _lid_crease_limit(self, probe, number: int, side: str) -> float:
+        """The opening value (FAP units, negative) of upper-lid FAP ``number`` down to which the
+        lid's skin crosses neither itself nor the eyeball on the ``side`` eye (``core.mesh_quality``
+        regions of ``probe``, a FaceQualityProbe of the face), by bisection on the finished pose;
+        -inf when the slider's end holds."""
+        from core.mesh_quality import count_intersections
+
+        lid_tris, ball_tris = probe.lid_tris[side], probe.eyeball_tris[side]
+        end = self.specs[number - 1].minimum
+        if lid_tris is None or not np.isfinite(end):
+            return -np.inf
+
+        def crosses(value: float) -> bool:
+            values = np.zeros(N_FAPS)
+            values[number - 1] = value
+            x = self.deform(values)
+            return bool(count_intersections(x, lid_tris)
+                        or (ball_tris is not None and count_intersections(x, lid_tris, ball_tris)))
+
+        if not crosses(end):
+            return -np.inf
+        good, bad = 0.0, 1.0
+        for _ in range(BISECTION_STEPS):
+            mid = (good + bad) / 2
+            good, bad = (good, mid) if crosses(end * mid) else (mid, bad)
+        return end * good
 
     def limit_note(self, number: int) -> str | None:
         """"beyond 240 the skin would fold: eased" for each slider end of FAP ``number`` that is
