@@ -761,6 +761,49 @@ def test_the_cheek_lift_reaches_the_lower_lid_margin_which_stays_pinned(rig):
         assert under.any() and w[under].max() > 0.05, fap
 
 
+def test_a_raised_cheek_carries_the_lower_lid_up_and_the_presets_keep_their_lids():
+    """lid_values' cheek carry (fat.carried_lower_lids): the lower lid rises with its cheek unless it
+    closes by itself at least as far (joy's 320 IRISD with its 220 ENS cheek stays as authored),
+    continuously in every value (no jump as the cheek leaves 0, whatever the lid's value)."""
+    from core.layers.fap.fat import CHEEK_CARRY_BLEND, carried_lower_lids, smooth_ramp
+
+    def lower(cheek, lid):
+        v = np.zeros(68)
+        v[40], v[20] = cheek, lid
+        return carried_lower_lids(v)[20]
+
+    assert lower(0.0, 0.0) == 0.0 and lower(0.0, -300.0) == -300.0
+    assert lower(400.0, 0.0) == 400.0 - CHEEK_CARRY_BLEND / 2            # carried (less the blend)
+    assert lower(220.0, 320.0) == 320.0                                   # joy: the lid's own value
+    assert lower(400.0, -300.0) > -300.0                                  # an opened lid is pushed up too
+    for lid in (-300.0, -1.0, 0.0, 5.0, 320.0):                           # continuous as the cheek rises
+        steps = np.diff([lower(c, lid) for c in np.linspace(0.0, 400.0, 801)])
+        assert steps.min() >= 0.0 and steps.max() <= 0.5 + 1e-9, lid
+    # C1 ramp: value and slope meet at both ends of the blend.
+    w = CHEEK_CARRY_BLEND
+    assert smooth_ramp(w, w) == w / 2 and abs((smooth_ramp(w - 1e-6, w) - smooth_ramp(w - 2e-6, w)) / 1e-6 - 1) < 1e-4
+    for row in tables.expression_table():
+        assert np.array_equal(carried_lower_lids(row.copy()), row)
+
+
+def test_the_cheek_lift_at_its_slider_end_no_longer_folds_the_lower_lid_through_itself(rig):
+    """lift_l_cheek 400 (eased to ~310 ENS by its clean limit, ~8 mm of lift under the eye) with
+    the lower lid held at its margin squeezed the skin between to nothing: 119 lid crossing pairs.
+    Carried up by the cheek, the margin rises (the eye narrows from below) and 11 remain, in the
+    socket under the eye's centre (the skin below the ball still rises onto it)."""
+    from core.mesh_quality import FaceQualityProbe
+
+    lower_rim = rig.deformer._eye_rims[0][1]
+    rig.reset()
+    rig.set_fap(41, 400)
+    try:
+        posed = rig.vertices()
+        assert posed[lower_rim, 1].min() - rig.face.vertices[lower_rim, 1].min() > 2.0   # its lowest point
+        assert FaceQualityProbe(rig.face).measure(posed).lid_intersections < 20
+    finally:
+        rig.reset()
+
+
 def test_skin_the_cheek_lift_slides_over_the_eyeball_keeps_clear_of_it(rig):
     """Joy's cheek lift moves the socket skin at the outer eye corners 2-4 mm over the eyeball; held
     at its rest gap (inside the ball's conservative profile there) its triangles cut the ball: 20

@@ -32,7 +32,8 @@ Then ``x = rest + F · (fap_values ∘ fapu)`` with F of shape (3n, 68), mm per 
 
 Several FAPs on one point add their displacements. The exception is lid contact: when an upper
 and a lower lid of one eye together close more than the opening (close_t + close_b > 1024 IRISD),
-both are scaled down so that they meet (``lid_contact``); the slider values are kept. After every
+both are scaled down so that they meet (``lid_contact``); the slider values are kept. Before that a
+raised cheek carries its lower lid up (``carried_lower_lids``: AU 6 narrows the eye from below). After every
 layer's offset, lips moved into each other press on each other instead (``lip_contact.LipContact``:
 both give way by half the overlap), and skin that ended inside a row of teeth is pushed back out
 over it (``teeth_guard.TeethGuard``: the teeth move rigidly with the jaw, the skin only part way).
@@ -53,7 +54,7 @@ from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import kernels, tables
 from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
-from core.layers.fap.limits import FOLD_REASON, clean_limits, keeping, soft_limit
+from core.layers.fap.limits import EASE_START, FOLD_REASON, clean_limits, keeping, soft_limit
 from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
 from core.layers.fap.teeth_guard import TeethGuard
@@ -109,6 +110,26 @@ BROW_FAPS = ((31, 33, 35, 37), (32, 34, 36, 38))
 # FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
 LID_GUARD_COLUMNS = np.array([18, 19, 20, 21, 40, 41, *range(30, 38)])
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
+# An upper lid opened past about 250 IRISD rises under its crease and folds through it (default face
+# 14 crossing pairs per eye at close_t -300, generated identity 23): that slider end is eased to the
+# value where the crossings begin (FapDeformer._lid_crease_limit), from this share of it on, so
+# fear's -200 still passes as authored (from 0.7 of it, the global ease, it would have to reach 286).
+LID_OPENING_EASE_START = 0.85
+CREASE_REASON = "the lid would fold through its crease"
+# Bisection steps of that value: 300 / 2^7 = 2.3 IRISD (each step poses and checks the face: 0.12 s
+# at 59k vertices, so a cold build pays about 1.7 s for both eyes).
+CREASE_BISECTION_STEPS = 7
+# (cheek lift, lower lid) FAP pairs: a raised cheek carries its eye's lower lid up (see lid_values).
+CHEEK_LIDS = ((41, 21), (42, 22))
+# The lower lid rises at least this many IRISD per ENS of cheek lift, a smaller share than FACS's
+# own cheek raiser asks (AU 6: 320 IRISD with 220 ENS, resources/facs/action_units.csv), so the
+# presets keep their values. Measured by core.mesh_quality: lift_l_cheek 400 alone (eased to 310
+# by its clean limit) default face 119 lid crossings -> 11, folded triangles 248 -> 152, generated
+# identity 12 -> 0, 77 -> 65 (ratio 1.3 and 1.7: the same crossings, the lid margin's texture
+# stretched 7.3 and 9.7 x; tilting the lift forward over the eyeball folded less but crossed more).
+CHEEK_CARRIES_LID = 1.0
+# Width (FAP units) over which the cheek's carry of a lower lid sets in (see carried_lower_lids).
+CHEEK_CARRY_BLEND = 64.0
 
 
 def lid_contact(values: np.ndarray, closed: tuple[tuple[int, int], ...] = ()) -> np.ndarray:
@@ -127,6 +148,34 @@ def lid_contact(values: np.ndarray, closed: tuple[tuple[int, int], ...] = ()) ->
             if out[lower - 1] > 0:
                 out[lower - 1] /= total
     return out
+
+
+def carried_lower_lids(values: np.ndarray) -> np.ndarray:
+    """(68,) FAP values with each lower lid carried up by its raised cheek, in place: the lid's
+    value plus ``ramp(CHEEK_CARRIES_LID x cheek - the lid's own closing)``, so a lid closing by
+    itself at least as far as the cheek carries it keeps its value (the presets), and an opened or
+    resting lid rises with the cheek. ``ramp`` is 0 below 0 and u - CHEEK_CARRY_BLEND / 2 above the
+    blend width, joined by a parabola (C1): the carry is continuous in every value.
+
+    The cheek lift (AU 6) moves the skin under the eye up by up to 8 mm at the slider's end while
+    its region is held at 0 on the lower lid's margin: the few millimetres of skin between were
+    squeezed to nothing and folded through themselves (default face, lift_cheek 400: 119 lid
+    crossings). In a face the raised cheek pushes the lower lid up (a Duchenne smile narrows the
+    eye from below), so the lid's own FAP carries its margin along."""
+    for cheek, lower in CHEEK_LIDS:
+        carry = CHEEK_CARRIES_LID * float(values[cheek - 1])
+        if carry > 0:
+            values[lower - 1] += smooth_ramp(carry - max(float(values[lower - 1]), 0.0), CHEEK_CARRY_BLEND)
+    return values
+
+
+def smooth_ramp(u: float, width: float) -> float:
+    """0 for u <= 0, u - width / 2 for u >= width, u² / (2 width) in between (C1)."""
+    if u <= 0.0:
+        return 0.0
+    if u >= width:
+        return u - width / 2
+    return u * u / (2 * width)
 
 
 class FapDeformer:
@@ -191,7 +240,18 @@ class FapDeformer:
         lids = {n for pair in LID_PAIRS for n in pair}
         limits, self.limit_reasons = clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
                                                   self.specs, [n for n in self.animated_faps if n not in lids])
-        self.clean_limits = keeping(limits, presets)
+        # The upper lids' opening ends also stop where a lid folds through its own crease (a linear
+        # fold check does not see it: the lid skin rises under the crease and crosses it).
+        self.ease_start = np.full((N_FAPS, 2), EASE_START)
+        from core.mesh_quality import FaceQualityProbe
+
+        probe = FaceQualityProbe(face)
+        for number, side in ((19, "left"), (20, "right")):
+            crease = self._lid_crease_limit(probe, number, side)
+            if crease > limits[number - 1, 0]:      # both negative: the crease comes first
+                limits[number - 1, 0], self.limit_reasons[number - 1, 0] = crease, CREASE_REASON
+                self.ease_start[number - 1, 0] = LID_OPENING_EASE_START
+        self.clean_limits = keeping(limits, presets, self.ease_start)
         assert self.matrix.shape == (3 * n, N_FAPS)
 
     # ------------------------------------------------------------ building
@@ -630,7 +690,34 @@ class FapDeformer:
     def limited(self, values: np.ndarray) -> np.ndarray:
         """(68,) FAP values eased into this face's clean limits (``limits.soft_limit``): unchanged
         well inside them, never past them."""
-        return soft_limit(values, self.clean_limits)
+        return soft_limit(values, self.clean_limits, self.ease_start)
+
+    def _lid_crease_limit(self, probe, number: int, side: str) -> float:
+        """The opening value (FAP units, negative) of upper-lid FAP ``number`` down to which the
+        lid's skin crosses neither itself nor the eyeball on the ``side`` eye (``core.mesh_quality``
+        regions of ``probe``, a FaceQualityProbe of the face), by bisection on the finished pose;
+        -inf when the slider's end holds."""
+        from core.mesh_quality import count_intersections
+
+        lid_tris, ball_tris = probe.lid_tris[side], probe.eyeball_tris[side]
+        end = self.specs[number - 1].minimum
+        if lid_tris is None or not np.isfinite(end):
+            return -np.inf
+
+        def crosses(value: float) -> bool:
+            values = np.zeros(N_FAPS)
+            values[number - 1] = value
+            x = self.deform(values)
+            return bool(count_intersections(x, lid_tris)
+                        or (ball_tris is not None and count_intersections(x, lid_tris, ball_tris)))
+
+        if not crosses(end):
+            return -np.inf
+        good, bad = 0.0, 1.0
+        for _ in range(CREASE_BISECTION_STEPS):
+            mid = (good + bad) / 2
+            good, bad = (good, mid) if crosses(end * mid) else (mid, bad)
+        return end * good
 
     def limit_note(self, number: int) -> str | None:
         """"beyond 240 the skin would fold: eased" for each slider end of FAP ``number`` that is
@@ -653,7 +740,8 @@ class FapDeformer:
         an angle t lowers its upper lid margin by ``UPPER_LID_FOLLOW`` x the cornea's drop (R sin t,
         R the eyeball's radius) and its lower lid by ``LOWER_LID_FOLLOW`` x it (``LIDS_FOLLOW_UP``
         when it turns up); the FAP units come from the FAT's own offset of each lid margin. Without
-        it the cornea passed through the lids (324 crossings at 30 degrees down)."""
+        it the cornea passed through the lids (324 crossings at 30 degrees down). A raised cheek then
+        carries its lower lid up (:func:`carried_lower_lids`)."""
         last = self.__dict__.get("_last_lid_values")
         if last is not None and last[0] is values:
             return last[1]      # the FAP layer passes one array to the product and to finish
@@ -670,7 +758,7 @@ class FapDeformer:
                     up_follow, low_follow = (UPPER_LID_FOLLOW, LOWER_LID_FOLLOW) if drop > 0 else LIDS_FOLLOW_UP
                     out[upper - 1] += up_follow * drop / up_gain
                     out[lower - 1] -= low_follow * drop / low_gain
-        out = lid_contact(out, self.__dict__.get("_closed_lid_pairs", ()))
+        out = lid_contact(carried_lower_lids(out), self.__dict__.get("_closed_lid_pairs", ()))
         if isinstance(values, np.ndarray) and not values.flags.writeable:
             self._last_lid_values = (values, out)   # one tuple: safe for two threads sharing a deformer
         return out

@@ -102,29 +102,33 @@ def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vect
     return limits, reasons
 
 
-def keeping(limits: np.ndarray, values: np.ndarray) -> np.ndarray:
+def keeping(limits: np.ndarray, values: np.ndarray, ease_start=EASE_START) -> np.ndarray:
     """(68, 2) ``limits`` widened so that every row of ``values`` (k, 68) passes :func:`soft_limit`
     unchanged: the presets are authored poses and must read as authored (open_jaw folds a few
-    corner triangles from 174 MNS on the default face, while viseme aa opens it 600)."""
+    corner triangles from 174 MNS on the default face, while viseme aa opens it 600).
+    ``ease_start``: EASE_START, or (68, 2) per slider end (as given to :func:`soft_limit`)."""
+    ease_start = np.broadcast_to(np.asarray(ease_start, dtype=float), limits.shape)
     out = limits.copy()
-    out[:, 0] = np.minimum(out[:, 0], values.min(axis=0, initial=0.0) / EASE_START)
-    out[:, 1] = np.maximum(out[:, 1], values.max(axis=0, initial=0.0) / EASE_START)
+    out[:, 0] = np.minimum(out[:, 0], values.min(axis=0, initial=0.0) / ease_start[:, 0])
+    out[:, 1] = np.maximum(out[:, 1], values.max(axis=0, initial=0.0) / ease_start[:, 1])
     return out
 
 
-def soft_limit(values: np.ndarray, limits: np.ndarray) -> np.ndarray:
-    """(68,) ``values`` eased into ``limits`` (68, 2): unchanged within EASE_START of a limit, then
-    ``start + room * tanh((v - start) / room)`` (slope 1 where it begins, the limit never reached)."""
+def soft_limit(values: np.ndarray, limits: np.ndarray, ease_start=EASE_START) -> np.ndarray:
+    """(68,) ``values`` eased into ``limits`` (68, 2): unchanged within ``ease_start`` of a limit
+    (EASE_START, or (68, 2) per slider end), then ``start + room * tanh((v - start) / room)``
+    (slope 1 where it begins, the limit never reached)."""
     values = np.asarray(values, dtype=float)
-    ease = EASE_START * limits
+    ease_start = np.broadcast_to(np.asarray(ease_start, dtype=float), limits.shape)
+    ease = ease_start * limits
     if not ((values > ease[:, 1]).any() or (values < ease[:, 0]).any()):
         return values          # the common case, every tick: nothing near a limit
     out = values.copy()
     for side, sign in ((1, 1.0), (0, -1.0)):
         limit = sign * limits[:, side]                     # both ends as positive magnitudes
-        beyond = sign * out > EASE_START * limit           # never true where the limit is inf
+        beyond = sign * out > ease[:, side] * sign         # never true where the limit is inf
         if beyond.any():
-            start = EASE_START * limit[beyond]
+            start = ease_start[beyond, side] * limit[beyond]
             room = np.maximum(limit[beyond] - start, 1e-12)
             out[beyond] = sign * (start + room * np.tanh((sign * out[beyond] - start) / room))
     return out
