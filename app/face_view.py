@@ -14,6 +14,7 @@ import math
 from pathlib import Path
 
 from app.face_files import OPEN_SUFFIXES
+from core.formats.project import is_embedded_face
 
 
 MODE_LABELS = {"textured": "&Textured", "shaded": "&Shaded", "wireframe": "&Wireframe", "points": "&Points"}
@@ -104,8 +105,10 @@ class FaceViewMixin:
                 label.setText("")
             self.file_label.setText("no face")
             return
-        # A "source" like "built-in" is not a file: show the face's name then.
-        is_file = bool(self.face_path) and Path(self.face_path).suffix.lower() in OPEN_SUFFIXES
+        # A "source" like "built-in" is not a file, and a project's own copy of its face (a recovered
+        # autosave's) is named after the project: show the face's name then.
+        is_file = (bool(self.face_path) and Path(self.face_path).suffix.lower() in OPEN_SUFFIXES
+                   and not is_embedded_face(self.face_path))
         name = Path(self.face_path).name if is_file else face.metadata.name
         self.file_label.setText(name)
         self.file_label.setToolTip(self.face_path or "")

@@ -176,10 +176,19 @@ def file_sha256(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
+EMBEDDED_FACE_SUFFIX = ".face.ply"
+
+
+def is_embedded_face(path: str | os.PathLike) -> bool:
+    """True for a project's (or an autosave's) own copy of its face: its file name is the project's,
+    not the face's (show ``face.metadata.name``, which the PLY keeps)."""
+    return Path(path).name.lower().endswith(EMBEDDED_FACE_SUFFIX)
+
+
 def embed_face(face: Face, project_path: str | os.PathLike) -> FaceRef:
     """Write ``face`` next to the project as ``<project>.face.ply`` and return its reference."""
     project_path = Path(project_path)
-    target = project_path.with_name(project_path.name.removesuffix(SUFFIX) + ".face.ply")
+    target = project_path.with_name(project_path.name.removesuffix(SUFFIX) + EMBEDDED_FACE_SUFFIX)
     save_face(face, target)
     return FaceRef.for_file(target)
 
@@ -687,7 +696,7 @@ def discard_autosave(project_path: str | os.PathLike | None = None, *, untitled_
     """Delete the autosave after a clean save or close, with the face it embedded (a scan as derived
     in memory: ``<autosave>.face.ply`` and its texture); no error if there is none."""
     target = autosave_path(project_path, untitled_id=untitled_id, state_dir=state_dir)
-    face = target.with_name(target.name + ".face.ply")
+    face = target.with_name(target.name + EMBEDDED_FACE_SUFFIX)
     for path in (target, face, face.with_suffix(".png")):
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
@@ -695,7 +704,8 @@ def discard_autosave(project_path: str | os.PathLike | None = None, *, untitled_
 
 __all__ = [
     "FORMAT_NAME", "FORMAT_VERSION", "SUFFIX", "ProjectError", "ProjectVersionError", "FaceRef", "RigSettings",
-    "SpeechClip", "Project", "embed_face", "to_document", "save_project", "read_document", "load_project",
+    "SpeechClip", "Project", "embed_face", "is_embedded_face", "EMBEDDED_FACE_SUFFIX", "to_document", "save_project",
+    "read_document", "load_project",
     "open_face", "face_outside_folder", "file_sha256", "autosave_path", "write_autosave", "find_autosave", "untitled_autosaves",
     "discard_autosave", "default_state_dir",
 ]

@@ -199,3 +199,24 @@ def test_a_refused_import_is_shown_in_a_message_box(qtbot, settings, tmp_path, e
     bad.write_text("2.1 x 1e300 1\n")
     assert ctl.dock.import_file(bad) is None
     assert error_boxes and "deep.fap" in error_boxes[-1][0] and "frame rate" in error_boxes[-1][1]
+
+
+def test_a_recovered_derived_face_shows_its_own_name_not_the_autosaves(qtbot, settings, tmp_path, answers,
+                                                                     error_boxes):
+    """A scan built in Mimica is autosaved as the project's own copy (<autosave>.face.ply); reopened
+    from it, the face keeps its name (the PLY holds it) and the status bar shows that name."""
+    from app_helpers import make_synthetic_face
+
+    from core.formats.mesh_io import load_face, save_face
+
+    w, _ctl = _window(qtbot, settings, tmp_path)
+    face = make_synthetic_face(20, 30, name="LeePerrySmith")
+    copy = tmp_path / "untitled-7-1.mimica.autosave.face.ply"
+    save_face(face, copy)
+    w.set_face(load_face(copy), path=str(copy))
+    assert w.face.metadata.name == "LeePerrySmith"
+    assert w.file_label.text() == "LeePerrySmith" and w.file_label.toolTip() == str(copy)
+    plain = tmp_path / "anna.ply"
+    save_face(face, plain)
+    w.set_face(load_face(plain), path=str(plain))
+    assert w.file_label.text() == "anna.ply"
