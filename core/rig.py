@@ -63,6 +63,12 @@ class RigSnapshot:
         return dict(self.layers).get(name)
 
 
+def _described_by(layer, key) -> P.Parameter:
+    """``key``'s description by ``layer`` when it has its own (``describe``: a face's range), else the
+    registry's."""
+    describe = getattr(layer, "describe", None)
+    return describe(key) if describe is not None else P.describe(key)
+
 class FaceRig:
     """Animation parameters of one face and the resulting vertex positions.
 
@@ -154,9 +160,7 @@ class FaceRig:
         """``key``'s description on this face: its layer's when the layer has its own (a range that
         depends on the face), else the registry's."""
         name = self._owners().get(P.key_of(key))
-        layer = self._layers.get(name) if name is not None else None
-        describe = getattr(layer, "describe", None)
-        return describe(key) if describe is not None else P.describe(key)
+        return _described_by(self._layers.get(name) if name is not None else None, key)
 
     def owner(self, key) -> RigLayer:
         """The layer that animates ``key``; ParameterError saying why when none does."""
@@ -192,7 +196,7 @@ class FaceRig:
         for spelling, value in values.items():
             k = P.key_of(spelling)
             name = owners.get(k) or self.owner(k).name   # owner() raises the reason
-            groups.setdefault(name, {})[k] = P.check_value(k, value, self.describe(k))
+            groups.setdefault(name, {})[k] = P.check_value(k, value, _described_by(self._layers[name], k))
         if "faps" in groups:   # FAPs have a face-specific check beyond the range (animated here?)
             for k, v in groups["faps"].items():
                 if k.startswith("fap:"):
