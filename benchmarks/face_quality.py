@@ -1,8 +1,9 @@
 """Does the face hold up at every slider value? (issue 18 item 4)
 
 Sweeps, per identity, every animated FAP to both ends of its slider range, every expression and
-viseme preset at 100 %, every expression mixed with every viseme (speech with emotion) at 100 %, and
-thesis C's muscle presets, and measures each pose with :class:`core.mesh_quality.FaceQualityProbe`:
+viseme preset at 100 %, every expression mixed with every viseme (speech with emotion) at 100 %,
+thesis C's muscle presets and the poses of the face's built-in expression library (blend layer) at
+100 % where it has one, and measures each pose with :class:`core.mesh_quality.FaceQualityProbe`:
 lip / lid / teeth / mouth-cavity intersections, folded triangles, the largest texture stretch and smallest squeeze,
 and for lid-closing FAPs at their maximum whether the eye is closed. Prints per pose
 
@@ -30,10 +31,10 @@ Contact sheets (front + three-quarter, by ``app.render``) go to ``--sheets DIR``
 ``/tmp/mimica-face-quality``), one PNG per identity and pose family; ``--no-sheets`` skips them.
 
 ``--families expressions visemes`` keeps only the poses of those families (faps, expressions,
-visemes, mixes, muscles; the neutral pose is in expressions).
+visemes, mixes, muscles, blends; the neutral pose is in expressions).
 
 Usage: python benchmarks/face_quality.py [--identities default generated sfm] [--no-mixes]
-       [--no-muscles] [--families F ...] [--clean-ranges] [--sheets DIR | --no-sheets] [--tile PX]
+       [--no-muscles] [--no-blends] [--families F ...] [--clean-ranges] [--sheets DIR | --no-sheets] [--tile PX]
        [--sheet-format jpg]
 """
 
@@ -55,7 +56,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 SFM_DIR = ROOT.parent / "shared" / "data" / "sfm"
 # Lid-closing FAPs and the eye each one must close at its maximum (close_t_l/r_eyelid).
 CLOSING_LIDS = {19: "left", 20: "right"}
-FAMILIES = ("faps", "expressions", "visemes", "mixes", "muscles")
+FAMILIES = ("faps", "expressions", "visemes", "mixes", "muscles", "blends")
 
 
 def identity_face(name: str):
@@ -129,6 +130,14 @@ def muscle_poses(rig) -> Iterator[Pose]:
         yield "muscles", f"muscles {preset(name).name}", apply, ()
 
 
+def blend_poses(rig) -> Iterator[Pose]:
+    """The poses of the face's built-in expression library at 100 % (none when it has no library)."""
+    rig.ensure_layers(["blend:joy"])
+    layer = rig.layer("blend")
+    for pose in (layer.poses if layer is not None else ()):
+        yield "blends", f"blend {pose}", lambda r, k=f"blend:{pose}": r.set_values({k: 100.0}), ()
+
+
 def clean_ranges(name: str, rig, probe) -> None:
     """Print the share of each FAP's slider ends the surface survives (see the module docstring)."""
     from core.layers.fap import tables
@@ -170,6 +179,8 @@ def run_identity(name: str, args) -> tuple[int, int]:
     poses += list(fap_poses(rig)) + list(preset_poses(rig, args.mixes))
     if args.muscles:
         poses += list(muscle_poses(rig))
+    if args.blends:
+        poses += list(blend_poses(rig))
     if args.families:
         poses = [p for p in poses if p[0] in args.families]
     failures = 0
@@ -219,6 +230,7 @@ def main() -> None:
     parser.add_argument("--identities", nargs="+", default=["default", "generated", "sfm"])
     parser.add_argument("--no-mixes", dest="mixes", action="store_false")
     parser.add_argument("--no-muscles", dest="muscles", action="store_false")
+    parser.add_argument("--no-blends", dest="blends", action="store_false")
     parser.add_argument("--families", nargs="+", choices=FAMILIES, help="only the poses of these families")
     parser.add_argument("--clean-ranges", action="store_true")
     parser.add_argument("--sheets", type=Path, default=Path("/tmp/mimica-face-quality"))
