@@ -104,8 +104,9 @@ def skin_triangles(face: Face) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ placement
-def base_positions(template: BaseTemplate, face: Face) -> np.ndarray:
-    """(P, 3) mm: the template's points on ``face`` (feature points from its landmarks, extras snapped)."""
+def base_positions(template: BaseTemplate, face: Face, skin: "_Surface | None" = None) -> np.ndarray:
+    """(P, 3) mm: the template's points on ``face`` (feature points from its landmarks, extras snapped
+    onto ``skin``, the face's skin surface, built here when not given)."""
     missing = [p for p in template.feature_points if p not in face.landmark_names]
     if missing:
         raise TemplateError(
@@ -118,7 +119,8 @@ def base_positions(template: BaseTemplate, face: Face) -> np.ndarray:
         pos[name] = sum(w * pos[k] for k, w in weights.items())
     extras = list(template.extras)
     if extras:  # templates made only of feature points (e.g. a48) have nothing to snap
-        snapped, _ = _Surface(face, skin_triangles(face)).closest(np.array([pos[e] for e in extras]))
+        skin = skin if skin is not None else _Surface(face, skin_triangles(face))
+        snapped, _ = skin.closest(np.array([pos[e] for e in extras]))
         pos.update(zip(extras, snapped))
     return np.array([pos[p] for p in template.points])
 
@@ -208,9 +210,9 @@ def densify(face: Face, template: BaseTemplate | None = None, *, steps=None) -> 
     """
     template = template or load_template()
     steps = tuple(steps) if steps is not None else template.steps
-    base = base_positions(template, face)
+    skin = _Surface(face, skin_triangles(face))   # one search structure for placing and projecting
+    base = base_positions(template, face, skin)
     n_base = len(base)
-    skin = _Surface(face, skin_triangles(face))
     whole = _Surface(face, np.arange(face.n_triangles))
 
     v, t = base, template.triangles
