@@ -1,4 +1,5 @@
-"""pyplot is loaded on first use, not when pyvista is imported (start-up), and still works."""
+"""Modules deferred at start-up (pyplot, Agg, numpy.f2py/testing, pooch, qtpy's Qt modules) load on first
+use, not when pyvista or scipy is imported, and still work."""
 
 import os
 import subprocess
@@ -12,6 +13,13 @@ def run_fresh(code: str) -> subprocess.CompletedProcess:
     # A fresh interpreter: this test process has imported pyvista (and pyplot) already.
     return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=dict(os.environ, MPLBACKEND="Agg"),
                           capture_output=True, text=True, timeout=300)
+
+
+def assert_printed(result: subprocess.CompletedProcess, *lines: str) -> None:
+    """The fresh interpreter exited cleanly and printed each of ``lines``."""
+    assert result.returncode == 0, result.stderr
+    for line in lines:
+        assert line in result.stdout, (line, result.stdout)
 
 
 def test_pyvista_imports_without_pyplot_and_pyplot_works_after():
@@ -29,11 +37,8 @@ def test_pyvista_imports_without_pyplot_and_pyplot_works_after():
         "print('real pyplot in sys.modules:', type(sys.modules['matplotlib.pyplot']).__name__)\n"
         "print('charts see it:', pyvista.plotting.charts.plt.subplots is plt.subplots)\n"
         "print('cycler:', len(list(pyvista.plotting.colors.get_cycler('matplotlib'))) > 0)\n")
-    assert result.returncode == 0, result.stderr
-    assert "figure loaded at import: False" in result.stdout
-    assert "real pyplot in sys.modules: module" in result.stdout
-    assert "charts see it: True" in result.stdout
-    assert "cycler: True" in result.stdout
+    assert_printed(result, "figure loaded at import: False", "real pyplot in sys.modules: module",
+                   "charts see it: True", "cycler: True")
 
 
 def test_nothing_deferred_once_pyplot_is_imported():
@@ -66,8 +71,4 @@ def test_startup_deferrals_keep_every_deferred_module_working():
         "print('qtpy names:', qtpy.QtWidgets.QAction is PySide6.QtGui.QAction,\n"        # Qt 6 moved QAction
         "      qtpy.QtWidgets.QFrame is PySide6.QtWidgets.QFrame)\n"
         "print('pooch works:', callable(sys.modules['pooch'].retrieve))\n")
-    assert result.returncode == 0, result.stderr
-    assert "loaded at import: []" in result.stdout
-    assert "real canvas: True" in result.stdout
-    assert "qtpy names: True True" in result.stdout
-    assert "pooch works: True" in result.stdout
+    assert_printed(result, "loaded at import: []", "real canvas: True", "qtpy names: True True", "pooch works: True")
