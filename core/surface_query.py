@@ -10,6 +10,11 @@ from __future__ import annotations
 import numpy as np
 
 
+# From this many (point, candidate) pairs on, a query builds the compiled loop even where the window
+# defers kernels: numpy takes ~1.5 us a pair, loading numba's cached code ~0.3 s once per process.
+COMPILE_WORTH_PAIRS = 200_000
+
+
 class TriangleSet:
     """Triangles ``triangles`` (m, 3) over ``vertices`` (n, 3), mm, with a centroid KD-tree."""
 
@@ -25,10 +30,11 @@ class TriangleSet:
         n = np.cross(self.corners[:, 1] - self.corners[:, 0], self.corners[:, 2] - self.corners[:, 0])
         self.normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
-    def _candidates(self, points: np.ndarray, k: int) -> np.ndarray:
+    def _candidates(self, points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(distances (p, k) of the k nearest centroids, their triangles (p, k)), nearest first."""
         k = min(k, len(self.triangles))
-        _, idx = self.tree.query(points, k=k)
-        return idx.reshape(len(points), k)
+        dist, idx = self.tree.query(points, k=k)
+        return dist.reshape(len(points), k), idx.reshape(len(points), k)
 
     def closest(self, points, *, k: int = 16, widen: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest surface points: (positions (p, 3), triangle (p,), barycentric (p, 3)).
@@ -37,20 +43,30 @@ class TriangleSet:
         safe (``widen``), the candidate set is widened for points whose answer is farther than the
         k-th centroid distance minus the triangle reach."""
         pts = np.asarray(points, float).reshape(-1, 3)
-        pos, tri, bary, dist = self._closest_among(pts, self._candidates(pts, k))
+        centroid_dist, cand = self._candidates(pts, k)
+        pos, tri, bary, dist = self._closest_among(pts, cand)
         if not widen:
             return pos, tri, bary
-        kth, _ = self.tree.query(pts, k=[min(k, len(self.triangles))])
-        unsure = dist > kth[:, 0] - self.reach
+        unsure = dist > centroid_dist[:, -1] - self.reach
         if unsure.any() and k < len(self.triangles):
             sub = np.nonzero(unsure)[0]
-            p2, t2, b2, _ = self._closest_among(pts[sub], self._candidates(pts[sub], min(8 * k, len(self.triangles))))
-            pos[sub], tri[sub], bary[sub] = p2, t2, b2
+            _, wider = self._candidates(pts[sub], min(8 * k, len(self.triangles)))
+            pos[sub], tri[sub], bary[sub], _ = self._closest_among(pts[sub], wider)
         return pos, tri, bary
 
-    def _closest_among(self, pts, cand):
-        a, b, c = (self.corners[cand][:, :, i] for i in range(3))      # (p, k, 3)
-        q, bary = _closest_on_triangles(pts[:, None, :], a, b, c)
+    def _closest_among(self, pts: np.ndarray, cand: np.ndarray):
+        """(positions (p, 3), triangle (p,), barycentric (p, 3), distance (p,)) of the closest point
+        of each point's candidate triangles ``cand`` (p, k)."""
+        from core.surface_query_kernels import kernel
+
+        compiled = kernel(load=cand.size >= COMPILE_WORTH_PAIRS)
+        if compiled is not None:
+            pos, bary = np.empty((len(pts), 3)), np.empty((len(pts), 3))
+            tri, dist = np.empty(len(pts), np.int64), np.empty(len(pts))
+            compiled(pts, self.corners, np.ascontiguousarray(cand, dtype=np.int64), pos, tri, bary, dist)
+            return pos, tri, bary, dist
+        corners = self.corners[cand]                                     # (p, k, 3, 3)
+        q, bary = _closest_on_triangles(pts[:, None, :], corners[:, :, 0], corners[:, :, 1], corners[:, :, 2])
         d = np.linalg.norm(q - pts[:, None, :], axis=2)
         j = d.argmin(axis=1)
         r = np.arange(len(pts))
@@ -64,10 +80,9 @@ class TriangleSet:
         pts = np.asarray(points, float).reshape(-1, 3)
         dirs = np.asarray(directions, float).reshape(-1, 3)
         dirs = dirs / np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-300)
-        radius = max_distance + self.reach
-        k = 64
-        cand = self._candidates(pts, k)
-        a, b, c = (self.corners[cand][:, :, i] for i in range(3))
+        _, cand = self._candidates(pts, 64)
+        corners = self.corners[cand]
+        a, b, c = corners[:, :, 0], corners[:, :, 1], corners[:, :, 2]
         t, u, v, ok = _ray_triangles(pts[:, None, :], dirs[:, None, :], a, b, c)
         ok &= np.abs(t) <= max_distance
         if same_facing:
@@ -80,7 +95,6 @@ class TriangleSet:
         pos = pts + tt[:, None] * dirs
         bary = np.column_stack([1 - u[r, j] - v[r, j], u[r, j], v[r, j]])
         tri = np.where(hit, cand[r, j], -1)
-        del radius
         return pos, tri, bary, hit
 
 

@@ -136,3 +136,27 @@ def test_a_slider_end_can_start_its_ease_later():
     presets = np.zeros((1, 68))
     presets[0, 18] = -220
     assert keeping(limits, presets, start)[18, 0] == pytest.approx(-220 / 0.85)
+
+
+def test_linear_path_measures_like_posing_the_triangles():
+    """The closed-form probe of ``clean_limits`` (quadratic in the value) gives the same folds and
+    smears as posing the triangles and measuring them (``core.mesh_quality.principal_stretches``)."""
+    from core.layers.fap.limits import _LinearPath, _normals
+    from core.mesh_quality import MAX_STRETCH, MIN_STRETCH, _local_frames, principal_stretches
+
+    rng = np.random.default_rng(5)
+    base = rng.normal(0, 5, (400, 3, 3))
+    step = rng.normal(0, 0.02, (400, 3, 3))
+    path = _LinearPath(base, step, _normals(base), _local_frames(base))
+    values = np.array([-300.0, -120.0, -10.0, 0.0, 40.0, 150.0, 400.0])
+    folds, smears = path.folds(values), path.smears(values)
+    for row, value in enumerate(values):
+        posed = base + value * step
+        big, small = principal_stretches(_local_frames(base), posed)
+        assert np.array_equal(folds[row], np.einsum("ij,ij->i", _normals(posed), _normals(base)) < 0)
+        assert np.array_equal(smears[row], (big > MAX_STRETCH) | (small < MIN_STRETCH))
+    assert not folds[3].any() and not smears[3].any()                   # rest: nothing breaks
+    assert folds[-1].any() and smears[-1].any() and not folds[2].all()  # the check can fail both ways
+    # A known map: the whole triangle scaled by 3 at value 1 (step = 2 x base) smears, never folds.
+    scaled = _LinearPath(base[:1], 2 * base[:1], _normals(base[:1]), _local_frames(base[:1]))
+    assert scaled.smears([1.0])[0, 0] and not scaled.smears([0.4])[0, 0] and not scaled.folds([1.0])[0, 0]

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.mesh_quality import MAX_STRETCH, MIN_STRETCH, _local_frames, principal_stretches
+from core.mesh_quality import _EPS, MAX_STRETCH, MIN_STRETCH, _local_frames
 
 # Where easing begins, as a share of the limit: well inside, so ordinary values pass unchanged.
 EASE_START = 0.7
@@ -35,6 +35,57 @@ SMEAR_REASON = f"the skin's texture would smear (stretch over {MAX_STRETCH:g}x o
 
 def _normals(corners: np.ndarray) -> np.ndarray:
     return np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+
+
+class _LinearPath:
+    """Triangles (k,) whose corners move linearly, ``base + value * step`` (k, 3, 3), measured at
+    any value in closed form: edges are linear in the value, so the turn of a normal against the
+    rest one and the metric of the posed triangle in its rest frame (whose eigenvalues are the
+    squared principal stretches, as ``core.mesh_quality.principal_stretches``) are quadratic in it.
+    One probe is then a few multiply-adds per triangle instead of posing and re-framing them."""
+
+    def __init__(self, base: np.ndarray, step: np.ndarray, rest_normals: np.ndarray, rest_frames: np.ndarray):
+        e1, e2 = base[:, 1] - base[:, 0], base[:, 2] - base[:, 0]
+        d1, d2 = step[:, 1] - step[:, 0], step[:, 2] - step[:, 0]
+        dot = lambda a, b: np.einsum("ij,ij->i", a, b)
+        # n(v) . n0 = fold[0] + v fold[1] + v^2 fold[2] (unnormalised normals, as _normals).
+        self.fold = np.stack([dot(np.cross(e1, e2), rest_normals),
+                              dot(np.cross(e1, d2) + np.cross(d1, e2), rest_normals),
+                              dot(np.cross(d1, d2), rest_normals)])
+        # Metric G(v) = [[e1.e1, e1.e2], [e1.e2, e2.e2]] of the posed edges, per power of v: (3, k) each.
+        g00 = np.stack([dot(e1, e1), 2 * dot(e1, d1), dot(d1, d1)])
+        g11 = np.stack([dot(e2, e2), 2 * dot(e2, d2), dot(d2, d2)])
+        g01 = np.stack([dot(e1, e2), dot(e1, d2) + dot(d1, e2), dot(d1, d2)])
+        # In the rest frame R = [[l1, along], [0, across]] (``_local_frames``): C = R^-T G R^-1 with
+        # R^-1 = [[a, b], [0, c]]; degenerate rest frames (no inverse) are left out of the smear test.
+        length, along, across = rest_frames[:, 0, 0], rest_frames[:, 0, 1], rest_frames[:, 1, 1]
+        det = length * across
+        self.safe = np.abs(det) > _EPS
+        a = np.divide(1.0, length, out=np.zeros_like(det), where=self.safe)
+        b = np.divide(-along, det, out=np.zeros_like(det), where=self.safe)
+        c = np.divide(1.0, across, out=np.zeros_like(det), where=self.safe)
+        self.c00 = a * a * g00
+        self.c01 = a * (b * g00 + c * g01)
+        self.c11 = b * b * g00 + 2 * b * c * g01 + c * c * g11
+
+    @staticmethod
+    def _at(coefficients: np.ndarray, values, subset) -> np.ndarray:
+        """(len(values), s) quadratic ``coefficients`` (3, k) at ``values`` on triangles ``subset``."""
+        v = np.asarray(values, dtype=float).reshape(-1, 1)
+        c = coefficients[:, subset]
+        return c[0] + v * (c[1] + v * c[2])
+
+    def folds(self, values, subset=slice(None)) -> np.ndarray:
+        """(len(values), s) whether each triangle's normal has turned past 90 degrees."""
+        return self._at(self.fold, values, subset) < 0
+
+    def smears(self, values, subset=slice(None)) -> np.ndarray:
+        """(len(values), s) whether each triangle's largest principal stretch is above MAX_STRETCH
+        or its smallest below MIN_STRETCH (degenerate rest frames never smear)."""
+        p, r, q = (self._at(c, values, subset) for c in (self.c00, self.c11, self.c01))
+        mean, spread = (p + r) / 2, np.sqrt(((p - r) / 2) ** 2 + q * q)
+        out = (mean + spread > MAX_STRETCH ** 2) | (mean - spread < MIN_STRETCH ** 2)
+        return out & self.safe[subset]
 
 
 def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vector: np.ndarray, specs,
@@ -65,16 +116,14 @@ def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vect
             continue
         corners = skin_triangles[tris]
         field = column.toarray().reshape(-1, 3) * fapu_vector[number - 1]
-        base, step, normals, frames = rest[corners], field[corners], rest_normals[tris], rest_frames[tris]
+        path = _LinearPath(rest[corners], field[corners], rest_normals[tris], rest_frames[tris])
 
         def breaks(value: float, smear: np.ndarray) -> str:
             """The reason the skin breaks at ``value`` ("" when it holds); the stretch is checked on
             the triangles ``smear`` only."""
-            posed = base + step * value
-            if (np.einsum("ij,ij->i", _normals(posed), normals) < 0).any():
+            if path.folds(value).any():
                 return FOLD_REASON
-            big, small = principal_stretches(frames[smear], posed[smear])
-            return SMEAR_REASON if (big > MAX_STRETCH).any() or (small < MIN_STRETCH).any() else ""
+            return SMEAR_REASON if path.smears(value, smear).any() else ""
 
         for side, end in enumerate((spec.minimum, spec.maximum)):
             if end == 0:
@@ -84,12 +133,7 @@ def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vect
             # not: a triangle that folds over shrinks to nothing on the way and grows again, so the
             # candidates are those that smear at any of a few samples along the line, or fold at its
             # end. The bisection measures those alone.
-            candidate = np.zeros(len(tris), bool)
-            for share in SMEAR_SAMPLES:
-                posed = base + step * (end * share)
-                big, small = principal_stretches(frames, posed)
-                candidate |= (big > MAX_STRETCH) | (small < MIN_STRETCH)
-            candidate |= np.einsum("ij,ij->i", _normals(base + step * end), normals) < 0
+            candidate = path.smears(end * np.asarray(SMEAR_SAMPLES)).any(axis=0) | path.folds(end)[0]
             smear = np.flatnonzero(candidate)
             if not breaks(end, smear):   # whole to the slider's end: no limit at all
                 continue
