@@ -83,7 +83,7 @@ _SUFFIX = {"mp4": ".mp4", "gif": ".gif", "avi": ".avi", "png": ".png", "jpg": ".
 SIZE_PRESETS = ((1280, 720), (1920, 1080), (640, 480))
 FPS_PRESETS = (24.0, 25.0, 30.0, 60.0)
 VIEW_CHOICES = (("current", "Current view"), ("front", "Front"), ("side", "Side"),
-                ("three-quarter", "Three-quarter"))
+                ("three-quarter", "Three-quarter"), ("back", "Back"))
 MODE_CHOICES = (("textured", "Textured"), ("shaded", "Shaded"), ("wireframe", "Wireframe"), ("points", "Points"))
 
 

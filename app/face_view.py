@@ -19,7 +19,7 @@ from core.formats.project import is_embedded_face
 
 MODE_LABELS = {"textured": "&Textured", "shaded": "&Shaded", "wireframe": "&Wireframe", "points": "&Points"}
 VIEW_LABELS = {"front": ("&Front view", "1"), "side": ("&Side view", "2"),
-               "three-quarter": ("T&hree-quarter view", "3")}
+               "three-quarter": ("T&hree-quarter view", "3"), "back": ("&Back view", "4")}
 
 
 def _nice_ceiling(value: float, floor: float = 1.0) -> float:

@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from pyvista.plotting.plotter import BasePlotter
 
 MODES = ("textured", "shaded", "wireframe", "points")
-VIEWS = ("front", "side", "three-quarter")
+VIEWS = ("front", "side", "three-quarter", "back")
 
 #: Neutral dark-grey gradient (bottom, top).
 BACKGROUND_BOTTOM = "#1b1c1e"
@@ -556,6 +556,9 @@ def _view_direction(view: str) -> tuple[np.ndarray, np.ndarray]:
     if view == "side":
         # Camera on the face's left (+x): a clean profile.
         return np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    if view == "back":
+        # Behind the head: the full head's back, hair and neck.
+        return np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0])
     if view == "three-quarter":
         yaw, pitch = math.radians(38.0), math.radians(12.0)
         d = np.array([math.sin(yaw) * math.cos(pitch), math.sin(pitch), math.cos(yaw) * math.cos(pitch)])
@@ -605,6 +608,6 @@ def frame_points(plotter: "BasePlotter", points, direction=None, view_up=None, *
 
 
 def set_camera_view(plotter: "BasePlotter", view: str, points) -> None:
-    """Apply a camera preset (front, side, three-quarter) framed on ``points`` (k, 3)."""
+    """Apply a camera preset (front, side, three-quarter, back) framed on ``points`` (k, 3)."""
     direction, up = _view_direction(view)
     frame_points(plotter, points, direction, up)

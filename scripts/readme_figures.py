@@ -1,7 +1,9 @@
 """Regenerate the README's contact sheets of the built-in face (off screen; no display needed):
 
-    .venv/bin/python scripts/readme_figures.py [fap] [muscles] [blend]     (all three by default)
+    .venv/bin/python scripts/readme_figures.py [head] [fap] [muscles] [blend]     (all four by default)
 
+docs/default_head.png: the built-in head at rest from the front, the side, in three-quarter view and
+from the back;
 docs/fap_expressions.png: the six expression presets, a jaw opening and a blink, each from the
 front and in three-quarter view; docs/muscle_presets.png: thesis C's muscle presets the same way;
 docs/blend_library.png: poses of the built-in expression library and caricatures, each tile
@@ -93,16 +95,30 @@ def blend_sheet(face) -> Image.Image:
     return out
 
 
+def head_sheet(face, tile: int = 420) -> Image.Image:
+    """docs/default_head.png: ``face`` at rest from every camera preset, side by side."""
+    from app.render import render_face_image
+    from app.scene import VIEWS
+
+    images = [render_face_image(face, view=view, size=(2 * tile, 2 * tile)) for view in VIEWS]
+    return sheet([(" · ".join(VIEWS), images)], columns=1, tile=tile)
+
+
 def main(argv=None) -> None:
     from core.default_face import load_default_face
     from core.layers.muscles import preset, preset_names
     from core.rig import FaceRig
 
-    which = set(sys.argv[1:] if argv is None else argv) or {"fap", "muscles", "blend"}
-    unknown = which - {"fap", "muscles", "blend"}
+    sheets = ("head", "fap", "muscles", "blend")
+    which = set(sys.argv[1:] if argv is None else argv) or set(sheets)
+    unknown = which - set(sheets)
     if unknown:
-        raise SystemExit(f"unknown sheet(s) {', '.join(sorted(unknown))}; choose from fap, muscles, blend")
+        raise SystemExit(f"unknown sheet(s) {', '.join(sorted(unknown))}; choose from {', '.join(sheets)}")
     face = load_default_face()
+    if "head" in which:
+        out = ROOT / "docs" / "default_head.png"
+        head_sheet(face).save(out)
+        print(f"wrote {out}")
     if "blend" in which:
         out = ROOT / "docs" / "blend_library.png"
         blend_sheet(face).save(out)

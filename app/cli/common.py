@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 PROG = "mimica"
-VIEWS = ("front", "side", "three-quarter")
+VIEWS = ("front", "side", "three-quarter", "back")
 MODES = ("textured", "shaded", "wireframe", "points")
 
 

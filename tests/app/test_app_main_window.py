@@ -47,8 +47,8 @@ def test_window_opens_on_given_face(window, synthetic_face):
     assert shortcuts["Open face…"] == "Ctrl+I" and shortcuts["Save face as…"] == ""
     assert shortcuts["Open project…"] == "Ctrl+O" and shortcuts["Save project"] == "Ctrl+S"
     assert shortcuts["Quit"] == "Ctrl+Q" and shortcuts["Reset camera"] == "R"
-    assert [window.view_actions[v].shortcut().toString() for v in ("front", "side", "three-quarter")] == [
-        "1", "2", "3"]
+    assert [window.view_actions[v].shortcut().toString() for v in ("front", "side", "three-quarter", "back")] == [
+        "1", "2", "3", "4"]
     assert window.isDockNestingEnabled()
     assert window.mode_group.isExclusive() and len(window.mode_group.actions()) == 4
 
