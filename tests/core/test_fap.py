@@ -886,3 +886,31 @@ def test_a_face_without_both_lid_margins_turns_its_eyes_without_moving_lids(rig)
     values = np.zeros(68)
     values[24] = values[25] = 26180.0
     np.testing.assert_array_equal(deformer.lid_values(values), values)
+
+
+def test_lip_overlap_reads_tied_rim_vertices_alike_compiled_and_numpy(monkeypatch):
+    """A scan's cut lips have copied rim vertices at the same x (at other heights where the cut
+    runs steeply): both paths sort the upper rim stably, so the interpolation reads the same copy and
+    the rig's pose does not depend on whether numba had loaded yet (it did: a recovered session
+    came back 0.5 mm off along the lower lip)."""
+    from core.layers.fap import kernels
+    from core.layers.fap.lip_contact import LipContact
+
+    built = kernels.get() or kernels._KERNELS.load()
+    if built is None:
+        pytest.skip("numba is not installed: only the numpy path exists")
+    rng = np.random.default_rng(4)
+    xs = np.repeat(np.linspace(-25.0, 25.0, 60), 2)                   # every x twice: copies
+    upper = np.column_stack([xs, rng.uniform(-1.0, 1.0, len(xs)), np.zeros(len(xs))])
+    lower = np.column_stack([np.linspace(-24.0, 24.0, 97), np.full(97, -0.2), np.zeros(97)])
+    lower[::4, 0] = xs[8:8 + 2 * len(lower[::4]):2]                   # some exactly at a tied x
+    x = np.concatenate([upper, lower])
+    contact = object.__new__(LipContact)
+    contact.upper_rim = rng.permutation(len(upper))                     # the rim in no particular order
+    contact.lower_rim = np.arange(len(upper), len(x))
+    monkeypatch.setattr(kernels, "get", lambda: built)
+    compiled = contact._overlap(x)
+    monkeypatch.setattr(kernels, "get", lambda: None)
+    reference = contact._overlap(x)
+    assert np.isfinite(reference).sum() > 90
+    np.testing.assert_array_equal(compiled, reference)

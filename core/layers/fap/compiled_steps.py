@@ -54,7 +54,7 @@ def lip_overlap(x, upper_rim, lower_rim, taper_mm, out):  # pragma: no cover - c
     for i in range(m):
         ux[i] = x[upper_rim[i], 0]
         uy[i] = x[upper_rim[i], 1]
-    order = np.argsort(ux)
+    order = np.argsort(ux, kind="mergesort")   # stable: ties keep the rim's order, as numpy's path does
     sx = ux[order]
     sy = uy[order]
     first, last = sx[0], sx[m - 1]

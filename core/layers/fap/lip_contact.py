@@ -83,7 +83,9 @@ class LipContact:
             compiled.lip_overlap(x, self.upper_rim, self.lower_rim, CORNER_TAPER_MM, out)
             return out
         upper = x[self.upper_rim]
-        order = np.argsort(upper[:, 0])
+        # Stable, as the compiled path: a cut lip's copied vertices share an x, and the order of ties
+        # decides which of them the interpolation reads.
+        order = np.argsort(upper[:, 0], kind="stable")
         ends = upper[order[[0, -1]], 0]
         lower = x[self.lower_rim]
         above = lower[:, 1] - np.interp(lower[:, 0], upper[order, 0], upper[order, 1], left=np.inf, right=np.inf)
