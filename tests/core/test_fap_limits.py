@@ -27,14 +27,27 @@ def test_soft_limit_is_the_identity_inside_and_eases_smoothly_toward_the_limit()
     assert soft_limit(other, limits)[5] == 1e6                     # no limit: nothing changes
 
 
-def test_keeping_widens_limits_so_every_preset_passes_unchanged():
+def test_keeping_lets_every_preset_pass_and_eases_just_past_it():
+    """A preset past the surface's limit passes unchanged and the slider's end eases toward
+    PRESET_MARGIN past it (not EASE_START's 43 % more); a preset inside the limit but past the ease's
+    start moves the start to the preset and still eases toward the limit itself."""
+    from core.layers.fap.limits import PRESET_MARGIN
+
     limits = np.array([[-np.inf, np.inf]] * 68)
     limits[2] = [-10.0, 174.0]
-    presets = np.zeros((2, 68))
-    presets[0, 2], presets[1, 2] = 600.0, -30.0
-    wide = keeping(limits, presets)
-    assert wide[2, 1] == pytest.approx(600.0 / EASE_START) and wide[2, 0] == pytest.approx(-30.0 / EASE_START)
-    assert np.array_equal(soft_limit(presets[0], wide), presets[0])
+    limits[5] = [-100.0, 100.0]
+    presets = np.zeros((3, 68))
+    presets[0, 2], presets[1, 2], presets[2, 5] = 600.0, -30.0, 90.0
+    wide, start = keeping(limits, presets)
+    assert wide[2, 1] == pytest.approx(600.0 * (1 + PRESET_MARGIN)) and wide[2, 0] == pytest.approx(-30.0 * (1 + PRESET_MARGIN))
+    assert wide[5, 1] == 100.0 and start[5, 1] == pytest.approx(0.9) and wide[5, 0] == -100.0
+    assert start[5, 0] == EASE_START and np.isinf(wide[0]).all()          # untouched elsewhere
+    for row in presets:
+        assert np.array_equal(soft_limit(row, wide, start), row)
+    far = np.zeros(68)
+    far[2], far[5] = 5000.0, 5000.0
+    eased = soft_limit(far, wide, start)
+    assert 600.0 < eased[2] <= 630.0 and 90.0 < eased[5] <= 100.0
 
 
 @pytest.fixture(scope="module")
@@ -135,7 +148,8 @@ def test_a_slider_end_can_start_its_ease_later():
     assert -250 < soft_limit(v, limits, start)[18] < -249
     presets = np.zeros((1, 68))
     presets[0, 18] = -220
-    assert keeping(limits, presets, start)[18, 0] == pytest.approx(-220 / 0.85)
+    wide, later = keeping(limits, presets, start)
+    assert wide[18, 0] == -250.0 and later[18, 0] == pytest.approx(220 / 250)  # the preset passes, toward -250
 
 
 def test_linear_path_measures_like_posing_the_triangles():

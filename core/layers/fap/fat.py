@@ -54,7 +54,7 @@ from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import kernels, tables
 from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
-from core.layers.fap.limits import EASE_START, FOLD_REASON, clean_limits, keeping, soft_limit
+from core.layers.fap.limits import EASE_START, FOLD_REASON, clean_limits, keeping, preset_reach, soft_limit
 from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
 from core.layers.fap.teeth_guard import TeethGuard
@@ -251,7 +251,11 @@ class FapDeformer:
             if crease > limits[number - 1, 0]:      # both negative: the crease comes first
                 limits[number - 1, 0], self.limit_reasons[number - 1, 0] = crease, CREASE_REASON
                 self.ease_start[number - 1, 0] = LID_OPENING_EASE_START
-        self.clean_limits = keeping(limits, presets, self.ease_start)
+        # Where the surface breaks (each FAP alone), for the tooltips; the sliders ease toward
+        # ease_limits, which let every preset pass as authored.
+        self.clean_limits = limits
+        self.preset_reach = preset_reach(presets)
+        self.ease_limits, self.ease_start = keeping(limits, presets, self.ease_start)
         assert self.matrix.shape == (3 * n, N_FAPS)
 
     # ------------------------------------------------------------ building
@@ -690,7 +694,7 @@ class FapDeformer:
     def limited(self, values: np.ndarray) -> np.ndarray:
         """(68,) FAP values eased into this face's clean limits (``limits.soft_limit``): unchanged
         well inside them, never past them."""
-        return soft_limit(values, self.clean_limits, self.ease_start)
+        return soft_limit(values, self.ease_limits, self.ease_start)
 
     def _lid_crease_limit(self, probe, number: int, side: str) -> float:
         """The opening value (FAP units, negative) of upper-lid FAP ``number`` down to which the
@@ -726,13 +730,17 @@ class FapDeformer:
 
     def limit_note(self, number: int) -> str | None:
         """"beyond 240 the skin would fold: eased" for each slider end of FAP ``number`` that is
-        limited on this face, with its reason (fold or texture smear; joined by "; "), None when
-        it is not."""
+        limited on this face, with its reason (fold or texture smear; joined by "; "), and where a
+        preset goes further ("beyond 174 the skin would fold; the presets go to 600: eased past
+        that"); None when no end is limited."""
         ends: dict[str, list[str]] = {}
-        for value, why in zip(self.clean_limits[number - 1], self.limit_reasons[number - 1]):
+        for value, why, reach in zip(self.clean_limits[number - 1], self.limit_reasons[number - 1],
+                                     self.preset_reach[number - 1]):
             if np.isfinite(value):
-                ends.setdefault(why or FOLD_REASON, []).append(f"{value:.0f}")
-        return "; ".join(f"beyond {' and '.join(values)} {why}: eased" for why, values in ends.items()) or None
+                past = f"; the presets go to {reach:.0f}" if abs(reach) > abs(value) else ""
+                ends.setdefault((why or FOLD_REASON, past), []).append(f"{value:.0f}")
+        return "; ".join(f"beyond {' and '.join(values)} {why}{past}: eased{' past that' if past else ''}"
+                         for (why, past), values in ends.items()) or None
 
     def displacement(self, values: np.ndarray) -> np.ndarray:
         """(n, 3) mm: the FAT's offsets for (68,) effective FAP values (FAP units), lids in contact."""

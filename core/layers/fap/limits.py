@@ -26,6 +26,9 @@ from core.mesh_quality import _EPS, MAX_STRETCH, MIN_STRETCH, _local_frames
 
 # Where easing begins, as a share of the limit: well inside, so ordinary values pass unchanged.
 EASE_START = 0.7
+# How far past a preset's value a slider end may still move the face where the preset itself goes
+# past the surface's limit (a share of the preset's value; see keeping).
+PRESET_MARGIN = 0.05
 BISECTION_STEPS = 10
 # Where along a slider's half the texture's squeeze is sampled to pick the triangles to bisect on.
 SMEAR_SAMPLES = (0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0)
@@ -146,16 +149,31 @@ def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vect
     return limits, reasons
 
 
-def keeping(limits: np.ndarray, values: np.ndarray, ease_start=EASE_START) -> np.ndarray:
-    """(68, 2) ``limits`` widened so that every row of ``values`` (k, 68) passes :func:`soft_limit`
-    unchanged: the presets are authored poses and must read as authored (open_jaw folds a few
-    corner triangles from 174 MNS on the default face, while viseme aa opens it 600).
-    ``ease_start``: EASE_START, or (68, 2) per slider end (as given to :func:`soft_limit`)."""
-    ease_start = np.broadcast_to(np.asarray(ease_start, dtype=float), limits.shape)
-    out = limits.copy()
-    out[:, 0] = np.minimum(out[:, 0], values.min(axis=0, initial=0.0) / ease_start[:, 0])
-    out[:, 1] = np.maximum(out[:, 1], values.max(axis=0, initial=0.0) / ease_start[:, 1])
-    return out
+def preset_reach(values: np.ndarray) -> np.ndarray:
+    """(68, 2) the furthest value toward each slider end that any row of ``values`` (k, 68) asks (0
+    where none goes that way)."""
+    return np.stack([values.min(axis=0, initial=0.0), values.max(axis=0, initial=0.0)], axis=1)
+
+
+def keeping(limits: np.ndarray, values: np.ndarray, ease_start=EASE_START,
+            margin: float = PRESET_MARGIN) -> tuple[np.ndarray, np.ndarray]:
+    """(limits, ease_start), both (68, 2), for :func:`soft_limit`, such that every row of ``values``
+    (k, 68) passes unchanged: the presets are authored poses and must read as authored (open_jaw
+    folds a few corner triangles from 174 MNS on the default face, while viseme aa opens it 600).
+
+    Where a preset asks more than ``ease_start`` of a limit, the ease starts at the preset's value
+    and still eases toward the limit; where the preset goes past the limit itself, toward ``margin``
+    beyond the preset. So a slider end past every preset moves the face no further than the surface
+    (or the preset that already breaks it) allows. ``ease_start``: EASE_START, or (68, 2) per end."""
+    out = limits.astype(float).copy()
+    start = np.array(np.broadcast_to(np.asarray(ease_start, dtype=float), limits.shape))
+    reach = np.abs(preset_reach(values))
+    size = np.abs(out)
+    widened = reach > start * size                        # never where the limit is infinite
+    wide = np.maximum(size, reach * (1.0 + margin))
+    out[widened] = np.copysign(wide, out)[widened]
+    start[widened] = reach[widened] / wide[widened]
+    return out, start
 
 
 def soft_limit(values: np.ndarray, limits: np.ndarray, ease_start=EASE_START) -> np.ndarray:
