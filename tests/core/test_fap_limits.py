@@ -174,3 +174,35 @@ def test_linear_path_measures_like_posing_the_triangles():
     # A known map: the whole triangle scaled by 3 at value 1 (step = 2 x base) smears, never folds.
     scaled = _LinearPath(base[:1], 2 * base[:1], _normals(base[:1]), _local_frames(base[:1]))
     assert scaled.smears([1.0])[0, 0] and not scaled.smears([0.4])[0, 0] and not scaled.folds([1.0])[0, 0]
+
+
+def test_finished_limits_catch_what_a_finish_step_breaks_beyond_the_linear_field():
+    """A FAP whose linear field holds to its slider's end, but whose finished pose (here a stand-in
+    finish step that flips one vertex through its neighbours from 300 on) folds the skin: its end is
+    limited just below 300, with the fold as reason; an end a preset takes further is left alone."""
+    from core.layers.fap.limits import FOLD_REASON, finished_limits, preset_reach
+
+    u, v = np.meshgrid(np.arange(4.0), np.arange(4.0))
+    rest = np.column_stack([u.ravel(), v.ravel(), np.zeros(16)])
+    quads = [(r * 4 + c, r * 4 + c + 1, r * 4 + c + 4, r * 4 + c + 5) for r in range(3) for c in range(3)]
+    triangles = np.array([t for a, b, c, d in quads for t in ((a, b, c), (b, d, c))])
+    specs = tables.fap_specs()
+
+    def deform(values):
+        x = rest.copy()
+        x[:, 2] += values[2] * 1e-3                 # open_jaw: a rigid lift, never folds
+        if values[2] >= 300:
+            x[5, :2] += (3.0, 3.0)                  # the "finish step": vertex 5 jumps across the grid
+        return x
+
+    limits = np.array([[-np.inf, np.inf]] * 68)
+    reasons = np.full((68, 2), "", dtype=object)
+    finished_limits(deform, rest, triangles, limits, reasons, specs, [3], preset_reach(np.zeros((1, 68))))
+    step = 1400 / 2 ** 7
+    assert 300 - step <= limits[2, 1] < 300 and reasons[2, 1] == FOLD_REASON
+    assert np.isneginf(limits[2, 0]) and reasons[2, 0] == ""
+    presets = np.zeros((1, 68))
+    presets[0, 2] = 1400.0                          # a preset goes to the end: the preset's to fix
+    untouched = np.array([[-np.inf, np.inf]] * 68)
+    finished_limits(deform, rest, triangles, untouched, reasons, specs, [3], preset_reach(presets))
+    assert np.isposinf(untouched[2, 1])

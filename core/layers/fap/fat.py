@@ -54,7 +54,8 @@ from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import kernels, tables
 from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
-from core.layers.fap.limits import EASE_START, FOLD_REASON, clean_limits, keeping, preset_reach, soft_limit
+from core.layers.fap.limits import (EASE_START, FOLD_REASON, bisect, clean_limits, finished_limits, keeping,
+                                    preset_reach, soft_limit)
 from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
 from core.layers.fap.teeth_guard import TeethGuard
@@ -238,8 +239,12 @@ class FapDeformer:
         # The lids are not limited: they must close completely at 1024 IRISD, and their ends are
         # shaped by lid contact and the lid guard, which a linear fold check does not see.
         lids = {n for pair in LID_PAIRS for n in pair}
+        limited_faps = [n for n in self.animated_faps if n not in lids]
         limits, self.limit_reasons = clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
-                                                  self.specs, [n for n in self.animated_faps if n not in lids])
+                                                  self.specs, limited_faps)
+        self.preset_reach = preset_reach(presets)
+        finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
+                        limited_faps, self.preset_reach)
         # The upper lids' opening ends also stop where a lid folds through its own crease (a linear
         # fold check does not see it: the lid skin rises under the crease and crosses it).
         self.ease_start = np.full((N_FAPS, 2), EASE_START)
@@ -254,7 +259,6 @@ class FapDeformer:
         # Where the surface breaks (each FAP alone), for the tooltips; the sliders ease toward
         # ease_limits, which let every preset pass as authored.
         self.clean_limits = limits
-        self.preset_reach = preset_reach(presets)
         self.ease_limits, self.ease_start = keeping(limits, presets, self.ease_start)
         assert self.matrix.shape == (3 * n, N_FAPS)
 
@@ -722,10 +726,7 @@ class FapDeformer:
 
         if not crosses(end):
             return -np.inf
-        good, bad = 0.0, 1.0
-        for _ in range(CREASE_BISECTION_STEPS):
-            mid = (good + bad) / 2
-            good, bad = (good, mid) if crosses(end * mid) else (mid, bad)
+        good, _bad = bisect(lambda share: crosses(end * share), CREASE_BISECTION_STEPS)
         return end * good
 
     def limit_note(self, number: int) -> str | None:

@@ -5,7 +5,9 @@ line per slider end: the value where the first skin triangle moved by the FAP tu
 more than 90 degrees (a fold; slivers with no direction are not counted, as in
 ``core.mesh_quality``), or stretches or squeezes its texture beyond ``core.mesh_quality``'s bounds
 (a smear: a principal stretch above MAX_STRETCH or below MIN_STRETCH). Each end's reason is kept
-for the slider's tooltip.
+for the slider's tooltip. The finish steps (lid guard, lip contact, teeth) move skin the FAT column
+does not, so :func:`finished_limits` then poses the face at each limit and bisects again on the
+finished pose where that breaks.
 
 Never below what a preset (expression or viseme at 100 %) asks of a FAP (:func:`keeping`): the
 presets are authored poses, a limit would only mute them (viseme aa opens the jaw 600 MNS where
@@ -22,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.mesh_quality import _EPS, MAX_STRETCH, MIN_STRETCH, _local_frames
+from core.mesh_quality import _EPS, MAX_STRETCH, MIN_STRETCH, _local_frames, principal_stretches
 
 # Where easing begins, as a share of the limit: well inside, so ordinary values pass unchanged.
 EASE_START = 0.7
@@ -30,6 +32,9 @@ EASE_START = 0.7
 # past the surface's limit (a share of the preset's value; see keeping).
 PRESET_MARGIN = 0.05
 BISECTION_STEPS = 10
+# The finished pose's check (finished_limits) poses the whole face per probe: fewer steps (1/128 of
+# the range, ~3 units of a 400-unit limit).
+FINISHED_BISECTION_STEPS = 7
 # Where along a slider's half the texture's squeeze is sampled to pick the triangles to bisect on.
 SMEAR_SAMPLES = (0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0)
 FOLD_REASON = "the skin would fold"
@@ -140,13 +145,59 @@ def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vect
             smear = np.flatnonzero(candidate)
             if not breaks(end, smear):   # whole to the slider's end: no limit at all
                 continue
-            good, bad = 0.0, 1.0
-            for _ in range(BISECTION_STEPS):
-                mid = (good + bad) / 2
-                good, bad = (good, mid) if breaks(end * mid, smear) else (mid, bad)
+            good, bad = bisect(lambda share: bool(breaks(end * share, smear)))
             limits[number - 1, side] = end * good
             reasons[number - 1, side] = breaks(end * bad, smear)
     return limits, reasons
+
+
+def bisect(breaks, steps: int = BISECTION_STEPS) -> tuple[float, float]:
+    """(good, bad) shares of a line, 0 <= good < bad <= 1, bad - good = 2^-steps, where
+    ``breaks(share) -> bool`` turns true (it must hold at 0 and break at 1)."""
+    good, bad = 0.0, 1.0
+    for _ in range(steps):
+        mid = (good + bad) / 2
+        good, bad = (good, mid) if breaks(mid) else (mid, bad)
+    return good, bad
+
+
+def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits: np.ndarray, reasons: np.ndarray,
+                    specs, numbers, reach: np.ndarray, steps: int = FINISHED_BISECTION_STEPS) -> None:
+    """Tighten ``limits`` / ``reasons`` (68, 2, from :func:`clean_limits`) in place where a FAP alone,
+    posed by ``deform(values (68,)) -> (n, 3)`` with every finish step (lid guard, lip contact,
+    teeth), folds or smears the skin before its linear limit (or its slider's end): those steps move
+    skin the FAT column does not. Ends a preset (``reach``, :func:`preset_reach`) takes past their
+    limit are left to the preset (the slider eases just past it, see :func:`keeping`).
+    Only triangles the pose moved are measured."""
+    rest_normals = _normals(rest[skin_triangles])
+    rest_frames = _local_frames(rest[skin_triangles])
+    area = np.linalg.norm(rest_normals, axis=1)
+    measurable = area > 1e-6 * max(float(np.median(area)), 1e-12)
+    for number in numbers:
+        spec = specs[number - 1]
+        if spec.is_rotation or not np.isfinite(spec.minimum) or not np.isfinite(spec.maximum):
+            continue
+
+        def breaks(value: float) -> str:
+            values = np.zeros(len(specs))
+            values[number - 1] = value
+            x = deform(values)
+            moved = (x != rest).any(axis=1)
+            tris = np.flatnonzero(moved[skin_triangles].any(axis=1) & measurable)
+            posed = x[skin_triangles[tris]]
+            if (np.einsum("ij,ij->i", _normals(posed), rest_normals[tris]) < 0).any():
+                return FOLD_REASON
+            big, small = principal_stretches(rest_frames[tris], posed)
+            return SMEAR_REASON if (big > MAX_STRETCH).any() or (small < MIN_STRETCH).any() else ""
+
+        for side, end in enumerate((spec.minimum, spec.maximum)):
+            limit = limits[number - 1, side]
+            far = limit if np.isfinite(limit) else end
+            if far == 0 or abs(reach[number - 1, side]) >= abs(far) or not breaks(far):
+                continue
+            good, bad = bisect(lambda share: bool(breaks(far * share)), steps)
+            limits[number - 1, side] = far * good
+            reasons[number - 1, side] = breaks(far * bad) or FOLD_REASON
 
 
 def preset_reach(values: np.ndarray) -> np.ndarray:
