@@ -1,6 +1,7 @@
 """Landmark-matching accuracy on the synthetic database (thesis A §3.3 protocol).
 
     python benchmarks/evaluate_landmarks.py [--people 3] [--template a48] [--pairs 1] [--out out/landmarks]
+                                                [--untextured]
 
 Prints per-expression and per-landmark accuracy for λ = 0..1 (step 0.1), mean errors and time per
 scan, writes charts, and ends with ``min_expression_accuracy=<x> neutral_across_people_accuracy=<y>``.
@@ -27,9 +28,11 @@ def main(argv=None) -> int:
     ap.add_argument("--lambdas", type=float, nargs="*", default=list(LAMBDAS))
     ap.add_argument("--out", default="out/landmarks", help="directory for the PNG charts")
     ap.add_argument("--quiet", action="store_true", help="no per-case lines")
+    ap.add_argument("--untextured", action="store_true",
+                    help="input scans without texture (the geometry-only path); models keep theirs")
     args = ap.parse_args(argv)
     res = evaluate(args.people, template=args.template, poses=args.poses, lambdas=args.lambdas, pairs=args.pairs,
-                   out_dir=args.out, log=None if args.quiet else print)
+                   out_dir=args.out, textured=not args.untextured, log=None if args.quiet else print)
     if args.quiet:
         print("\n".join(res.lines))
     return 0

@@ -155,10 +155,12 @@ def run_case(model: Face, scan: Face, template: str, lambdas: Sequence[float], p
 
 def evaluate(n_people: int = 3, *, template: str = "a48", poses: Sequence[str] | None = None,
              lambdas: Sequence[float] = LAMBDAS, pairs: int = 1, params: MatchParams | None = None,
-             cache_dir=None, out_dir=None, seed: int = 0,
+             cache_dir=None, out_dir=None, seed: int = 0, textured: bool = True,
              log: Callable[[str], None] | None = print) -> EvaluationResult:
     """Run both tests on the first ``n_people`` of the synthetic database; print tables, write
-    charts to ``out_dir`` (if given) and return the result (``result.lines`` = the printed report)."""
+    charts to ``out_dir`` (if given) and return the result (``result.lines`` = the printed report).
+    textured=False: the input scans without their texture (the detector's geometry-only path; the
+    model scans keep theirs, as a user's marked model would)."""
     from core.registration.synthetic import poses as all_poses, synthetic_case
 
     if n_people < 2:
@@ -179,6 +181,10 @@ def evaluate(n_people: int = 3, *, template: str = "a48", poses: Sequence[str] |
     def scan(person, pose):
         return case(person, pose).face
 
+    def input_scan(person, pose):
+        face = scan(person, pose)
+        return face if textured else face.without_texture()
+
     cases: list[Case] = []
     contexts: dict = {}
     skipped: list[str] = []
@@ -187,7 +193,7 @@ def evaluate(n_people: int = 3, *, template: str = "a48", poses: Sequence[str] |
         for pose in poses:
             if pose == "neutral":
                 continue
-            inp = scan(person, pose)
+            inp = input_scan(person, pose)
             errors, secs = run_case(model, inp, template, lambdas, params, contexts, (person, "neutral"),
                                     case(person, pose).visible)
             cases.append(Case("expressions", pose, person, person, tolerance_for(inp), errors, secs))
@@ -203,7 +209,7 @@ def evaluate(n_people: int = 3, *, template: str = "a48", poses: Sequence[str] |
                     skipped.append(f"people {pose} person {i} -> {j}: model lacks {', '.join(missing)}")
                     say(f"  skipped {skipped[-1]}")
                     continue
-                errors, secs = run_case(scan(i, pose), scan(j, pose), template, lambdas, params, contexts, (i, pose),
+                errors, secs = run_case(scan(i, pose), input_scan(j, pose), template, lambdas, params, contexts, (i, pose),
                                         case(j, pose).visible)
                 cases.append(Case("people", pose, i, j, tolerance_for(scan(j, pose)), errors, secs))
                 say(f"  people {pose} person {i} -> {j}: "
@@ -211,6 +217,8 @@ def evaluate(n_people: int = 3, *, template: str = "a48", poses: Sequence[str] |
     result = EvaluationResult(template, tpl.detected, cases, lambdas, n_people, time.perf_counter() - t_start)
     lines = report_lines(result)
     lines.insert(3, coverage_line(result, len(skipped)))
+    if not textured:
+        lines.insert(3, "input scans without texture (geometry only); the model scans keep theirs")
     if skipped:
         lines.insert(3, f"{len(skipped)} across-people pair(s) skipped: the model scan lacks ground truth for some "
                         "points (hidden from the virtual scanner)")

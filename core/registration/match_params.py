@@ -34,6 +34,8 @@ class MatchParams:
     brows : brow tops and outer ends placed on the brow band or ridge (``brow_pass``).
     eyes : each eye found as a whole by its shape; closed eyes' points on the lid line (``eye_pass``).
     outliers : a weak point far from where the confident matches put it follows them (``outlier_pass``).
+    ambiguity : a patch match that fits as well elsewhere (flat evidence) is reported low confidence
+        (``ambiguity``; the reported confidence only, positions unchanged).
     """
 
     lam: float = 0.0     # sweep on 3 synthetic people (evaluate_landmarks): best over all tests at 0.0
@@ -58,6 +60,7 @@ class MatchParams:
     outliers: bool = True
     brows: bool = True
     eyes: bool = True
+    ambiguity: bool = True
 
     def __post_init__(self):
         for name in ("lam", "lam_a", "lam_s", "position_weight", "pull"):

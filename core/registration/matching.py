@@ -11,7 +11,7 @@ lip, mouth opening, lip order), ``surface_points`` (pixels onto the scan surface
 Order of the passes: greedy -> patch search round 1 and 2 -> lower lip -> mouth opening -> lip
 order (in the scan's frontal raster) -> onto the surface -> closest-point snap -> confidence ->
 upper lid -> steep sides -> eyes (``eye_pass``) -> brows (``brow_pass``) -> outliers (``outlier_pass``; each followed by the confidence again) ->
-fixed points' confidence 1.
+flat evidence (``ambiguity``) -> fixed points' confidence 1.
 
 The model is a face whose landmarks are known (a template's points); the input is a scan already
 rigidly aligned to it (ICP, done by ``pipeline.detect_landmarks``), so everything here works in
@@ -92,6 +92,9 @@ Confidence (0..1, heuristic, not a probability): the mean of the NCC peak (clipp
 and exp(−(d / 0.1·scale)²) where d is the distance of the final point from its structural
 prediction (from the other matches); without refinement the NCC term is replaced by the greedy
 cost margin between the best and the second-best candidate elsewhere (> 0.1 × scale away).
+The reported confidence of a point still where the patch search put it has that NCC term scaled
+by the peak's distinctness (``ambiguity``: a patch that fits as well 0.05-0.15 × scale away, as
+along an untextured brow ridge, is no evidence of where the point is); positions are not changed.
 
 Face scale: the distance between the outer eye corners 3.7 and 3.12 of the model (91 mm on the
 default face); without them, 0.66 × the model's skin bounding-box width.
@@ -125,6 +128,7 @@ from core.registration.steep_pass import steep_pass, steep_points  # noqa: F401 
 from core.registration.outlier_pass import outlier_pass
 from core.registration.brow_pass import brow_pass
 from core.registration.eye_pass import eye_pass
+from core.registration.ambiguity import distinctness
 
 
 def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchParams, *, rays,
@@ -172,10 +176,13 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
         est = PixelEstimates.empty(P)
         for pixel_pass in passes:
             est = est.apply(pixel_pass(pctx, est))
+            if pixel_pass is search_near_prediction:
+                patch_pixel = est.pixel    # where the patch search itself put each point
         # Every point's evidence is its final NCC; those on the covered scan raster move there.
         state = _apply(mctx, state.replace(evidence=est.peak), pixels_to_surface(mctx, est))
     timings["refine_s"] = time.perf_counter() - t2
     state = _apply(mctx, state, snap_to_surface(mctx, state))
+    after_patches = state
 
     confidence = match_confidence(mctx, state.positions, state.evidence, greedy.margin)
     surface_passes = []
@@ -194,6 +201,13 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
         if len(moves):
             state = _apply(mctx, state, moves)
             confidence = match_confidence(mctx, state.positions, state.evidence, greedy.margin)
+    if used.refine and used.ambiguity:
+        # Points still where the patch search put them: is their peak distinct (ambiguity module)?
+        # Only the reported confidence changes; the passes above read the plain one.
+        placed = (np.all(est.pixel == patch_pixel, axis=1) & (est.peak > 0) & ~is_fixed
+                  & (state.triangle == after_patches.triangle) & np.all(state.bary == after_patches.bary, axis=1))
+        distinct = distinctness(pctx.search, scan_raster.to_pixel(state.positions), placed, pctx.scale_px)
+        confidence = match_confidence(mctx, state.positions, state.evidence * distinct, greedy.margin)
     confidence[is_fixed] = 1.0
     timings["match_s"] = time.perf_counter() - t0
     return MatchResult(names, state.positions.copy(), state.triangle.copy(), state.bary.copy(), confidence,

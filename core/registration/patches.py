@@ -53,18 +53,19 @@ class PatchSearch:
         j = int(np.argmin((yy + r0 - r) ** 2 + (xx + c0 - c) ** 2))
         return (c0 + xx[j] - self.pad, r0 + yy[j] - self.pad)
 
-    def search(self, k: int, centre_px, rx: int, ry: int, pull_px=None):
-        """Best pixel (col, row) for landmark k within (2 rx + 1) x (2 ry + 1) around ``centre_px``,
-        penalised by pull x (distance to ``pull_px`` / r)^2; and its NCC. (None, 0) if impossible."""
+    def ncc_window(self, k: int, centre_px, rx: int, ry: int):
+        """(NCC map (2 ry + 1, 2 rx + 1) of landmark k's model patch placed at each pixel within
+        rx / ry of ``centre_px`` (col, row), padded centre (sx, sy), patch rows (top, bottom)), or
+        None when the window leaves the raster or the model point has no patch (edge of its surface)."""
         h, pad = self.h, self.pad
         if not np.all(np.isfinite(centre_px)):
-            return None, 0.0
+            return None
         rx, ry = int(min(rx, pad - h - 2)), int(min(ry, pad - h - 2))
         mx, my = (np.round(self.mc[k]).astype(int) + pad)
         sx, sy = (np.round(np.asarray(centre_px)).astype(int) + pad)
         if not (0 <= mx - h and mx + h < self.M.shape[1] and 0 <= my - h and my + h < self.M.shape[0]
                 and rx + h <= sx < self.S.shape[1] - rx - h and ry + h <= sy < self.S.shape[0] - ry - h):
-            return None, 0.0
+            return None
         top, bottom = -h, h
         if self.halves[k] == "upper":
             bottom = 1
@@ -72,9 +73,19 @@ class PatchSearch:
             top = -1
         patch = self.M[my + top:my + bottom + 1, mx - h:mx + h + 1]
         if self.Mv[my + top:my + bottom + 1, mx - h:mx + h + 1].mean() < 0.5:
-            return None, 0.0   # the model landmark is at the edge of its surface: no patch to compare
+            return None
         win = self.S[sy - ry + top:sy + ry + bottom + 1, sx - rx - h:sx + rx + h + 1]
-        res = _ncc(win, patch)                              # (2 ry + 1, 2 rx + 1)
+        return _ncc(win, patch), (sx, sy), (top, bottom)
+
+    def search(self, k: int, centre_px, rx: int, ry: int, pull_px=None):
+        """Best pixel (col, row) for landmark k within (2 rx + 1) x (2 ry + 1) around ``centre_px``,
+        penalised by pull x (distance to ``pull_px`` / r)^2; and its NCC. (None, 0) if impossible."""
+        h, pad = self.h, self.pad
+        found = self.ncc_window(k, centre_px, rx, ry)
+        if found is None:
+            return None, 0.0
+        res, (sx, sy), (top, bottom) = found
+        ry, rx = (np.array(res.shape) - 1) // 2
         yy, xx = np.mgrid[-ry:ry + 1, -rx:rx + 1]
         if pull_px is not None:
             off = np.asarray(pull_px, float) - np.asarray(centre_px, float)

@@ -384,3 +384,48 @@ def test_brow_pass_leaves_untextured_scans_fixed_points_and_bad_eyes(model):
     positions = state.positions.copy()
     positions[names.index("3.7")] = positions[names.index("3.11")]
     assert len(brow_pass(ctx, state.replace(positions=positions), np.full(len(names), 0.5))) == 0
+
+
+def _search_on(scan_channel: np.ndarray, model_channel: np.ndarray, point_px):
+    """A PatchSearch of one landmark at pixel ``point_px`` (col, row) of ``model_channel`` (H, W)
+    over ``scan_channel`` (H, W); both rasters 0.75 mm pixels, fully covered."""
+    from core.registration.matching import FrontalRaster
+    from core.registration.patches import PatchSearch
+
+    def raster(channel):
+        H, W = channel.shape
+        return FrontalRaster(0.0, 0.0, 0.75, np.arange(H * W).reshape(H, W), np.tile([1.0, 0.0, 0.0], (H, W, 1)),
+                             channel[..., None].astype(np.float32))
+
+    point = np.array([[point_px[0] * 0.75, -point_px[1] * 0.75, 0.0]])
+    return PatchSearch(point, raster(model_channel), raster(scan_channel), MatchParams(), ["full"], [False])
+
+
+@pytest.mark.parametrize("shape, distinct", [("bump", 1.0), ("ridge", 0.0)])
+def test_evidence_along_a_ridge_is_flat_and_a_bump_is_distinct(shape, distinct):
+    """A bump's patch fits only at the bump (distinctness 1); a straight ridge's patch fits as well
+    anywhere along the ridge, so where along it the point lies is not evidenced (0)."""
+    from core.registration.ambiguity import distinctness
+
+    rows, cols = np.mgrid[0:200, 0:200]
+    if shape == "bump":
+        channel = np.exp(-((rows - 100.0) ** 2 + (cols - 100.0) ** 2) / (2 * 6.0 ** 2))
+    else:
+        channel = np.exp(-((rows - 100.0) ** 2) / (2 * 6.0 ** 2))
+    search = _search_on(channel, channel, (100, 100))
+    scale_px = 91.0 / 0.75
+    got = distinctness(search, np.array([[100.0, 100.0]]), np.array([True]), scale_px)
+    assert got[0] == pytest.approx(distinct, abs=1e-6)
+    # Not placed by the patch search: nothing measured.
+    assert distinctness(search, np.array([[100.0, 100.0]]), np.array([False]), scale_px)[0] == 1.0
+
+
+def test_ambiguity_changes_only_the_reported_confidence(scan):
+    """The flat-evidence check lowers confidences (never raises them) and moves no point."""
+    bare = Face(scan.vertices, scan.triangles, landmarks=scan.landmarks)
+    with_check = detect_landmarks(bare, template="mpeg4_80")
+    without = detect_landmarks(bare, template="mpeg4_80", params=MatchParams(ambiguity=False))
+    for n in with_check.positions:
+        assert np.allclose(with_check.positions[n], without.positions[n])
+        assert with_check.confidence[n] <= without.confidence[n] + 1e-12
+    assert sum(with_check.confidence[n] < without.confidence[n] for n in with_check.confidence) > 0
