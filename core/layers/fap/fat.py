@@ -236,15 +236,12 @@ class FapDeformer:
         report(0.97, "Finding where each FAP would break the surface…")
         skin_triangles = face.triangles[skin[face.triangles].all(axis=1)]
         presets = np.concatenate([tables.expression_table(), tables.viseme_table()])
-        # The lids are not limited: they must close completely at 1024 IRISD, and their ends are
-        # shaped by lid contact and the lid guard, which a linear fold check does not see.
+        # The lids' closing ends are not limited: they must close completely at 1024 IRISD, and lid
+        # contact and the lid guard shape them, which a linear fold check does not see.
         lids = {n for pair in LID_PAIRS for n in pair}
         limited_faps = [n for n in self.animated_faps if n not in lids]
         limits, self.limit_reasons = clean_limits(face.vertices, skin_triangles, self.matrix, self.fapu_vector,
                                                   self.specs, limited_faps)
-        self.preset_reach = preset_reach(presets)
-        finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
-                        limited_faps, self.preset_reach)
         # The upper lids' opening ends also stop where a lid folds through its own crease (a linear
         # fold check does not see it: the lid skin rises under the crease and crosses it).
         self.ease_start = np.full((N_FAPS, 2), EASE_START)
@@ -256,6 +253,14 @@ class FapDeformer:
             if crease > limits[number - 1, 0]:      # both negative: the crease comes first
                 limits[number - 1, 0], self.limit_reasons[number - 1, 0] = crease, CREASE_REASON
                 self.ease_start[number - 1, 0] = LID_OPENING_EASE_START
+        # Then every limit on the finished pose; of the lids only the upper lids' opening ends (closing
+        # must reach 1024). The lower lids' opening ends are left alone: on the default face a sliver
+        # (altitude 0.3 % of the median edge, no texture to smear) would stop them at -61 of -300.
+        self.preset_reach = preset_reach(presets)
+        finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
+                        limited_faps, self.preset_reach)
+        finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
+                        [19, 20], self.preset_reach, sides=(0,))
         # Where the surface breaks (each FAP alone), for the tooltips; the sliders ease toward
         # ease_limits, which let every preset pass as authored.
         self.clean_limits = limits

@@ -162,13 +162,15 @@ def bisect(breaks, steps: int = BISECTION_STEPS) -> tuple[float, float]:
 
 
 def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits: np.ndarray, reasons: np.ndarray,
-                    specs, numbers, reach: np.ndarray, steps: int = FINISHED_BISECTION_STEPS) -> None:
+                    specs, numbers, reach: np.ndarray, steps: int = FINISHED_BISECTION_STEPS,
+                    sides=(0, 1)) -> None:
     """Tighten ``limits`` / ``reasons`` (68, 2, from :func:`clean_limits`) in place where a FAP alone,
     posed by ``deform(values (68,)) -> (n, 3)`` with every finish step (lid guard, lip contact,
     teeth), folds or smears the skin before its linear limit (or its slider's end): those steps move
     skin the FAT column does not. Ends a preset (``reach``, :func:`preset_reach`) takes past their
     limit are left to the preset (the slider eases just past it, see :func:`keeping`).
-    Only triangles the pose moved are measured."""
+    ``sides``: the slider ends checked (0 the lower, 1 the upper). Only triangles the pose moved
+    are measured."""
     rest_normals = _normals(rest[skin_triangles])
     rest_frames = _local_frames(rest[skin_triangles])
     area = np.linalg.norm(rest_normals, axis=1)
@@ -190,7 +192,8 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
             big, small = principal_stretches(rest_frames[tris], posed)
             return SMEAR_REASON if (big > MAX_STRETCH).any() or (small < MIN_STRETCH).any() else ""
 
-        for side, end in enumerate((spec.minimum, spec.maximum)):
+        for side in sides:
+            end = (spec.minimum, spec.maximum)[side]
             limit = limits[number - 1, side]
             far = limit if np.isfinite(limit) else end
             if far == 0 or abs(reach[number - 1, side]) >= abs(far) or not breaks(far):
