@@ -98,7 +98,13 @@ def rig_correspondence(deformer, n_library: int, template: str = TEMPLATE):
         return None
     if not np.array_equal(dense.triangles, canonical_triangles(template)):
         return None
-    m = _lower_teeth_rows(binding.tolil(copy=True), getattr(deformer.face, "parts", {}) or {}, dense.vertices, template)
+    m = scipy.sparse.csr_matrix(binding)
+    follow = getattr(deformer, "cavity_follow", None)
+    if follow is not None and deformer.face is not None:
+        # The mouth cavity's lining follows the skin the pose moves, as it follows the FAPs' (held
+        # still, skin moved inward by a pose passed through it: default face 618 crossing pairs).
+        m = m + follow() @ m
+    m = _lower_teeth_rows(m.tolil(), getattr(deformer.face, "parts", {}) or {}, dense.vertices, template)
     return scipy.sparse.csr_matrix(m)
 
 

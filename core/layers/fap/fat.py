@@ -452,23 +452,29 @@ class FapDeformer:
 
     def _cavity_rows(self, F: scipy.sparse.csr_matrix) -> scipy.sparse.csr_matrix:
         """(3n, 68) rows of the mouth cavity's vertices: each follows its closest skin point's rows of
-        ``F`` (barycentric), scaled from 1 within ``CAVITY_FOLLOW_NEAR_MM`` of the skin to 0 at
-        ``CAVITY_FOLLOW_FAR_MM`` (smoothstep); zero for a face without a cavity."""
+        ``F`` (see :meth:`cavity_follow`); zero for a face without a cavity."""
+        W3 = scipy.sparse.kron(self.cavity_follow(), scipy.sparse.identity(3, format="csr"), format="csr")
+        return (W3 @ F).tocsr()
+
+    def cavity_follow(self) -> scipy.sparse.csr_matrix:
+        """(n, n) how the mouth cavity's lining follows the skin: row i of a lining vertex holds the
+        barycentric weights of its closest skin point, scaled from 1 within ``CAVITY_FOLLOW_NEAR_MM``
+        of the skin to 0 at ``CAVITY_FOLLOW_FAR_MM`` (smoothstep); other rows are empty. Any layer's
+        skin offset d (n, 3) moves the lining by ``cavity_follow() @ d`` (the FAT's own rows and an
+        expression library's correspondence use it)."""
         face = self.face
         n = face.n_vertices
         idx = np.asarray(face.parts.get("mouth_cavity", np.zeros(0, np.int64)), dtype=np.int64)
         in_part = self._in_any_part()
         skin_tris = face.triangles[~in_part[face.triangles].any(axis=1)]
         if not len(idx) or not len(skin_tris):
-            return scipy.sparse.csr_matrix((3 * n, N_FAPS))
+            return scipy.sparse.csr_matrix((n, n))
         pos, tri, bary = TriangleSet(face.vertices, skin_tris).closest(face.vertices[idx], k=24)
         gap = np.linalg.norm(pos - face.vertices[idx], axis=1)
         t = np.clip((CAVITY_FOLLOW_FAR_MM - gap) / (CAVITY_FOLLOW_FAR_MM - CAVITY_FOLLOW_NEAR_MM), 0.0, 1.0)
         follow = t * t * (3 - 2 * t)
-        W = scipy.sparse.coo_matrix(((bary * follow[:, None]).ravel(), (np.repeat(idx, 3), skin_tris[tri].ravel())),
-                                    shape=(n, n)).tocsr()
-        W3 = scipy.sparse.kron(W, scipy.sparse.identity(3, format="csr"), format="csr")
-        return (W3 @ F).tocsr()
+        return scipy.sparse.coo_matrix(((bary * follow[:, None]).ravel(), (np.repeat(idx, 3), skin_tris[tri].ravel())),
+                                       shape=(n, n)).tocsr()
 
     def _eyeball_pivots(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """part name -> (vertex indices, centre (3,)) for eyeballs, centre by a least-squares sphere fit
@@ -798,12 +804,18 @@ class FapDeformer:
 
     def _close_lids(self, x: np.ndarray, values: np.ndarray) -> None:
         """Upper lids stop on the lower ones, and lids (and the cheek lift's skin) slide over the
-        eyeballs, in ``x`` (n, 3) in place, for (68,) values after :func:`lid_contact`."""
-        if values[18:22].any():
+        eyeballs, in ``x`` (n, 3) in place, for (68,) values after :func:`lid_contact`.
+
+        Both steps also run when another layer moved the lids' skin with no FAP value set (an
+        expression library's pose: its scanned lids crossed each other and the eyeballs, default
+        face's disgust 1,104 crossing pairs, because these steps waited for a lid FAP)."""
+        rest = self._rest.reshape(-1, 3) if self._rest is not None else None
+        if values[18:22].any() or _moved(x, rest, *(rows for rims in self._eye_rims for rows in rims)):
             for upper, lower in self._eye_rims:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
-        if values[18:22].any() or values[40:42].any() or values[30:38].any():
+        if (values[18:22].any() or values[40:42].any() or values[30:38].any()
+                or any(not np.array_equal(x[guard[0]], guard[7]) for guard in self._lid_guards)):
             compiled = kernels.get()
             for lid, centre, rest_clearance, full_clearance, angles, radii, faps, rest in self._lid_guards:
                 # From the rest gap to the full clearance as the eye closes (opening lids leave it).
@@ -922,6 +934,11 @@ def _relax(w: np.ndarray, graph: scipy.sparse.csr_matrix, fixed: np.ndarray, ste
     for _ in range(steps):
         out[free] = (inv @ out)[free] / degree[free]
     return out
+
+
+def _moved(x: np.ndarray, rest: np.ndarray | None, *rows: np.ndarray) -> bool:
+    """Does any of the vertex ``rows`` of ``x`` (n, 3) differ from ``rest`` (n, 3)?"""
+    return rest is not None and any(not np.array_equal(x[r], rest[r]) for r in rows)
 
 
 def _radius_profile(offsets: np.ndarray, step_deg: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
