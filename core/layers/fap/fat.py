@@ -688,6 +688,21 @@ class FapDeformer:
         not simply add up: lips pressed into each other give way)."""
         return self._lip_contact.zone(self.face.n_vertices)
 
+    def lid_zone(self) -> np.ndarray:
+        """(n,) bool: vertices the lid steps may move after all offsets, whatever layer moved the lids
+        (upper rims stopping on the lower ones, lid skin pushed out over the eyeballs)."""
+        mask = np.zeros(self.face.n_vertices, bool)
+        for upper, _lower in self._eye_rims:
+            mask[upper] = True
+        for guard in self._lid_guards:
+            mask[guard[0]] = True
+        return mask
+
+    def finish_zone(self) -> np.ndarray:
+        """(n,) bool: vertices where the layers' offsets may not simply add up (:meth:`lid_zone` and
+        :meth:`lip_contact_zone`)."""
+        return self.lid_zone() | self.lip_contact_zone()
+
     @property
     def closed_lid_faps(self) -> frozenset[int]:
         """The lid FAPs (19-22) of the eyes closed at rest on this face (a scan taken with them shut)."""
@@ -820,10 +835,16 @@ class FapDeformer:
             for lid, centre, rest_clearance, full_clearance, angles, radii, faps, rest in self._lid_guards:
                 # From the rest gap to the full clearance as the eye closes (opening lids leave it).
                 ramp = min(max(max(values[f - 1] for f in faps), 0.0) / GUARD_RAMP, 1.0)
+                # A layer that carried the eyeball along (a head moved as a whole) carries its guard:
+                # only skin that moved relative to the ball slid over it. (The FAPs turn the eyeballs
+                # after this step: for them the shift is zero.)
+                ball = self._eyes["eyeball_l" if 19 in faps else "eyeball_r"][0]
+                shift = (x[ball] - self._rest.reshape(-1, 3)[ball]).mean(axis=0) if self._rest is not None else 0.0
+                centre = centre + shift
                 # Skin that slid over the ball (the cheek lift moves the socket skin millimetres) takes
                 # the full clearance too: at its rest gap, below the ball's profile, its triangles cut
                 # the ball wherever it now lies.
-                slid = np.sqrt(((x[lid] - rest) ** 2).sum(axis=1)) / GUARD_SLIDE_MM
+                slid = np.sqrt(((x[lid] - rest - shift) ** 2).sum(axis=1)) / GUARD_SLIDE_MM
                 ramp = np.minimum(np.maximum(ramp, slid), 1.0)
                 clearance = rest_clearance + (full_clearance - rest_clearance) * ramp
                 if compiled is not None:
