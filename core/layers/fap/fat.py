@@ -571,7 +571,9 @@ class FapDeformer:
         empty = np.zeros(0, np.int64)
         lid_writes = np.concatenate([upper for upper, _lower in self._eye_rims]
                                     + [guard[0] for guard in self._lid_guards] + [empty])
-        lid_reads = np.concatenate([lower for _upper, lower in self._eye_rims] + [lid_writes])
+        # The lid guards also read the eyeballs (a layer that carries a ball along carries its guard).
+        balls = [np.asarray(idx, np.int64) for idx, _centre in self._eyes.values()] if self._lid_guards else []
+        lid_reads = np.concatenate([lower for _upper, lower in self._eye_rims] + balls + [lid_writes])
         lips = self._lip_contact
         lip_writes = np.concatenate([lips.upper, lips.lower]) if lips.active else empty
         lip_reads = np.concatenate([lips.upper_rim, lips.lower_rim, lip_writes]) if lips.active else empty
