@@ -109,6 +109,8 @@ CAVITY_FOLLOW_FAR_MM = 20.0
 BROW_FAPS = ((31, 33, 35, 37), (32, 34, 36, 38))
 # FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
 LID_GUARD_COLUMNS = np.array([18, 19, 20, 21, 40, 41, *range(30, 38)])
+# Eyeball vertices whose mean motion gives the lid guard the ball's shift (see _ball_anchors).
+BALL_ANCHORS = 16
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 # An upper lid opened past about 250 IRISD rises under its crease and folds through it (default face
 # 14 crossing pairs per eye at close_t -300, generated identity 23): that slider end is eased to the
@@ -572,7 +574,7 @@ class FapDeformer:
         lid_writes = np.concatenate([upper for upper, _lower in self._eye_rims]
                                     + [guard[0] for guard in self._lid_guards] + [empty])
         # The lid guards also read the eyeballs (a layer that carries a ball along carries its guard).
-        balls = [np.asarray(idx, np.int64) for idx, _centre in self._eyes.values()] if self._lid_guards else []
+        balls = [self._ball_anchors(name) for name in self._eyes] if self._lid_guards else []
         lid_reads = np.concatenate([lower for _upper, lower in self._eye_rims] + balls + [lid_writes])
         lips = self._lip_contact
         lip_writes = np.concatenate([lips.upper, lips.lower]) if lips.active else empty
@@ -583,6 +585,13 @@ class FapDeformer:
         return {name: StepMemo(reads, writes) for name, reads, writes in (
             ("lids", lid_reads, lid_writes), ("lips", lip_reads, lip_writes), ("teeth", teeth_reads, teeth.watched))
             if len(reads)}
+
+    def _ball_anchors(self, name: str) -> np.ndarray:
+        """A few vertices spread over eyeball ``name`` (every k-th of about ``BALL_ANCHORS``): their mean
+        motion is the ball's shift for the lid guard (exact for a translation; a turn about the ball's
+        centre moves them little), at a tick's cost of a handful of rows rather than the whole ball."""
+        idx = np.asarray(self._eyes[name][0], dtype=np.int64)
+        return idx[::max(1, len(idx) // BALL_ANCHORS)]
 
     def _eye_rims_of_skin(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per eye: (upper rim, lower rim) vertex indices of the skin's eye opening, ordered by x.
@@ -840,7 +849,7 @@ class FapDeformer:
                 # A layer that carried the eyeball along (a head moved as a whole) carries its guard:
                 # only skin that moved relative to the ball slid over it. (The FAPs turn the eyeballs
                 # after this step: for them the shift is zero.)
-                ball = self._eyes["eyeball_l" if 19 in faps else "eyeball_r"][0]
+                ball = self._ball_anchors("eyeball_l" if 19 in faps else "eyeball_r")
                 shift = (x[ball] - self._rest.reshape(-1, 3)[ball]).mean(axis=0) if self._rest is not None else 0.0
                 centre = centre + shift
                 # Skin that slid over the ball (the cheek lift moves the socket skin millimetres) takes
