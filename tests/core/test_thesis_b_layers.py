@@ -55,7 +55,7 @@ def test_layers_add_to_the_faps_and_a_copied_rig_poses_alike(rig):
     faps_only = rig.vertices().copy()
     rig.set_values({"cp:8.3:y": 3.0, "waters:zygomatic_major:left": 0.7})
     cp, waters = rig.layer("control_points").offset(None), rig.layer("waters").offset(None)
-    free = ~rig.deformer.lip_contact_zone()            # lips pressed together give way there
+    free = ~rig.deformer.finish_zone()            # lips pressed together, lids over the eyeballs give way
     np.testing.assert_allclose(rig.vertices()[free], (faps_only + cp + waters)[free], atol=1e-9)
     twin = rig.copy()
     np.testing.assert_array_equal(twin.vertices(), rig.vertices())
@@ -66,5 +66,5 @@ def test_layers_add_to_the_faps_and_a_copied_rig_poses_alike(rig):
     rig.layer("waters").set_combine("strongest")
     rig.set_values({"cp:8.3:y": -2.0})
     rig.restore(snap)
-    free = ~rig.deformer.lip_contact_zone()            # lips pressed together give way there
+    free = ~rig.deformer.finish_zone()            # lips pressed together, lids over the eyeballs give way
     np.testing.assert_allclose(rig.vertices()[free], (faps_only + cp + waters)[free], atol=1e-9)

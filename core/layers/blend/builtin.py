@@ -26,6 +26,13 @@ landmark lands about 2.4 mm off on the visible lip), and on landmarks the detect
 Not fixed: joy tears the outer eye corners of the default face (eye-region error rms 1.9 mm; it
 was 1.6 mm, with torn lower lids, before).
 
+5. the poses are smoothed over ``SMOOTHING_MM`` (:func:`cleaned`, ``core.layers.blend.denoise``):
+   as registered, their half-millimetre wobble crossed lids and lips and folded the nostrils at
+   100 % (every pose failed ``benchmarks/face_quality.py``), and the covers of the eye openings,
+   registered on the eyeballs, fed noise through deformation transfer into another face's lid margins.
+   With the FAP layer's lid guard acting on blend poses too, joy's eye corners no longer tear; left:
+   joy 16 and disgust 21 lid/eyeball crossing pairs at the outer corners of the default face.
+
 The neutral is the default face itself registered with its own landmarks, so the library's rest
 (4560 vertices, template mpeg4_80) is in the default face's frame. The default face (53k vertices)
 uses it through :func:`builtin_library_for`, which binds its vertices to that canonical face.
@@ -41,9 +48,10 @@ import time
 
 import numpy as np
 
+from core.layers.blend.denoise import SMOOTHING_MM
 from core.layers.blend.library import ExpressionLibrary, build_library
 
-__all__ = ["RESOURCE", "builtin_library", "builtin_library_for", "build_builtin_library", "main"]
+__all__ = ["RESOURCE", "builtin_library", "builtin_library_for", "build_builtin_library", "cleaned", "main"]
 
 RESOURCE = "blend/default_face.json"
 TEMPLATE = "mpeg4_80"
@@ -98,7 +106,13 @@ def rig_correspondence(deformer, n_library: int, template: str = TEMPLATE):
         return None
     if not np.array_equal(dense.triangles, canonical_triangles(template)):
         return None
-    m = _lower_teeth_rows(binding.tolil(copy=True), getattr(deformer.face, "parts", {}) or {}, dense.vertices, template)
+    m = scipy.sparse.csr_matrix(binding)
+    follow = getattr(deformer, "cavity_follow", None)
+    if follow is not None and deformer.face is not None:
+        # The mouth cavity's lining follows the skin the pose moves, as it follows the FAPs' (held
+        # still, skin moved inward by a pose passed through it: default face 618 crossing pairs).
+        m = m + follow() @ m
+    m = _lower_teeth_rows(m.tolil(), getattr(deformer.face, "parts", {}) or {}, dense.vertices, template)
     return scipy.sparse.csr_matrix(m)
 
 
@@ -212,9 +226,11 @@ def _positions(scan, landmarks) -> dict:
     return landmark_positions_on(scan, dict(landmarks))
 
 
-def build_builtin_library(*, detect: bool = True, mean_people: int = 8, report=print) -> ExpressionLibrary:
+def build_builtin_library(*, detect: bool = True, mean_people: int = 8, smoothing_mm: float = SMOOTHING_MM,
+                          report=print) -> ExpressionLibrary:
     """Scan, landmark, register the default face's 6 expressions and 14 visemes; the library, with
-    the mean face of the default face and ``mean_people`` synthetic identities (caricatures)."""
+    the mean face of the default face and ``mean_people`` synthetic identities (caricatures), its
+    poses smoothed over ``smoothing_mm`` (:func:`cleaned`; 0 keeps them as registered)."""
     from core.default_face import load_default_face
     from core.layers.fap import tables
     from core.registration.pipeline import register_scan
@@ -242,8 +258,21 @@ def build_builtin_library(*, detect: bool = True, mean_people: int = 8, report=p
             faces.append(register_scan(scan, scan.landmarks, template=TEMPLATE).face.vertices)
         mean = mean_face(faces)          # in the first face's (the default face's) frame
         report(f"mean face: the default face and synthetic people 1..{mean_people} (registered neutrals)")
-    return build_library(neutral, poses, template=TEMPLATE, mean=mean,
-                         base="default face (virtual scans, registered with mpeg4_80)")
+    library = build_library(neutral, poses, template=TEMPLATE, mean=mean,
+                            base="default face (virtual scans, registered with mpeg4_80)")
+    return cleaned(library, smoothing_mm)
+
+
+def cleaned(library: ExpressionLibrary, smoothing_mm: float = SMOOTHING_MM) -> ExpressionLibrary:
+    """``library`` (registered poses of ``TEMPLATE``) with the scans' registration noise smoothed out
+    of its poses (``core.layers.blend.denoise``); its ``base`` says by how much."""
+    from core.layers.blend.denoise import eye_cover_vertices, smooth_displacements
+    from core.registration.correspondence import canonical_triangles
+
+    if smoothing_mm <= 0:
+        return library
+    smooth = smooth_displacements(library, smoothing_mm, canonical_triangles(TEMPLATE), eye_cover_vertices(TEMPLATE))
+    return smooth.replace(base=f"{library.base}; poses smoothed over {smoothing_mm:g} mm")
 
 
 def main(argv=None) -> int:
@@ -255,10 +284,12 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description="Build the default face's built-in expression library.")
     parser.add_argument("--no-detect", action="store_true", help="use the scans' ground-truth landmarks")
     parser.add_argument("--mean-people", type=int, default=8, help="synthetic identities in the mean face (default 8)")
+    parser.add_argument("--smoothing-mm", type=float, default=SMOOTHING_MM,
+                        help=f"width of the poses' smoothing (default {SMOOTHING_MM:g}; 0: as registered)")
     parser.add_argument("--out", default=None, help="output .json (default: resources/blend/default_face.json)")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    lib = build_builtin_library(detect=not args.no_detect, mean_people=args.mean_people)
+    lib = build_builtin_library(detect=not args.no_detect, mean_people=args.mean_people, smoothing_mm=args.smoothing_mm)
     from pathlib import Path
 
     out = Path(args.out) if args.out is not None else Path(str(resources._ROOT)) / RESOURCE

@@ -110,6 +110,8 @@ CAVITY_FOLLOW_FAR_MM = 20.0
 BROW_FAPS = ((31, 33, 35, 37), (32, 34, 36, 38))
 # FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
 LID_GUARD_COLUMNS = np.array([18, 19, 20, 21, 40, 41, *range(30, 38)])
+# Eyeball vertices whose mean motion gives the lid guard the ball's shift (see _ball_anchors).
+BALL_ANCHORS = 16
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
 # An upper lid opened past about 250 IRISD rises under its crease and folds through it (default face
 # 14 crossing pairs per eye at close_t -300, generated identity 23): that slider end is eased to the
@@ -465,23 +467,29 @@ class FapDeformer:
 
     def _cavity_rows(self, F: scipy.sparse.csr_matrix) -> scipy.sparse.csr_matrix:
         """(3n, 68) rows of the mouth cavity's vertices: each follows its closest skin point's rows of
-        ``F`` (barycentric), scaled from 1 within ``CAVITY_FOLLOW_NEAR_MM`` of the skin to 0 at
-        ``CAVITY_FOLLOW_FAR_MM`` (smoothstep); zero for a face without a cavity."""
+        ``F`` (see :meth:`cavity_follow`); zero for a face without a cavity."""
+        W3 = scipy.sparse.kron(self.cavity_follow(), scipy.sparse.identity(3, format="csr"), format="csr")
+        return (W3 @ F).tocsr()
+
+    def cavity_follow(self) -> scipy.sparse.csr_matrix:
+        """(n, n) how the mouth cavity's lining follows the skin: row i of a lining vertex holds the
+        barycentric weights of its closest skin point, scaled from 1 within ``CAVITY_FOLLOW_NEAR_MM``
+        of the skin to 0 at ``CAVITY_FOLLOW_FAR_MM`` (smoothstep); other rows are empty. Any layer's
+        skin offset d (n, 3) moves the lining by ``cavity_follow() @ d`` (the FAT's own rows and an
+        expression library's correspondence use it)."""
         face = self.face
         n = face.n_vertices
         idx = np.asarray(face.parts.get("mouth_cavity", np.zeros(0, np.int64)), dtype=np.int64)
         in_part = self._in_any_part()
         skin_tris = face.triangles[~in_part[face.triangles].any(axis=1)]
         if not len(idx) or not len(skin_tris):
-            return scipy.sparse.csr_matrix((3 * n, N_FAPS))
+            return scipy.sparse.csr_matrix((n, n))
         pos, tri, bary = TriangleSet(face.vertices, skin_tris).closest(face.vertices[idx], k=24)
         gap = np.linalg.norm(pos - face.vertices[idx], axis=1)
         t = np.clip((CAVITY_FOLLOW_FAR_MM - gap) / (CAVITY_FOLLOW_FAR_MM - CAVITY_FOLLOW_NEAR_MM), 0.0, 1.0)
         follow = t * t * (3 - 2 * t)
-        W = scipy.sparse.coo_matrix(((bary * follow[:, None]).ravel(), (np.repeat(idx, 3), skin_tris[tri].ravel())),
-                                    shape=(n, n)).tocsr()
-        W3 = scipy.sparse.kron(W, scipy.sparse.identity(3, format="csr"), format="csr")
-        return (W3 @ F).tocsr()
+        return scipy.sparse.coo_matrix(((bary * follow[:, None]).ravel(), (np.repeat(idx, 3), skin_tris[tri].ravel())),
+                                       shape=(n, n)).tocsr()
 
     def _eyeball_pivots(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """part name -> (vertex indices, centre (3,)) for eyeballs, centre by a least-squares sphere fit
@@ -578,7 +586,9 @@ class FapDeformer:
         empty = np.zeros(0, np.int64)
         lid_writes = np.concatenate([upper for upper, _lower in self._eye_rims]
                                     + [guard[0] for guard in self._lid_guards] + [empty])
-        lid_reads = np.concatenate([lower for _upper, lower in self._eye_rims] + [lid_writes])
+        # The lid guards also read the eyeballs (a layer that carries a ball along carries its guard).
+        balls = [self._ball_anchors(name) for name in self._eyes] if self._lid_guards else []
+        lid_reads = np.concatenate([lower for _upper, lower in self._eye_rims] + balls + [lid_writes])
         lips = self._lip_contact
         lip_writes = np.concatenate([lips.upper, lips.lower]) if lips.active else empty
         lip_reads = np.concatenate([lips.upper_rim, lips.lower_rim, lip_writes]) if lips.active else empty
@@ -588,6 +598,13 @@ class FapDeformer:
         return {name: StepMemo(reads, writes) for name, reads, writes in (
             ("lids", lid_reads, lid_writes), ("lips", lip_reads, lip_writes), ("teeth", teeth_reads, teeth.watched))
             if len(reads)}
+
+    def _ball_anchors(self, name: str) -> np.ndarray:
+        """A few vertices spread over eyeball ``name`` (every k-th of about ``BALL_ANCHORS``): their mean
+        motion is the ball's shift for the lid guard (exact for a translation; a turn about the ball's
+        centre moves them little), at a tick's cost of a handful of rows rather than the whole ball."""
+        idx = np.asarray(self._eyes[name][0], dtype=np.int64)
+        return idx[::max(1, len(idx) // BALL_ANCHORS)]
 
     def _eye_rims_of_skin(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per eye: (upper rim, lower rim) vertex indices of the skin's eye opening, ordered by x.
@@ -694,6 +711,21 @@ class FapDeformer:
         """(n,) bool: vertices lip contact may move after all offsets (there the layers' offsets do
         not simply add up: lips pressed into each other give way)."""
         return self._lip_contact.zone(self.face.n_vertices)
+
+    def lid_zone(self) -> np.ndarray:
+        """(n,) bool: vertices the lid steps may move after all offsets, whatever layer moved the lids
+        (upper rims stopping on the lower ones, lid skin pushed out over the eyeballs)."""
+        mask = np.zeros(self.face.n_vertices, bool)
+        for upper, _lower in self._eye_rims:
+            mask[upper] = True
+        for guard in self._lid_guards:
+            mask[guard[0]] = True
+        return mask
+
+    def finish_zone(self) -> np.ndarray:
+        """(n,) bool: vertices where the layers' offsets may not simply add up (:meth:`lid_zone` and
+        :meth:`lip_contact_zone`)."""
+        return self.lid_zone() | self.lip_contact_zone()
 
     @property
     def closed_lid_faps(self) -> frozenset[int]:
@@ -817,20 +849,32 @@ class FapDeformer:
 
     def _close_lids(self, x: np.ndarray, values: np.ndarray) -> None:
         """Upper lids stop on the lower ones, and lids (and the cheek lift's skin) slide over the
-        eyeballs, in ``x`` (n, 3) in place, for (68,) values after :func:`lid_contact`."""
-        if values[18:22].any():
+        eyeballs, in ``x`` (n, 3) in place, for (68,) values after :func:`lid_contact`.
+
+        Both steps also run when another layer moved the lids' skin with no FAP value set (an
+        expression library's pose: its scanned lids crossed each other and the eyeballs, default
+        face's disgust 1,104 crossing pairs, because these steps waited for a lid FAP)."""
+        rest = self._rest.reshape(-1, 3) if self._rest is not None else None
+        if values[18:22].any() or _moved(x, rest, *(rows for rims in self._eye_rims for rows in rims)):
             for upper, lower in self._eye_rims:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
-        if values[18:22].any() or values[40:42].any() or values[30:38].any():
+        if (values[18:22].any() or values[40:42].any() or values[30:38].any()
+                or any(not np.array_equal(x[guard[0]], guard[7]) for guard in self._lid_guards)):
             compiled = kernels.get()
             for lid, centre, rest_clearance, full_clearance, angles, radii, faps, rest in self._lid_guards:
                 # From the rest gap to the full clearance as the eye closes (opening lids leave it).
                 ramp = min(max(max(values[f - 1] for f in faps), 0.0) / GUARD_RAMP, 1.0)
+                # A layer that carried the eyeball along (a head moved as a whole) carries its guard:
+                # only skin that moved relative to the ball slid over it. (The FAPs turn the eyeballs
+                # after this step: for them the shift is zero.)
+                ball = self._ball_anchors("eyeball_l" if 19 in faps else "eyeball_r")
+                shift = (x[ball] - self._rest.reshape(-1, 3)[ball]).mean(axis=0) if self._rest is not None else 0.0
+                centre = centre + shift
                 # Skin that slid over the ball (the cheek lift moves the socket skin millimetres) takes
                 # the full clearance too: at its rest gap, below the ball's profile, its triangles cut
                 # the ball wherever it now lies.
-                slid = np.sqrt(((x[lid] - rest) ** 2).sum(axis=1)) / GUARD_SLIDE_MM
+                slid = np.sqrt(((x[lid] - rest - shift) ** 2).sum(axis=1)) / GUARD_SLIDE_MM
                 ramp = np.minimum(np.maximum(ramp, slid), 1.0)
                 clearance = rest_clearance + (full_clearance - rest_clearance) * ramp
                 if compiled is not None:
@@ -941,6 +985,11 @@ def _relax(w: np.ndarray, graph: scipy.sparse.csr_matrix, fixed: np.ndarray, ste
     for _ in range(steps):
         out[free] = (inv @ out)[free] / degree[free]
     return out
+
+
+def _moved(x: np.ndarray, rest: np.ndarray | None, *rows: np.ndarray) -> bool:
+    """Does any of the vertex ``rows`` of ``x`` (n, 3) differ from ``rest`` (n, 3)?"""
+    return rest is not None and any(not np.array_equal(x[r], rest[r]) for r in rows)
 
 
 def _radius_profile(offsets: np.ndarray, step_deg: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
