@@ -256,13 +256,14 @@ class FapDeformer:
                 limits[number - 1, 0], self.limit_reasons[number - 1, 0] = crease, CREASE_REASON
                 self.ease_start[number - 1, 0] = LID_OPENING_EASE_START
         # Then every limit on the finished pose; of the lids only the upper lids' opening ends (closing
-        # must reach 1024). The lower lids' opening ends are left alone: on the default face a sliver
-        # (altitude 0.3 % of the median edge, no texture to smear) would stop them at -61 of -300.
+        # must reach 1024), and not those of an eye closed at rest: opening it must stretch the closed
+        # lid's skin over the eyeball. The lower lids' opening ends are left alone: on the default face a
+        # sliver (altitude 0.3 % of the median edge, no texture to smear) would stop them at -61 of -300.
         self.preset_reach = preset_reach(presets)
         finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
                         limited_faps, self.preset_reach)
         finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
-                        [19, 20], self.preset_reach, sides=(0,))
+                        sorted({19, 20} - self.closed_lid_faps), self.preset_reach, sides=(0,))
         # Where the surface breaks (each FAP alone), for the tooltips; the sliders ease toward
         # ease_limits, which let every preset pass as authored.
         self.clean_limits = limits
