@@ -45,6 +45,15 @@ def _normals(corners: np.ndarray) -> np.ndarray:
     return np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
 
 
+def _rest_measures(rest: np.ndarray, skin_triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(normals (m, 3) unnormalised, in-plane frames (m, 2, 2), measurable (m,) bool) of the skin
+    triangles at rest; slivers have no direction to turn (same threshold as core.mesh_quality)."""
+    corners = rest[skin_triangles]
+    normals = _normals(corners)
+    area = np.linalg.norm(normals, axis=1)
+    return normals, _local_frames(corners), area > 1e-6 * max(float(np.median(area)), 1e-12)
+
+
 class _LinearPath:
     """Triangles (k,) whose corners move linearly, ``base + value * step`` (k, 3, 3), measured at
     any value in closed form: edges are linear in the value, so the turn of a normal against the
@@ -106,11 +115,7 @@ def clean_limits(rest: np.ndarray, skin_triangles: np.ndarray, matrix, fapu_vect
     rest (n, 3) mm; skin_triangles (m, 3); matrix (3n, 68) mm per FAP unit before ``fapu_vector``."""
     limits = np.array([[-np.inf, np.inf]] * len(specs))
     reasons = np.full((len(specs), 2), "", dtype=object)
-    rest_normals = _normals(rest[skin_triangles])
-    rest_frames = _local_frames(rest[skin_triangles])
-    area = np.linalg.norm(rest_normals, axis=1)
-    # Slivers have no direction to turn (same threshold as core.mesh_quality).
-    measurable = area > 1e-6 * max(float(np.median(area)), 1e-12)
+    rest_normals, rest_frames, measurable = _rest_measures(rest, skin_triangles)
     columns = matrix.tocsc()
     for number in numbers:
         spec = specs[number - 1]
@@ -171,10 +176,7 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
     limit are left to the preset (the slider eases just past it, see :func:`keeping`).
     ``sides``: the slider ends checked (0 the lower, 1 the upper). Only triangles the pose moved
     are measured."""
-    rest_normals = _normals(rest[skin_triangles])
-    rest_frames = _local_frames(rest[skin_triangles])
-    area = np.linalg.norm(rest_normals, axis=1)
-    measurable = area > 1e-6 * max(float(np.median(area)), 1e-12)
+    rest_normals, rest_frames, measurable = _rest_measures(rest, skin_triangles)
     for number in numbers:
         spec = specs[number - 1]
         if spec.is_rotation or not np.isfinite(spec.minimum) or not np.isfinite(spec.maximum):
@@ -212,8 +214,8 @@ def preset_reach(values: np.ndarray) -> np.ndarray:
 def keeping(limits: np.ndarray, values: np.ndarray, ease_start=EASE_START,
             margin: float = PRESET_MARGIN) -> tuple[np.ndarray, np.ndarray]:
     """(limits, ease_start), both (68, 2), for :func:`soft_limit`, such that every row of ``values``
-    (k, 68) passes unchanged: the presets are authored poses and must read as authored (open_jaw
-    folds a few corner triangles from 174 MNS on the default face, while viseme aa opens it 600).
+    (k, 68) passes unchanged: the presets are authored poses and must read as authored (viseme aa
+    opens the jaw 600 MNS, past where the default face's mouth corners fold).
 
     Where a preset asks more than ``ease_start`` of a limit, the ease starts at the preset's value
     and still eases toward the limit; where the preset goes past the limit itself, toward ``margin``
