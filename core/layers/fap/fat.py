@@ -855,8 +855,8 @@ class FapDeformer:
         Both steps also run when another layer moved the lids' skin with no FAP value set (an
         expression library's pose: its scanned lids crossed each other and the eyeballs, default
         face's disgust 1,104 crossing pairs, because these steps waited for a lid FAP)."""
-        rest = self._rest.reshape(-1, 3) if self._rest is not None else None
-        if values[18:22].any() or _moved(x, rest, *(rows for rims in self._eye_rims for rows in rims)):
+        face_rest = self._rest.reshape(-1, 3) if self._rest is not None else None
+        if values[18:22].any() or _moved(x, face_rest, *(rows for rims in self._eye_rims for rows in rims)):
             for upper, lower in self._eye_rims:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
@@ -870,7 +870,7 @@ class FapDeformer:
                 # only skin that moved relative to the ball slid over it. (The FAPs turn the eyeballs
                 # after this step: for them the shift is zero.)
                 ball = self._ball_anchors("eyeball_l" if 19 in faps else "eyeball_r")
-                shift = (x[ball] - self._rest.reshape(-1, 3)[ball]).mean(axis=0) if self._rest is not None else 0.0
+                shift = (x[ball] - face_rest[ball]).mean(axis=0) if face_rest is not None else 0.0
                 centre = centre + shift
                 # Skin that slid over the ball (the cheek lift moves the socket skin millimetres) takes
                 # the full clearance too: at its rest gap, below the ball's profile, its triangles cut
