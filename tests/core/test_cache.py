@@ -104,3 +104,18 @@ def test_a_damaged_fap_table_is_rebuilt_with_a_note(small_face, tmp_path):
     np.testing.assert_array_equal(again.deform(values), built.deform(values))
     assert FapDeformer.for_face(small_face, DiskCache(tmp_path)) is not None and entry.stat().st_size > 0
 
+
+
+def test_a_fap_table_bound_otherwise_is_not_read_back(small_face, tmp_path):
+    """The key hashes the face, not a scan's own binding (``AnimatedScan.binding``): a deformer asked
+    for with another binding is built afresh, not read back with the old one."""
+    cache = DiskCache(tmp_path)
+    built = FapDeformer.for_face(small_face, cache)
+    same = FapDeformer.for_face(small_face, cache, dense=built.dense, binding=built.binding)
+    assert same is not built and (same.binding != built.binding).nnz == 0
+    other = built.binding.tolil()
+    moved = 10
+    other[moved] = 0.0
+    other[moved, 0] = 1.0                           # one vertex bound to another dense vertex
+    rebound = FapDeformer.for_face(small_face, cache, dense=built.dense, binding=other.tocsr())
+    assert (rebound.binding != other.tocsr()).nnz == 0

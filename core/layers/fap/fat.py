@@ -678,7 +678,8 @@ class FapDeformer:
             return cls(face, progress=progress, dense=dense, binding=binding)
         key = deformer_key(face)
         found = cache.get("fap", key)
-        if isinstance(found, cls) and (dense is None or np.array_equal(found.dense.vertices, dense.vertices)):
+        if isinstance(found, cls) and (dense is None or np.array_equal(found.dense.vertices, dense.vertices)) \
+                and (binding is None or _same_sparse(found.binding, binding)):
             found.face = face
             found._rest = face.vertices.ravel()
             return found
@@ -986,6 +987,12 @@ def _relax(w: np.ndarray, graph: scipy.sparse.csr_matrix, fixed: np.ndarray, ste
     for _ in range(steps):
         out[free] = (inv @ out)[free] / degree[free]
     return out
+
+
+def _same_sparse(a, b) -> bool:
+    """Whether sparse matrices ``a`` and ``b`` hold the same values (a cached deformer's binding and the
+    one asked for: the key hashes the face, not how a scan's cut skin is bound)."""
+    return a.shape == b.shape and (scipy.sparse.csr_matrix(a) != scipy.sparse.csr_matrix(b)).nnz == 0
 
 
 def _moved(x: np.ndarray, rest: np.ndarray | None, *rows: np.ndarray) -> bool:
