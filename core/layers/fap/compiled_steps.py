@@ -68,6 +68,33 @@ def lip_overlap(x, upper_rim, lower_rim, taper_mm, out):  # pragma: no cover - c
 
 
 @_JIT
+def _sheet_cell(x, v, ox, oz, cell, nx, nz):  # pragma: no cover - compiled
+    ix = min(max(np.int64((x[v, 0] - ox) / cell), 0), nx - 1)
+    iz = min(max(np.int64((x[v, 2] - oz) / cell), 0), nz - 1)
+    return ix * nz + iz
+
+
+@_JIT
+def lip_sheet_overlap(x, upper, lower, ox, oz, cell, nx, nz, below, above):  # pragma: no cover - compiled
+    """``lip_contact.LipContact._sheet_overlap`` into ``below`` (len(upper),) and ``above``
+    (len(lower),): how far each upper-lip vertex is below the lower lip's highest vertex in its
+    (x, z) cell of the grid (origin ox, oz; nx x nz cells of ``cell`` mm), and each lower-lip vertex
+    above the upper lip's lowest; -inf where the other lip has none there."""
+    top = np.full(nx * nz, -np.inf)
+    bottom = np.full(nx * nz, np.inf)
+    for j in range(lower.shape[0]):
+        k = _sheet_cell(x, lower[j], ox, oz, cell, nx, nz)
+        top[k] = max(top[k], x[lower[j], 1])
+    for i in range(upper.shape[0]):
+        k = _sheet_cell(x, upper[i], ox, oz, cell, nx, nz)
+        bottom[k] = min(bottom[k], x[upper[i], 1])
+    for i in range(upper.shape[0]):
+        below[i] = top[_sheet_cell(x, upper[i], ox, oz, cell, nx, nz)] - x[upper[i], 1]
+    for j in range(lower.shape[0]):
+        above[j] = x[lower[j], 1] - bottom[_sheet_cell(x, lower[j], ox, oz, cell, nx, nz)]
+
+
+@_JIT
 def close_lids_over_eyeball(x, lid, centre, clearance, angles, radii):  # pragma: no cover
     """Push lid vertices ``x[lid]`` (k,) forward (+z) onto the eyeball's guard surface: the
     radius profile ``radii`` (b,) mm over ``angles`` (b,) rad from the gaze axis, plus each

@@ -7,6 +7,14 @@ the lids' contact: after all offsets, wherever the lower rim is above the upper 
 way by half of the overlap each, the upper lip up and the lower lip down, fading with the distance
 from the rim, so the rims meet and the lips bulge a little, as pressed lips do.
 
+The rims are one line each; the lips' surfaces beside them can still pass through each other (an
+upper lip lowered 800 MNS onto a closed mouth: rims met, but its front slid 0.1-1 mm into the lower
+lip's, 176 crossing triangle pairs). So the contact then compares the lips as sheets over the (x, z)
+plane: in each cell of a grid (``SHEET_CELL_EDGES`` x the lips' median edge), an upper-lip vertex
+below the lower lip's highest vertex there, or a lower-lip vertex above the upper lip's lowest, has
+crossed by that much (beyond what the rest face has); each lip gives way by half of it, spread to its
+neighbours with a Gaussian of ``SHEET_WIDTH_MM`` (the largest share wins), for a few rounds.
+
 The rims are the skin's boundary vertices along the mouth opening (the side of each from its own
 triangles, ``core.layers.fap.template.mouth_side``); "up" is the face's +y and the rims are
 compared along x, as the FAP tables assume.
@@ -33,6 +41,15 @@ TOLERANCE_MM = 1e-6
 # Pressed rims end this far apart (mm), not exactly touching: rims on one line leave the triangles
 # either side of them cutting through each other wherever the lips' Gaussian give-way differs.
 SEPARATION_MM = 0.05
+# The sheet test's grid cell, in median edge lengths of the lips: a cell must hold vertices of both
+# lips where they cross (default face: 1.5 edges = 1.3 mm; 0.75 mm cells left 124 of 176 crossing
+# pairs of FAP 4 at 800, 1.25 mm none).
+SHEET_CELL_EDGES = 1.5
+# How far a sheet's give-way spreads (mm, Gaussian width; cut at twice that), and its rounds.
+SHEET_WIDTH_MM = 2.5
+SHEET_ROUNDS = 3
+# The sheet grid covers the lips at rest and this much around them (mm): where any FAP can take them.
+SHEET_MARGIN_MM = 40.0
 
 
 class LipContact:
@@ -63,6 +80,13 @@ class LipContact:
         # What overlap the rest face has (two polylines of different vertices touch only roughly):
         # only what a pose adds to it is resolved, so the rest face stays exactly as it is.
         self.rest_overlap = np.maximum(self._overlap(face.vertices), 0.0) + TOLERANCE_MM
+        lips = np.union1d(self.upper, self.lower)
+        self.cell = SHEET_CELL_EDGES * _median_edge(face, lips)
+        low, high = face.vertices[lips][:, [0, 2]].min(axis=0), face.vertices[lips][:, [0, 2]].max(axis=0)
+        self._origin = low - SHEET_MARGIN_MM
+        self._grid = tuple(int(n) for n in np.ceil((high - low + 2 * SHEET_MARGIN_MM) / self.cell) + 1)
+        self.rest_sheet = tuple(np.maximum(o, 0.0) + TOLERANCE_MM for o in self._sheet_overlap(face.vertices))
+        self.rest_positions = (face.vertices[self.upper], face.vertices[self.lower])
         self.active = True
 
     def zone(self, n_vertices: int) -> np.ndarray:
@@ -94,9 +118,13 @@ class LipContact:
         return np.where(inside, np.where(inside, above, 0.0) * taper, -np.inf)
 
     def apply(self, x: np.ndarray) -> None:
-        """Resolve the lips' overlap in ``x`` (n, 3) mm, in place."""
+        """Resolve the lips' overlap in ``x`` (n, 3) mm, in place: the rims, then the lips' sheets."""
         if not self.active:
             return
+        self._press_rims(x)
+        self._press_sheets(x)
+
+    def _press_rims(self, x: np.ndarray) -> None:
         overlap = self._overlap(x)
         pressed = overlap > self.rest_overlap
         if not pressed.any():
@@ -110,6 +138,76 @@ class LipContact:
         half_down = 0.5 * np.interp(x[self.lower, 0], along, depth, left=0.0, right=0.0) * self.lower_weight
         x[self.upper, 1] += half_up
         x[self.lower, 1] -= half_down
+
+    def _sheet_overlap(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """((len(upper),), (len(lower),)) mm: how far each upper-lip vertex is below the lower lip's
+        highest vertex in its (x, z) cell, and each lower-lip vertex above the upper lip's lowest
+        (-inf where the other lip has no vertex in the cell)."""
+        compiled = kernels.get()
+        if compiled is not None and x.dtype == np.float64:
+            below, above = np.empty(len(self.upper)), np.empty(len(self.lower))
+            compiled.lip_sheet_overlap(x, self.upper, self.lower, float(self._origin[0]), float(self._origin[1]),
+                                       float(self.cell), self._grid[0], self._grid[1], below, above)
+            return below, above
+        up, low = x[self.upper], x[self.lower]
+        cell_up, cell_low = self._cells(up), self._cells(low)
+        top = np.full(self._grid[0] * self._grid[1], -np.inf)
+        np.maximum.at(top, cell_low, low[:, 1])
+        bottom = np.full(len(top), np.inf)
+        np.minimum.at(bottom, cell_up, up[:, 1])
+        return top[cell_up] - up[:, 1], low[:, 1] - bottom[cell_low]
+
+    def _cells(self, points: np.ndarray) -> np.ndarray:
+        """(k,) the grid cell of each of ``points`` (k, 3) mm by x and z (a fixed grid around the lips
+        at rest with SHEET_MARGIN_MM to spare; points beyond it share its edge cells)."""
+        ix = ((points[:, 0] - self._origin[0]) / self.cell).astype(np.int64)
+        iz = ((points[:, 2] - self._origin[1]) / self.cell).astype(np.int64)
+        # np.minimum / np.maximum in place: np.clip's overhead was most of this every tick.
+        np.minimum(np.maximum(ix, 0, out=ix), self._grid[0] - 1, out=ix)
+        np.minimum(np.maximum(iz, 0, out=iz), self._grid[1] - 1, out=iz)
+        ix *= self._grid[1]
+        ix += iz
+        return ix
+
+    def _press_sheets(self, x: np.ndarray) -> None:
+        for _ in range(SHEET_ROUNDS):
+            below, above = self._sheet_overlap(x)
+            depth_up, depth_low = below - self.rest_sheet[0], above - self.rest_sheet[1]
+            if not ((depth_up > 0).any() or (depth_low > 0).any()):
+                return                  # the common case: no lip vertex inside the other lip
+            x[self.upper, 1] += _spread(self.rest_positions[0], depth_up)
+            x[self.lower, 1] -= _spread(self.rest_positions[1], depth_low)
+
+
+def _spread(rest: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """(k,) mm each vertex of a lip (``rest`` (k, 3) mm) gives way: half of each crossing vertex's
+    ``depth`` (k,) mm (and SEPARATION_MM) at that vertex, a Gaussian of SHEET_WIDTH_MM around it, the
+    largest wins (a sum would double where crossings are dense)."""
+    from scipy.spatial import cKDTree
+
+    crossing = np.flatnonzero(depth > 0)
+    out = np.zeros(len(rest))
+    if not len(crossing):
+        return out
+    near = cKDTree(rest).query_ball_point(rest[crossing], 2.0 * SHEET_WIDTH_MM)
+    counts = np.fromiter((len(n) for n in near), np.int64, len(near))
+    neighbour = np.concatenate(near).astype(np.int64)
+    source = np.repeat(crossing, counts)
+    gap = np.linalg.norm(rest[neighbour] - rest[source], axis=1)
+    give = (0.5 * depth[source] + SEPARATION_MM) * np.exp(-(gap / SHEET_WIDTH_MM) ** 2)
+    np.maximum.at(out, neighbour, give)
+    return out
+
+
+def _median_edge(face: Face, ids: np.ndarray) -> float:
+    """Median length (mm) of the edges of ``face``'s triangles with all corners in ``ids``."""
+    inside = np.zeros(face.n_vertices, bool)
+    inside[ids] = True
+    t = face.triangles[inside[face.triangles].all(axis=1)]
+    if not len(t):
+        return 1.0
+    edges = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    return float(np.median(np.linalg.norm(face.vertices[edges[:, 0]] - face.vertices[edges[:, 1]], axis=1)))
 
 
 def _lip_line(face: Face) -> tuple[np.ndarray, np.ndarray]:
