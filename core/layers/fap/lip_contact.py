@@ -125,6 +125,7 @@ class LipContact:
         self._press_sheets(x)
 
     def _press_rims(self, x: np.ndarray) -> None:
+        """Where the lower rim is above the upper one, both lips give way by half, in ``x`` in place."""
         overlap = self._overlap(x)
         pressed = overlap > self.rest_overlap
         if not pressed.any():
@@ -170,6 +171,7 @@ class LipContact:
         return ix
 
     def _press_sheets(self, x: np.ndarray) -> None:
+        """Where a lip's vertex went into the other lip (:meth:`_sheet_overlap`), both give way, in place."""
         for _ in range(SHEET_ROUNDS):
             below, above = self._sheet_overlap(x)
             depth_up, depth_low = below - self.rest_sheet[0], above - self.rest_sheet[1]
