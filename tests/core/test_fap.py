@@ -507,6 +507,16 @@ def test_lip_sheet_overlap_is_the_same_compiled_and_numpy(rig, monkeypatch):
     assert np.isfinite(reference[0]).sum() > 100
     for a, b in zip(compiled, reference):
         np.testing.assert_array_equal(a, b)
+    # The sheets' give-way spread, both paths, on depths where some vertices crossed.
+    from core.layers.fap.lip_contact import _spread
+
+    depth = np.where(np.arange(len(contact.upper)) % 7 == 0, 0.3, -1.0)
+    monkeypatch.setattr(kernels, "get", lambda: built)
+    fast = _spread(contact.neighbours[0], depth)
+    monkeypatch.setattr(kernels, "get", lambda: None)
+    slow = _spread(contact.neighbours[0], depth)
+    assert (slow > 0.15).sum() >= (depth > 0).sum()
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-12)
 
 
 def test_fap1_blends_two_visemes(rig):

@@ -95,6 +95,23 @@ def lip_sheet_overlap(x, upper, lower, ox, oz, cell, nx, nz, below, above):  # p
 
 
 @_JIT
+def lip_sheet_spread(indptr, indices, falloff, depth, separation, out):  # pragma: no cover - compiled
+    """``lip_contact._spread`` into ``out`` (k,), zeroed here: for each vertex with ``depth`` > 0,
+    (depth / 2 + separation) x the falloff of each neighbour (CSR ``indptr``, ``indices``,
+    ``falloff``), the largest at each vertex."""
+    out[:] = 0.0
+    for i in range(depth.shape[0]):
+        if depth[i] <= 0.0:
+            continue
+        give = 0.5 * depth[i] + separation
+        for k in range(indptr[i], indptr[i + 1]):
+            value = give * falloff[k]
+            j = indices[k]
+            if value > out[j]:
+                out[j] = value
+
+
+@_JIT
 def close_lids_over_eyeball(x, lid, centre, clearance, angles, radii):  # pragma: no cover
     """Push lid vertices ``x[lid]`` (k,) forward (+z) onto the eyeball's guard surface: the
     radius profile ``radii`` (b,) mm over ``angles`` (b,) rad from the gaze axis, plus each

@@ -7,7 +7,8 @@ arithmetic). These loops (in :mod:`core.layers.fap.compiled_steps`) do the same 
 - :func:`add_active_columns`: ``x += F @ v`` in place, reading only the FAT columns of non-zero
   FAPs (scipy's product allocates a (3n,) result and reads every column: 0.55 ms vs 0.40 with all
   68 columns active, a few microseconds with one);
-- :func:`lip_overlap`, :func:`lip_sheet_overlap`: the lip contact's overlap tests (``lip_contact.LipContact``);
+- :func:`lip_overlap`, :func:`lip_sheet_overlap`, :func:`lip_sheet_spread`: the lip contact's overlap
+  tests and its sheets' give-way (``lip_contact.LipContact``);
 - :func:`close_lids_over_eyeball`: the lid guard (``FapDeformer._close_lids``) of one eye;
 - :func:`push_out_of_row` and :func:`spread_pushes`: the teeth guard (``teeth_guard.TeethGuard``);
 - :func:`rotate_rows`: an eyeball's gaze rotation;
@@ -51,6 +52,7 @@ def _warm(k: SimpleNamespace) -> None:
     k.lip_overlap(rest, rows, rows, 3.0, np.empty(3))
     k.lip_sheet_overlap(x, rows, rows, 0.0, 0.0, 1.0, 2, 2, np.empty(3), np.empty(3))
     k.lip_sheet_overlap(rest, rows, rows, 0.0, 0.0, 1.0, 2, 2, np.empty(3), np.empty(3))
+    k.lip_sheet_spread(np.array([0, 1, 2, 3], np.int64), rows, np.ones(3), np.ones(3), 0.05, np.empty(3))
     k.close_lids_over_eyeball(x, rows, np.zeros(3), np.zeros(3), np.array([0.0, 1.0]), np.ones(2))
     k.push_out_of_row(x, rows, x.copy(), np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3), True, np.zeros(3),
                       -1.0, 2.0, 180, 4, 1.0, 1.0, np.zeros(720), 1.0, True, np.zeros(3, np.int64), np.zeros((3, 3)))
@@ -62,7 +64,8 @@ def _warm(k: SimpleNamespace) -> None:
     k.put_rows(x, rows, x.copy())
 
 
-_NAMES = ("add_active_columns", "lip_overlap", "lip_sheet_overlap", "close_lids_over_eyeball", "push_out_of_row", "spread_pushes",
+_NAMES = ("add_active_columns", "lip_overlap", "lip_sheet_overlap", "lip_sheet_spread", "close_lids_over_eyeball",
+          "push_out_of_row", "spread_pushes",
           "rotate_rows", "rows_equal", "put_rows")
 _KERNELS = LazyKernels(_build, Path(__file__).with_name("compiled_steps.py"))
 

@@ -86,7 +86,7 @@ class LipContact:
         self._origin = low - SHEET_MARGIN_MM
         self._grid = tuple(int(n) for n in np.ceil((high - low + 2 * SHEET_MARGIN_MM) / self.cell) + 1)
         self.rest_sheet = tuple(np.maximum(o, 0.0) + TOLERANCE_MM for o in self._sheet_overlap(face.vertices))
-        self.rest_positions = (face.vertices[self.upper], face.vertices[self.lower])
+        self.neighbours = (_neighbours(face.vertices[self.upper]), _neighbours(face.vertices[self.lower]))
         self.active = True
 
     def zone(self, n_vertices: int) -> np.ndarray:
@@ -177,27 +177,42 @@ class LipContact:
             depth_up, depth_low = below - self.rest_sheet[0], above - self.rest_sheet[1]
             if not ((depth_up > 0).any() or (depth_low > 0).any()):
                 return                  # the common case: no lip vertex inside the other lip
-            x[self.upper, 1] += _spread(self.rest_positions[0], depth_up)
-            x[self.lower, 1] -= _spread(self.rest_positions[1], depth_low)
+            x[self.upper, 1] += _spread(self.neighbours[0], depth_up)
+            x[self.lower, 1] -= _spread(self.neighbours[1], depth_low)
 
 
-def _spread(rest: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    """(k,) mm each vertex of a lip (``rest`` (k, 3) mm) gives way: half of each crossing vertex's
-    ``depth`` (k,) mm (and SEPARATION_MM) at that vertex, a Gaussian of SHEET_WIDTH_MM around it, the
-    largest wins (a sum would double where crossings are dense)."""
+def _neighbours(rest: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indptr (k+1,), indices, falloff): for each of a lip's vertices (``rest`` (k, 3) mm), the lip's
+    vertices within 2 x SHEET_WIDTH_MM of it and their Gaussian falloff exp(-(d / SHEET_WIDTH_MM)^2):
+    built once, so a tick that presses the lips does not build a search tree."""
     from scipy.spatial import cKDTree
 
+    near = cKDTree(rest).query_ball_point(rest, 2.0 * SHEET_WIDTH_MM)
+    counts = np.fromiter((len(n) for n in near), np.int64, len(near))
+    indices = np.concatenate(near).astype(np.int64) if len(near) else np.zeros(0, np.int64)
+    source = np.repeat(np.arange(len(rest)), counts)
+    falloff = np.exp(-(np.linalg.norm(rest[indices] - rest[source], axis=1) / SHEET_WIDTH_MM) ** 2)
+    return np.concatenate([[0], np.cumsum(counts)]), indices, falloff
+
+
+def _spread(neighbours, depth: np.ndarray) -> np.ndarray:
+    """(k,) mm each vertex of a lip gives way: half of each crossing vertex's ``depth`` (k,) mm (and
+    SEPARATION_MM) at that vertex, falling off over its ``neighbours`` (:func:`_neighbours`) as a
+    Gaussian, the largest wins (a sum would double where crossings are dense)."""
+    indptr, indices, falloff = neighbours
+    out = np.zeros(len(depth))
+    compiled = kernels.get()
+    if compiled is not None:
+        compiled.lip_sheet_spread(indptr, indices, falloff, depth, SEPARATION_MM, out)
+        return out
     crossing = np.flatnonzero(depth > 0)
-    out = np.zeros(len(rest))
     if not len(crossing):
         return out
-    near = cKDTree(rest).query_ball_point(rest[crossing], 2.0 * SHEET_WIDTH_MM)
-    counts = np.fromiter((len(n) for n in near), np.int64, len(near))
-    neighbour = np.concatenate(near).astype(np.int64)
-    source = np.repeat(crossing, counts)
-    gap = np.linalg.norm(rest[neighbour] - rest[source], axis=1)
-    give = (0.5 * depth[source] + SEPARATION_MM) * np.exp(-(gap / SHEET_WIDTH_MM) ** 2)
-    np.maximum.at(out, neighbour, give)
+    starts, counts = indptr[crossing], indptr[crossing + 1] - indptr[crossing]
+    # Every neighbour entry of every crossing vertex, without a Python loop over them.
+    entries = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts) + np.arange(counts.sum())
+    give = np.repeat(0.5 * depth[crossing] + SEPARATION_MM, counts) * falloff[entries]
+    np.maximum.at(out, indices[entries], give)
     return out
 
 
