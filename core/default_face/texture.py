@@ -150,9 +150,15 @@ def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None, full_head:
     crease_y = up + 4.5
     img *= (1.0 - 0.10 * np.exp(-(((Y - crease_y) / 1.0) ** 2)) * in_eye)[..., None]
 
-    # --- nostrils
-    nostril = _gauss(AX, Y, layout.alar_half_width * 0.42, layout.subnasale_y + 2.4, 2.6, 1.3)
-    img = _blend(img, np.array([60.0, 35.0, 30.0]), np.clip(1.6 * nostril, 0, 1))
+    # --- nostrils: the front-only face's are painted dark spots; the full head's are pockets in the
+    # nose (nostrils.py), darker the deeper inside
+    if full_head:
+        from core.default_face.nostrils import shade
+
+        img = _blend(img, np.array([52.0, 28.0, 25.0]) * (1 - 0.4 * p.skin_tone), 0.95 * shade(shape, X, Y))
+    else:
+        nostril = _gauss(AX, Y, layout.alar_half_width * 0.42, layout.subnasale_y + 2.4, 2.6, 1.3)
+        img = _blend(img, np.array([60.0, 35.0, 30.0]), np.clip(1.6 * nostril, 0, 1))
 
     if full_head:
         steep = np.maximum(_smoothstep(0.80, 0.93, shape.outline_t(X, Y)),

@@ -61,11 +61,15 @@ def test_the_head_extends_the_front_of_the_face(front, head):
     assert head.landmarks == front.landmarks
     assert head.landmark_positions() == pytest.approx(front.landmark_positions(), abs=1e-6)
     moved = np.nonzero((head.vertices[:n] != front.vertices).any(axis=1))[0]
-    # Only the outer rim moves (its staircase smoothed), and by little in x and y.
+    # Only the outer rim moves (its staircase smoothed), and by little in x and y; and the nostrils
+    # open, straight up.
     rim = outer_boundary_loop(front.triangles[~np.isin(front.triangles, np.concatenate(list(front.parts.values())))
                                               .any(axis=1)])
-    assert set(moved.tolist()) <= set(rim.tolist())
-    assert np.abs(head.vertices[moved, :2] - front.vertices[moved, :2]).max() < 1.0
+    on_rim = np.isin(moved, rim)
+    assert np.abs(head.vertices[moved[on_rim], :2] - front.vertices[moved[on_rim], :2]).max() < 1.0
+    nostril = moved[~on_rim]
+    step = head.vertices[nostril] - front.vertices[nostril]
+    assert np.all(step[:, [0, 2]] == 0) and np.all(step[:, 1] > 0)
     assert set(head.parts) == set(front.parts) | {"ear_l", "ear_r"}
     assert all(np.array_equal(head.parts[k], front.parts[k]) for k in front.parts)
     assert head.texture.shape[1] > front.texture.shape[1]
@@ -281,3 +285,47 @@ def test_generated_head_of_another_identity():
     assert face.n_triangles - front.n_triangles <= MAX_EXTRA_TRIANGLES
     pairs = seam_pairs(face, front.n_vertices)
     assert welded_boundary_loops(face, pairs) == 3
+
+
+def test_the_nostrils_are_pockets_in_the_nose_darker_inside(front, head):
+    """The full head's nostrils: two pockets, as deep as ``POCKET_DEPTH`` under their roof, mirror
+    images, inside the nose (behind its skin), their texture dark (the front-only face keeps the
+    scanner's shallow dents and its painted spots)."""
+    from core.default_face.nostrils import POCKET_DEPTH, pocket_clearance
+    from core.default_face.shape import FaceShape
+
+    layout = FaceLayout.from_parameters(FaceParameters())
+    n = front.n_vertices
+    rise = head.vertices[:n, 1] - front.vertices[:n, 1]
+    rim = outer_boundary_loop(front.triangles[~np.isin(front.triangles, np.concatenate(list(front.parts.values())))
+                                              .any(axis=1)])
+    rise[rim] = 0.0
+    pocket = np.nonzero(rise > 0)[0]
+    for side in (1, -1):
+        one = pocket[np.sign(front.vertices[pocket, 0]) == side]
+        assert len(one) > 30
+        assert rise[one].max() == pytest.approx(POCKET_DEPTH, abs=0.3)
+        p = front.vertices[one]
+        assert layout.subnasale_y < p[:, 1].min() and p[:, 1].max() < layout.nose_tip_y
+        assert 2.0 < np.abs(p[:, 0]).min() and np.abs(p[:, 0]).max() < layout.alar_half_width
+    mirrored = front.vertices[pocket] * [-1, 1, 1]
+    dist, twin = cKDTree(front.vertices[pocket]).query(mirrored)
+    assert dist.max() < 1e-6 and np.allclose(rise[pocket[twin]], rise[pocket], atol=1e-6)
+    deep = pocket[rise[pocket] > 1.0]
+    assert pocket_clearance(FaceShape(layout), head.vertices[deep]).min() > 0.4
+    # Texture: the pocket's deep vertices are dark, the nose tip is skin.
+    def luminance(uv):
+        h, w, _ = head.texture.shape
+        px = head.texture[((1 - uv[:, 1]) * h).astype(int).clip(0, h - 1), (uv[:, 0] * w).astype(int).clip(0, w - 1)]
+        return px.astype(float).mean(axis=1)
+    tip = np.argmin(np.linalg.norm(front.vertices - front.landmark_position("9.3"), axis=1))
+    assert luminance(head.uv[deep]).max() < 0.5 * luminance(head.uv[[tip]])[0]
+
+
+def test_generated_identities_open_their_nostrils():
+    for seed in (3, 11):
+        params = FaceParameters.random(np.random.default_rng(seed), spread=0.8)
+        face, front = generate_face(params), generate_face(params, full_head=False)
+        n = front.n_vertices
+        rise = face.vertices[:n, 1] - front.vertices[:n, 1]
+        assert (rise > 2.0).sum() > 20
