@@ -21,7 +21,7 @@ from core.default_face.params import FaceLayout
 from core.default_face.shape import FaceShape, _smoothstep
 
 POCKET_DEPTH = 5.5     # mm: how far the nostril's roof lies above its rim (nose projection 17 mm)
-WALL = 0.75            # share of the outline's radius over which the wall rises to the roof
+WALL = 0.55            # share of the outline's radius over which the wall rises to the roof
 UNDERSIDE_SLOPE = 1.0  # dz/dy beyond which the height field is the nose's underside (seen from below)
 MIN_WALL = 0.4         # the nose's wall in front of a pocket: at least this share of its depth (up to 1 mm)
 
