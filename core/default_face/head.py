@@ -593,11 +593,14 @@ _HAIR_HEIGHT = (85.0, 70.0, 62.0, 55.0, 42.0, -8.0, -27.0, -30.0)
 HAIR_AXIS_Z = -110.0
 
 
-def hair_mask(layout: FaceLayout, points: np.ndarray, soft_mm: float = 2.5) -> np.ndarray:
-    """(k,) in [0, 1]: how much of the hair covers each head point (k, 3)."""
+def hair_mask(layout: FaceLayout, points: np.ndarray, soft_mm: float = 2.5, jitter: np.ndarray | None = None) -> np.ndarray:
+    """(k,) in [0, 1]: how much of the hair covers each head point (k, 3), fading over ``soft_mm``
+    at the hairline; ``jitter`` (k,) mm moves the hairline up or down point by point (wisps)."""
     sh = layout.p.face_height / 121.0
     azimuth = np.arctan2(np.abs(points[:, 0]), points[:, 2] - HAIR_AXIS_Z)
     height = layout.hairline_y + (np.interp(azimuth, _HAIR_AZIMUTH, _HAIR_HEIGHT) - 85.0) * sh
+    if jitter is not None:
+        height = height - jitter
     return 1.0 / (1.0 + np.exp(np.clip((height - points[:, 1]) / (0.25 * soft_mm), -50, 50)))
 
 
@@ -628,11 +631,17 @@ def paint_head_atlas(layout: FaceLayout, builder: HeadBuilder, q_box, base_rgb: 
     q = np.column_stack([qx0 + (px.ravel() - x0) / s, qy0 + qh - (py.ravel() - y0) / s])
     d = unstereo(q)
     points = builder.model.centre + d * builder.model.radius(d, steps=22)[:, None]
-    hair = hair_mask(layout, points).reshape(H, W)
-
     def noise(sigma):
         a = ndimage.gaussian_filter(rng.standard_normal((H, W)), sigma)
         return (a - a.mean()) / (a.std() + 1e-12)
+
+    # The hairline thins out in wisps like the face's (texture.HAIRLINE_*); own generator, so the
+    # skin's noise below is unchanged.
+    from core.default_face.texture import HAIRLINE_SOFT_MM, HAIRLINE_WISPS_MM
+
+    wisps = ndimage.gaussian_filter(np.random.default_rng(seed + 211).standard_normal((H, W)), (1.5, 0.5))
+    wisps = (wisps - wisps.mean()) / (wisps.std() + 1e-12)
+    hair = hair_mask(layout, points, soft_mm=HAIRLINE_SOFT_MM, jitter=HAIRLINE_WISPS_MM * wisps.ravel()).reshape(H, W)
 
     img = np.broadcast_to(base_rgb, (H, W, 3)) * (1.0 + 0.04 * noise(6.0) + 0.02 * noise(1.5))[..., None]
     strands = 0.75 + 0.25 * np.clip(noise(0.7), -2, 2) / 2
