@@ -3,7 +3,7 @@
     .venv/bin/python scripts/readme_figures.py [head] [fap] [muscles] [blend]     (all four by default)
 
 docs/default_head.png: the built-in head at rest from the front, the side, in three-quarter view and
-from the back;
+from the back, framed whole;
 docs/fap_expressions.png: the six expression presets, a jaw opening and a blink, each from the
 front and in three-quarter view; docs/muscle_presets.png: thesis C's muscle presets the same way;
 docs/blend_library.png: poses of the built-in expression library and caricatures, each tile
@@ -96,11 +96,13 @@ def blend_sheet(face) -> Image.Image:
 
 
 def head_sheet(face, tile: int = 420) -> Image.Image:
-    """docs/default_head.png: ``face`` at rest from every camera preset, side by side."""
+    """docs/default_head.png: ``face`` at rest from every camera preset, side by side, framed whole
+    (the neck and the shoulders' start too, which the portrait framing of exports leaves out)."""
     from app.render import render_face_image
     from app.scene import VIEWS
 
-    images = [render_face_image(face, view=view, size=(2 * tile, 2 * tile)) for view in VIEWS]
+    images = [render_face_image(face, view=view, size=(2 * tile, 2 * tile), frame_points=face.vertices)
+              for view in VIEWS]
     return sheet([(" · ".join(VIEWS), images)], columns=1, tile=tile)
 
 

@@ -123,7 +123,8 @@ def generate_face(params: FaceParameters | None = None, *, grid_spacing: float =
 def with_head(face: Face, layout: FaceLayout, n_skin_tris: int, front_texture: np.ndarray) -> Face:
     """The front-of-face ``face`` with the head shell and the ears appended (see ``head.py``).
 
-    Vertex and triangle order: the front's first (unchanged but for its smoothed outer rim), then
+    Vertex and triangle order: the front's first (unchanged but for its smoothed outer rim and the
+    nostrils, opened into the nose: ``nostrils.py``), then
     the shell (its first vertices are copies of the rim, in loop order), then the ears (parts
     ``ear_l`` / ``ear_r``). The texture gets the head atlas to the right of the face's image.
     """
@@ -140,6 +141,14 @@ def with_head(face: Face, layout: FaceLayout, n_skin_tris: int, front_texture: n
     held[face.triangles[[point.triangle for point in face.landmarks.values()]].ravel()] = True
     guide = smoothed_rim(front[loop])
     front[loop] = smoothed_rim(front[loop], pinned=held[loop])
+    # The nostrils get a modelled inside (the front-only face keeps the scanner's shallow dents).
+    from core.default_face.nostrils import open_nostrils
+    from core.default_face.shape import FaceShape
+
+    skin = np.ones(n0, bool)
+    for idx in face.parts.values():
+        skin[idx] = False
+    front = open_nostrils(FaceShape(layout), front, movable=skin & ~held)
     builder = HeadBuilder(layout)
     shell = builder.shell(front, loop, guide=guide)
     shell_vertices = _faired_shell(front, face.triangles[:n_skin_tris], loop, shell, builder.model.centre)

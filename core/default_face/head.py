@@ -4,17 +4,27 @@ The rest of the head behind the front-of-face surface: skull, back of the
 head, the jaw's sides, the neck down to the start of the shoulders, and two
 ears, all generated from the identity parameters.
 
-The head shell is a star-shaped surface around a centre C inside the skull:
-point = C + R(d) d for unit directions d. R is the distance to the zero set of
-a smooth union of a cranial ellipsoid, a jaw mass and a neck (flaring a little
-toward the shoulders, rounded off at the bottom), plus a correction that makes
-the shell meet the face's outer boundary exactly and fades out with distance
-from it. The shell's directions are triangulated in the stereographic plane
+The head shell is a star-shaped surface around a centre C inside the skull,
+point = C + R(d) d for unit directions d, then flared below the neck: R is the
+distance to the zero set of a smooth union of a cranial ellipsoid, a jaw mass
+and a neck column narrower than the jaw (sterno-cleido-mastoid ridges, larynx,
+rounded off at a flat bottom cap), plus a correction that makes the shell meet
+the face's outer boundary exactly and fades out with distance from it. Seen
+from C the top of the shoulders would face the centre, so they cannot be
+star-shaped: below the neck base an affine map of each horizontal slice (x and
+the depth scaled, a bijection of space) flares the column into the trapezius
+slope and the upper chest and back (``HeadModel.warp``); the shell stays
+closed and embedded.
+
+The shell's directions are triangulated in the stereographic plane
 q = (d_x, d_y) / (1 - d_z) (projection from the front pole, which the face
 covers): there the face's outer boundary is a closed curve around the origin
 (the back of the head) and the shell is the disc inside it; a Delaunay
 triangulation of the plane is a spherical Delaunay triangulation of the
-directions (stereographic projection keeps circles).
+directions (stereographic projection keeps circles). The directions are a
+uniform spiral on the skull and rings spaced evenly in mm on the neck and the
+flare (seen from C the throat is grazed and the flare stretches), and the
+triangulation's edges are then flipped to a Delaunay one in 3-D.
 
 The shell's seam vertices are copies of the face's outer boundary vertices
 (same positions, so the surface is closed; own texture coordinates, so the
@@ -39,6 +49,17 @@ CORRECTION_FADE = 26.0     # mm, the seam correction fades out over this distanc
 CORRECTION_SIGMA = 0.07    # rad, angular smoothing of the seam correction along the seam
 EAR_RINGS, EAR_SEGMENTS = 10, 40
 FAIR_BAND_MM = 24.0        # shell vertices this close to the seam are faired into the face's slope
+# Neck and shoulders' start (mm, default face; heights scale with the face's height, widths with its width).
+NECK_HALF_WIDTH_OF_JAW = 0.41   # the neck column's half-width as a share of the bigonial breadth
+NECK_HALF_DEPTH = 50.0
+NECK_BASE_BELOW_MENTON = 32.0   # the side of the neck starts curving out this far below the chin
+SHOULDER_DROP = 48.0            # ... and reaches the shoulders' start this much lower
+SHOULDER_HALF_WIDTH = 125.0     # half-width there
+SHOULDER_RISE = 1.7             # the outline's curve: (share of the drop) ** SHOULDER_RISE
+CHEST_FORWARD, UPPER_BACK = 18.0, 40.0   # there the chest is this much in front of the neck, the back behind
+CAP_BELOW_SHOULDER = 8.0        # the flat bottom cap this far below
+SCM_RIDGE, LARYNX = 4.0, 3.0     # how far the sterno-cleido-mastoid ridges and the larynx stand out
+FLARE_SPACING = 6.0             # mm, target edge length where the flare stretches the shell
 
 
 def _softmin(a, b, k):
@@ -140,11 +161,24 @@ class HeadModel:
         return np.array([0.0, L.subnasale_y + 5.0, -100.0])
 
     @property
+    def neck_axis_z(self) -> float:
+        """z (mm) of the neck's vertical axis; the shoulders' flare scales depth about it."""
+        return -110.0
+
+    @property
+    def neck_base_y(self) -> float:
+        """Height (mm) where the side of the neck starts to curve out into the trapezius slope."""
+        return self.layout.menton_y - NECK_BASE_BELOW_MENTON * self.scale[1]
+
+    @property
     def neck_bottom_y(self) -> float:
-        return self.layout.menton_y - 85.0 * self.scale[1]
+        """Height (mm) of the flat cut under the shoulders' start (the bottom cap)."""
+        return self.neck_base_y - (SHOULDER_DROP + CAP_BELOW_SHOULDER) * self.scale[1]
 
     def field(self, p: np.ndarray) -> np.ndarray:
-        """(k,) approximate signed distance (mm, < 0 inside) of points (k, 3)."""
+        """(k,) approximate signed distance (mm, < 0 inside) of points (k, 3) of the head before the
+        shoulders' flare (``flare``): below the neck base the neck is a plain column, star-shaped
+        around ``centre``."""
         L = self.layout
         sw, sh = self.scale
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
@@ -155,14 +189,54 @@ class HeadModel:
 
         cranium = ellipsoid((0.0, L.nasion_y + 16.0 * sh, -118.0), (79.0 * sw, 88.0 * sh, 98.0))
         jaw = ellipsoid((0.0, L.stomion_y - 8.0 * sh, -82.0), (0.58 * L.p.jaw_width, 48.0 * sh, 58.0))
-        # Neck: an elliptic cylinder, a little wider toward the shoulders, rounded at the bottom.
-        bottom = self.neck_bottom_y
-        flare = 1.0 + 0.22 * _smoothstep(bottom + 60.0, bottom + 5.0, y)
-        nx, nz, zc = 47.0 * sw * flare, 52.0 * flare, -112.0
-        neck = (np.sqrt((x / nx) ** 2 + ((z - zc) / nz) ** 2) - 1.0) * 47.0
-        neck = _smooth_max(neck, bottom - y, 10.0)
+        # Neck: an elliptic column narrower than the jaw (its outline steps in under the jaw's angle),
+        # rounded off at the bottom cap.
+        nx, nz = NECK_HALF_WIDTH_OF_JAW * L.p.jaw_width, NECK_HALF_DEPTH
+        neck = (np.sqrt((x / nx) ** 2 + ((z - self.neck_axis_z) / nz) ** 2) - 1.0) * min(nx, nz)
+        # Sterno-cleido-mastoid: a ridge on each side from behind the ear down to the sternal notch
+        # (the V of the front of the neck), and the larynx on the midline.
+        mastoid = np.array([0.0, L.subnasale_y - 12.0 * sh, self.neck_axis_z - 20.0])
+        sternal = np.array([0.0, self.neck_base_y - 36.0 * sh, self.neck_axis_z + nz - 6.0])
+        for side in (1.0, -1.0):
+            mastoid[0], sternal[0] = side * 0.92 * nx, side * 11.0 * sw
+            neck = neck - SCM_RIDGE * np.exp(-((_segment_distance(p, mastoid, sternal) / 9.0) ** 2))
+        larynx = np.exp(-((x / 9.0) ** 2) - ((y - (L.menton_y - 24.0 * sh)) / 12.0) ** 2)
+        neck = neck - LARYNX * larynx * (z > self.neck_axis_z)
+        neck = _smooth_max(neck, self.neck_bottom_y - y, 6.0)
         neck = _smooth_max(neck, y - (L.stomion_y + 10.0), 10.0)
-        return _softmin(_softmin(cranium, jaw, 14.0), neck, 16.0)
+        return _softmin(_softmin(cranium, jaw, 14.0), neck, 9.0)
+
+    def flare(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(k,) each: the factors by which the shoulders' flare scales x and the depth about the neck
+        axis at heights y (k,) mm (1 above the neck base), and the shift (mm) of the depth.
+
+        The neck's outline leaves the column tangentially and curves out to the shoulders' start
+        ``SHOULDER_HALF_WIDTH`` mm from the midline ``SHOULDER_DROP`` mm lower (a trapezius slope of
+        about 20 degrees there), then keeps that slope down to the cap. In depth the upper back
+        flares more than the chest (a neck on a bell would flare both alike)."""
+        L = self.layout
+        sw, sh = self.scale
+        t = np.clip((self.neck_base_y - np.asarray(y, float)) / (SHOULDER_DROP * sh), 0.0, None)
+        k = SHOULDER_RISE
+        rise = np.where(t < 1.0, t ** k, 1.0 + k * (t - 1.0))
+        nx = NECK_HALF_WIDTH_OF_JAW * L.p.jaw_width
+        gx = 1.0 + (SHOULDER_HALF_WIDTH * sw / nx - 1.0) * rise
+        gz = 1.0 + (CHEST_FORWARD + UPPER_BACK) / (2.0 * NECK_HALF_DEPTH) * rise
+        return gx, gz, 0.5 * (CHEST_FORWARD - UPPER_BACK) * rise
+
+    def unwarp(self, p: np.ndarray) -> np.ndarray:
+        """(k, 3) the star-shaped head's points that ``warp`` moves to points (k, 3)."""
+        gx, gz, shift = self.flare(p[:, 1])
+        zc = self.neck_axis_z
+        return np.column_stack([p[:, 0] / gx, p[:, 1], zc + (p[:, 2] - zc - shift) / gz])
+
+    def warp(self, p: np.ndarray) -> np.ndarray:
+        """(k, 3) points (k, 3) of the star-shaped head moved by the shoulders' flare: at each height
+        an affine map of (x, z) (scales ``flare`` > 0, a shift in z), so a bijection of space: the
+        closed, embedded shell stays closed and embedded. The identity above the neck base."""
+        gx, gz, shift = self.flare(p[:, 1])
+        zc = self.neck_axis_z
+        return np.column_stack([p[:, 0] * gx, p[:, 1], zc + (p[:, 2] - zc) * gz + shift])
 
     def radius(self, d: np.ndarray, r_max: float = 400.0, steps: int = 36) -> np.ndarray:
         """(k,) distance from the centre to the head model along unit directions (k, 3), by bisection."""
@@ -186,6 +260,74 @@ def unstereo(q: np.ndarray) -> np.ndarray:
     """(k, 3) unit directions of stereographic coordinates (k, 2)."""
     s = (q ** 2).sum(axis=1)
     return np.column_stack([2 * q[:, 0], 2 * q[:, 1], s - 1.0]) / (s + 1.0)[:, None]
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(k,) distance (mm) of points (k, 3) from the segment a-b."""
+    ab = b - a
+    t = np.clip((p - a) @ ab / (ab @ ab), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
+def flip_to_delaunay(points: np.ndarray, plane: np.ndarray, triangles: np.ndarray, max_passes: int = 50) -> np.ndarray:
+    """(m, 3) ``triangles`` with interior edges flipped until the mesh on ``points`` (k, 3) is
+    Delaunay in 3-D (for each edge the two opposite angles sum to at most pi), each flip kept only
+    where both new triangles keep their orientation in the ``plane`` (k, 2) the triangulation was
+    made in (so the map from the plane stays one-to-one). Returns triangles counter-clockwise in the
+    plane.
+
+    A Delaunay triangulation of the plane is one in 3-D only where the map to the surface is
+    isotropic; where the shell is grazed from the centre or stretched by the flare, its triangles
+    came out as slivers across rows of vertices."""
+    tri = np.array(triangles, dtype=np.int64)
+
+    def orient(t):
+        a, b, c = plane[t[:, 0]], plane[t[:, 1]], plane[t[:, 2]]
+        return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+
+    flip = orient(tri) < 0
+    tri[flip] = tri[flip][:, [0, 2, 1]]
+
+    def angle(at, u, v):
+        e1, e2 = points[u] - points[at], points[v] - points[at]
+        cos = (e1 * e2).sum(axis=1) / np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-12)
+        return np.arccos(np.clip(cos, -1.0, 1.0))
+
+    n = len(points)
+    for _ in range(max_passes):
+        # Directed edges (a, b) of triangle k with the opposite corner c; an interior edge appears as
+        # (a, b) in one triangle and (b, a) in the other.
+        a = tri.ravel()
+        b = tri[:, [1, 2, 0]].ravel()
+        c = tri[:, [2, 0, 1]].ravel()
+        owner = np.repeat(np.arange(len(tri)), 3)
+        key = a * n + b
+        order = np.argsort(key)
+        pos = np.searchsorted(key[order], b * n + a)
+        pos = np.minimum(pos, len(key) - 1)
+        twin = order[pos]
+        interior = (key[twin] == b * n + a) & (a < b)
+        e = np.nonzero(interior)[0]
+        t = twin[e]
+        d = c[t]
+        excess = angle(c[e], a[e], b[e]) + angle(d, a[e], b[e]) - np.pi
+        new1 = np.column_stack([a[e], d, c[e]])
+        new2 = np.column_stack([d, b[e], c[e]])
+        ok = (excess > 1e-6) & (orient(new1) > 0) & (orient(new2) > 0)
+        e, t, d, excess, new1, new2 = e[ok], t[ok], d[ok], excess[ok], new1[ok], new2[ok]
+        if not len(e):
+            break
+        existing = set((np.minimum(a, b) * n + np.maximum(a, b)).tolist())
+        used = np.zeros(len(tri), bool)
+        for i in np.argsort(-excess):
+            k1, k2 = owner[e[i]], owner[t[i]]
+            cd = min(c[e[i]], d[i]) * n + max(c[e[i]], d[i])
+            if used[k1] or used[k2] or cd in existing:
+                continue
+            used[k1] = used[k2] = True
+            existing.add(cd)
+            tri[k1], tri[k2] = new1[i], new2[i]
+    return tri
 
 
 def _inside_polygon(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
@@ -288,7 +430,17 @@ class HeadBuilder:
         q, dirs = q[keep], dirs[keep]
         clear = SEAM_RINGS[-1][0] + 0.6 * SHELL_SPACING
         dist, _ = cKDTree(seam_d).query(dirs)
-        q = q[dist * mean_r > clear]
+        clear_of_seam = dist * mean_r > clear
+        q, dirs = q[clear_of_seam], dirs[clear_of_seam]
+        # Uniform directions on the skull, rings on the neck and the shoulders' start.
+        neck, alpha_top = self._neck_rings()
+        neck = neck[_inside_polygon(stereo(neck), seam_q)]
+        # Clear of the seam in mm on the surface (seen from the centre the throat is grazed: an
+        # angular clearance there left a gap of long triangles under the chin).
+        at = self.model.warp(c + neck * self.model.radius(neck)[:, None])
+        neck = neck[cKDTree(seam_p).query(at)[0] > clear]
+        alpha = np.arccos(np.clip(-dirs[:, 1], -1.0, 1.0))
+        q = np.concatenate([q[alpha > alpha_top], stereo(neck)])
         plane = np.concatenate([seam_q, rings, q])
         tri = Delaunay(plane).simplices
         centroid = plane[tri].mean(axis=1)
@@ -302,14 +454,58 @@ class HeadBuilder:
                              "these identity parameters give a boundary the shell cannot follow")
         d = unstereo(plane)
         radius = self.shell_radius(d)
-        verts = c + d * radius[:, None]
+        verts = self.model.warp(c + d * radius[:, None])
         verts[:n_seam] = seam_p
+        tri = flip_to_delaunay(verts, plane, tri)
         # Counter-clockwise seen from outside: the normal points away from the centre.
         e1, e2 = verts[tri[:, 1]] - verts[tri[:, 0]], verts[tri[:, 2]] - verts[tri[:, 0]]
         outward = (np.cross(e1, e2) * (verts[tri].mean(axis=1) - c)).sum(axis=1)
         if np.median(outward) < 0:
             tri = tri[:, [0, 2, 1]]
         return HeadShell(verts, tri, plane, seam)
+
+    def _neck_rings(self) -> tuple[np.ndarray, float]:
+        """(k, 3) unit directions of the shell's vertices on the neck and below, and the angle (rad)
+        from straight down beyond which the shell's uniform directions take over.
+
+        Uniform directions suit the skull, which faces the centre; seen from the centre the throat is
+        grazed (the triangles came out long and thin) and the shoulders' flare stretches the shell
+        (three times too long, a ragged rim on the cap). Here the vertices lie on rings around the
+        straight-down direction (about horizontal on the neck, concentric on the cap), spaced
+        ``FLARE_SPACING`` mm apart once flared, along each ring and, about, along the profile."""
+        c = self.model.centre
+        L = self.layout
+        alpha = np.linspace(0.0, np.radians(100.0), 401)
+        theta = np.linspace(0.0, 2 * np.pi, 97)[:-1]
+        A, T = np.meshgrid(alpha, theta, indexing="ij")
+        d = np.stack([np.sin(A) * np.cos(T), -np.cos(A), np.sin(A) * np.sin(T)], -1).reshape(-1, 3)
+        points = self.model.warp(c + d * self.model.radius(d)[:, None]).reshape(len(alpha), len(theta), 3)
+        # Up to just above the chin at the sides (theta = 0 and pi): the jaw's angle and the skull above
+        # face the centre.
+        sides = points[:, [0, len(theta) // 2], 1].min(axis=1)
+        top = int(np.argmax(sides > L.menton_y + 10.0 * self.model.scale[1]))
+        alpha, points = alpha[:top + 1], points[:top + 1]
+        profile = np.concatenate([np.zeros((1, len(theta))),
+                                  np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=2), axis=0)])
+        n_rings = max(2, int(round(profile[-1].max() / FLARE_SPACING)))
+        share = np.linspace(0.0, 1.0, n_rings + 1)[1:]
+        # Per meridian, the rings at equal shares of its length: ring_alpha (rings, theta), ring_points.
+        ring_alpha = np.column_stack([np.interp(share * profile[-1, j], profile[:, j], alpha)
+                                      for j in range(len(theta))])
+        ring_points = np.stack([np.column_stack([np.interp(ring_alpha[:, j], alpha, points[:, j, i])
+                                                 for i in range(3)]) for j in range(len(theta))], axis=1)
+        out = [np.array([[0.0, -1.0, 0.0]])]
+        period = np.concatenate([theta, [2 * np.pi]])
+        for k in range(n_rings):
+            closed = np.concatenate([ring_points[k], ring_points[k, :1]])
+            along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+            count = max(6, int(round(along[-1] / FLARE_SPACING)))
+            t = np.interp((np.arange(count) + 0.5 * (k % 2)) * along[-1] / count, along, period)
+            a = np.interp(t, period, np.concatenate([ring_alpha[k], ring_alpha[k, :1]]))
+            out.append(np.column_stack([np.sin(a) * np.cos(t), -np.cos(a), np.sin(a) * np.sin(t)]))
+        # Uniform directions keep clear of the top ring by about half a spacing.
+        top_radius = float(np.linalg.norm(self.model.centre - points[-1], axis=1).min())
+        return np.concatenate(out), float(alpha[-1]) + 0.5 * FLARE_SPACING / top_radius
 
     # ------------------------------------------------------------ ears
     def ears(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -397,11 +593,14 @@ _HAIR_HEIGHT = (85.0, 70.0, 62.0, 55.0, 42.0, -8.0, -27.0, -30.0)
 HAIR_AXIS_Z = -110.0
 
 
-def hair_mask(layout: FaceLayout, points: np.ndarray, soft_mm: float = 2.5) -> np.ndarray:
-    """(k,) in [0, 1]: how much of the hair covers each head point (k, 3)."""
+def hair_mask(layout: FaceLayout, points: np.ndarray, soft_mm: float = 2.5, jitter: np.ndarray | None = None) -> np.ndarray:
+    """(k,) in [0, 1]: how much of the hair covers each head point (k, 3), fading over ``soft_mm``
+    at the hairline; ``jitter`` (k,) mm moves the hairline up or down point by point (wisps)."""
     sh = layout.p.face_height / 121.0
     azimuth = np.arctan2(np.abs(points[:, 0]), points[:, 2] - HAIR_AXIS_Z)
     height = layout.hairline_y + (np.interp(azimuth, _HAIR_AZIMUTH, _HAIR_HEIGHT) - 85.0) * sh
+    if jitter is not None:
+        height = height - jitter
     return 1.0 / (1.0 + np.exp(np.clip((height - points[:, 1]) / (0.25 * soft_mm), -50, 50)))
 
 
@@ -432,11 +631,17 @@ def paint_head_atlas(layout: FaceLayout, builder: HeadBuilder, q_box, base_rgb: 
     q = np.column_stack([qx0 + (px.ravel() - x0) / s, qy0 + qh - (py.ravel() - y0) / s])
     d = unstereo(q)
     points = builder.model.centre + d * builder.model.radius(d, steps=22)[:, None]
-    hair = hair_mask(layout, points).reshape(H, W)
-
     def noise(sigma):
         a = ndimage.gaussian_filter(rng.standard_normal((H, W)), sigma)
         return (a - a.mean()) / (a.std() + 1e-12)
+
+    # The hairline thins out in wisps like the face's (texture.HAIRLINE_*); own generator, so the
+    # skin's noise below is unchanged.
+    from core.default_face.texture import HAIRLINE_SOFT_MM, HAIRLINE_WISPS_MM
+
+    wisps = ndimage.gaussian_filter(np.random.default_rng(seed + 211).standard_normal((H, W)), (1.5, 0.5))
+    wisps = (wisps - wisps.mean()) / (wisps.std() + 1e-12)
+    hair = hair_mask(layout, points, soft_mm=HAIRLINE_SOFT_MM, jitter=HAIRLINE_WISPS_MM * wisps.ravel()).reshape(H, W)
 
     img = np.broadcast_to(base_rgb, (H, W, 3)) * (1.0 + 0.04 * noise(6.0) + 0.02 * noise(1.5))[..., None]
     strands = 0.75 + 0.25 * np.clip(noise(0.7), -2, 2) / 2

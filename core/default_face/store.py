@@ -6,7 +6,8 @@ single-view-scan-like generator makes it (``generate_face(full_head=False)``):
 vertices, triangles, uv, texture, landmarks, and each named part as
 ``part_<name>``. The full head (``generate_face()``) as what it adds:
 ``head_vertices`` / ``head_triangles`` (appended), ``head_rim`` and
-``head_rim_positions`` (the front's outer rim, smoothed where the shell joins),
+``head_rim_positions`` (the front's vertices the head moves: its outer rim, smoothed where the
+shell joins, and the nostrils, opened into the nose),
 ``head_uv`` (all vertices' uv in ``head_texture``, which is wider) and
 ``head_part_<name>`` (the ears).
 """

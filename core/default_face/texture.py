@@ -26,6 +26,10 @@ _SKIN_TONES = np.array([[240, 205, 185], [224, 178, 148], [190, 138, 102], [140,
 _IRIS = np.array([[70, 110, 160], [95, 120, 70], [110, 80, 40], [60, 38, 22]], float)  # blue, green, hazel, brown
 
 
+HAIRLINE_SOFT_MM = 8.0   # the full head's hair thins out over this band at the hairline
+HAIRLINE_WISPS_MM = 2.0  # ... its edge moved hair by hair by about this much
+
+
 def _lerp_table(table: np.ndarray, t: float) -> np.ndarray:
     pos = np.clip(t, 0, 1) * (len(table) - 1)
     i = min(int(pos), len(table) - 2)
@@ -114,7 +118,15 @@ def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None, full_head:
 
     # --- hair above the hairline (dips at the temples)
     hairline = layout.hairline_y - 9.0 * (AX / 45.0) ** 2 + 6.0 * np.exp(-(((AX - 50) / 9) ** 2))
-    hair = _soft(hairline - Y, 2.5)
+    if full_head:
+        # A hairline is no drawn line: the hair thins out over ~8 mm, in wisps (a fine noise, long
+        # along the hair's fall, moves the edge by a few mm). Its own generator: the layers after
+        # keep their noise.
+        wisps = _unit(ndimage.gaussian_filter(np.random.default_rng(p.texture_seed + 211).standard_normal((H, W)),
+                                              (2.5, 0.6)))
+        hair = _soft(hairline - Y + HAIRLINE_WISPS_MM * wisps, HAIRLINE_SOFT_MM)
+    else:
+        hair = _soft(hairline - Y, 2.5)
     strands = 0.75 + 0.25 * _unit(ndimage.gaussian_filter(rng.standard_normal((H, W)), (3.0, 0.6)))
     hair_colour = np.array([52.0, 36.0, 26.0]) * (1 - 0.4 * p.skin_tone)
     img = _blend(img, hair_colour * strands[..., None], hair * 0.97)
@@ -150,9 +162,15 @@ def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None, full_head:
     crease_y = up + 4.5
     img *= (1.0 - 0.10 * np.exp(-(((Y - crease_y) / 1.0) ** 2)) * in_eye)[..., None]
 
-    # --- nostrils
-    nostril = _gauss(AX, Y, layout.alar_half_width * 0.42, layout.subnasale_y + 2.4, 2.6, 1.3)
-    img = _blend(img, np.array([60.0, 35.0, 30.0]), np.clip(1.6 * nostril, 0, 1))
+    # --- nostrils: the front-only face's are painted dark spots; the full head's are pockets in the
+    # nose (nostrils.py), darker the deeper inside
+    if full_head:
+        from core.default_face.nostrils import shade
+
+        img = _blend(img, np.array([52.0, 28.0, 25.0]) * (1 - 0.4 * p.skin_tone), 0.95 * shade(shape, X, Y))
+    else:
+        nostril = _gauss(AX, Y, layout.alar_half_width * 0.42, layout.subnasale_y + 2.4, 2.6, 1.3)
+        img = _blend(img, np.array([60.0, 35.0, 30.0]), np.clip(1.6 * nostril, 0, 1))
 
     if full_head:
         steep = np.maximum(_smoothstep(0.80, 0.93, shape.outline_t(X, Y)),

@@ -61,11 +61,15 @@ def test_the_head_extends_the_front_of_the_face(front, head):
     assert head.landmarks == front.landmarks
     assert head.landmark_positions() == pytest.approx(front.landmark_positions(), abs=1e-6)
     moved = np.nonzero((head.vertices[:n] != front.vertices).any(axis=1))[0]
-    # Only the outer rim moves (its staircase smoothed), and by little in x and y.
+    # Only the outer rim moves (its staircase smoothed), and by little in x and y; and the nostrils
+    # open, straight up.
     rim = outer_boundary_loop(front.triangles[~np.isin(front.triangles, np.concatenate(list(front.parts.values())))
                                               .any(axis=1)])
-    assert set(moved.tolist()) <= set(rim.tolist())
-    assert np.abs(head.vertices[moved, :2] - front.vertices[moved, :2]).max() < 1.0
+    on_rim = np.isin(moved, rim)
+    assert np.abs(head.vertices[moved[on_rim], :2] - front.vertices[moved[on_rim], :2]).max() < 1.0
+    nostril = moved[~on_rim]
+    step = head.vertices[nostril] - front.vertices[nostril]
+    assert np.all(step[:, [0, 2]] == 0) and np.all(step[:, 1] > 0)
     assert set(head.parts) == set(front.parts) | {"ear_l", "ear_r"}
     assert all(np.array_equal(head.parts[k], front.parts[k]) for k in front.parts)
     assert head.texture.shape[1] > front.texture.shape[1]
@@ -95,12 +99,54 @@ def test_the_skin_is_closed_but_for_the_eyes_and_the_mouth(front, head):
 def test_head_proportions(head, front):
     lo, hi = head.bounds
     size = hi - lo
-    assert 140 < size[0] < 200        # ear to ear
+    chin = front.landmark_position("2.1")[1]
+    above_chin = head.vertices[head.vertices[:, 1] > chin]
+    assert 140 < np.ptp(above_chin[:, 0]) < 200        # ear to ear
     assert 190 < size[2] < 240        # nose tip to the back of the head
-    top = hi[1] - front.landmark_position("2.1")[1]
+    top = hi[1] - chin
     assert 200 < top < 260            # vertex to menton (adult: about 230 mm)
     below = front.bounds[0][1] - lo[1]
-    assert 60 < below < 120           # the neck below the chin
+    assert 60 < below < 120           # the neck and the shoulders' start below the chin
+
+
+def half_width_at(face, y: float, band: float = 2.0) -> float:
+    """Half the x extent of the skin (no eyes, teeth or ears) within ``band`` mm of height y."""
+    in_part = np.zeros(face.n_vertices, bool)
+    for idx in face.parts.values():
+        in_part[idx] = True
+    v = face.vertices[~in_part]
+    return float(np.abs(v[np.abs(v[:, 1] - y) < band, 0]).max())
+
+
+@pytest.mark.parametrize("seed", [None, 3, 11])
+def test_the_neck_is_narrower_than_the_jaw_and_flares_into_the_shoulders(seed, head):
+    """Not a column: the neck's outline steps in under the jaw and widens into the trapezius slope
+    down to the bottom cap (before: as wide as the jaw, flaring 22 % at the bottom)."""
+    from core.default_face.head import HeadModel
+
+    params = FaceParameters() if seed is None else FaceParameters.random(np.random.default_rng(seed), spread=0.8)
+    face = head if seed is None else generate_face(params)
+    layout = FaceLayout.from_parameters(params)
+    model = HeadModel(layout)
+    jaw = half_width_at(face, layout.stomion_y - 10.0)          # the jaw below the mouth corners
+    neck = half_width_at(face, model.neck_base_y + 3.0)          # the neck just above its base
+    shoulders = half_width_at(face, model.neck_bottom_y + 10.0)  # the shoulders' start above the cap
+    assert neck < 0.85 * jaw
+    assert shoulders > 2.2 * neck
+    # The slope from the neck to the shoulders is a trapezius, not a step: 10-45 degrees from level.
+    dy = (model.neck_base_y - 3.0) - (model.neck_base_y - 0.9 * 48.0 * model.scale[1])
+    dx = half_width_at(face, model.neck_base_y - 0.9 * 48.0 * model.scale[1]) - half_width_at(face, model.neck_base_y - 3.0)
+    assert 10.0 < np.degrees(np.arctan2(dy, dx)) < 45.0
+
+
+def test_the_flare_is_a_bijection():
+    from core.default_face.head import HeadModel
+
+    model = HeadModel(FaceLayout.from_parameters(FaceParameters()))
+    p = np.random.default_rng(0).uniform([-150, -200, -250], [150, 50, 0], (5000, 3))
+    assert np.allclose(model.unwarp(model.warp(p)), p)
+    above = p[p[:, 1] > model.neck_base_y]
+    assert np.array_equal(model.warp(above), above)
 
 
 def test_radial_fairing_restores_a_sphere_and_keeps_directions():
@@ -130,15 +176,26 @@ def test_the_shell_continues_the_face_slope_across_the_seam(head):
 
 
 def test_the_shell_faces_outward(head, front):
+    """Every shell triangle faces away from the head's centre once the shoulders' flare is undone
+    (the star-shaped shell the flare moves); the flare keeps each triangle's orientation."""
+    from core.default_face.head import HeadModel
+
+    model = HeadModel(FaceLayout.from_parameters(FaceParameters()))
     n = front.n_vertices
     shell = head.triangles[front.n_triangles:]
     shell = shell[(shell >= n).all(axis=1) & ~np.isin(shell, head.parts["ear_l"]).any(axis=1)
                   & ~np.isin(shell, head.parts["ear_r"]).any(axis=1)]
-    corners = head.vertices[shell]
+    corners = model.unwarp(head.vertices[shell].reshape(-1, 3)).reshape(-1, 3, 3)
     normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    centre = np.array([0.0, head.vertices[:, 1].mean(), -100.0])
-    outward = (normal * (corners.mean(axis=1) - centre)).sum(axis=1)
+    outward = (normal * (corners.mean(axis=1) - model.centre)).sum(axis=1)
     assert (outward > 0).mean() > 0.99
+    # No sliver left on the neck and shoulders (the throat grazed from the centre gave them).
+    low = corners.mean(axis=1)[:, 1] < front.landmark_position("2.1")[1] - 10.0
+    p = head.vertices[shell[low]]
+    edges = np.linalg.norm(p[:, [1, 2, 0]] - p, axis=2)
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    quality = 4 * np.sqrt(3) * area / (edges ** 2).sum(axis=1)      # 1 = equilateral
+    assert low.sum() > 2000 and np.percentile(quality, 1) > 0.3 and edges.max() < 12.0
     for name in ("ear_l", "ear_r"):
         idx = head.parts[name]
         corners = head.vertices[head.triangles[np.isin(head.triangles, idx).all(axis=1)]]
@@ -228,3 +285,47 @@ def test_generated_head_of_another_identity():
     assert face.n_triangles - front.n_triangles <= MAX_EXTRA_TRIANGLES
     pairs = seam_pairs(face, front.n_vertices)
     assert welded_boundary_loops(face, pairs) == 3
+
+
+def test_the_nostrils_are_pockets_in_the_nose_darker_inside(front, head):
+    """The full head's nostrils: two pockets, as deep as ``POCKET_DEPTH`` under their roof, mirror
+    images, inside the nose (behind its skin), their texture dark (the front-only face keeps the
+    scanner's shallow dents and its painted spots)."""
+    from core.default_face.nostrils import POCKET_DEPTH, pocket_clearance
+    from core.default_face.shape import FaceShape
+
+    layout = FaceLayout.from_parameters(FaceParameters())
+    n = front.n_vertices
+    rise = head.vertices[:n, 1] - front.vertices[:n, 1]
+    rim = outer_boundary_loop(front.triangles[~np.isin(front.triangles, np.concatenate(list(front.parts.values())))
+                                              .any(axis=1)])
+    rise[rim] = 0.0
+    pocket = np.nonzero(rise > 0)[0]
+    for side in (1, -1):
+        one = pocket[np.sign(front.vertices[pocket, 0]) == side]
+        assert len(one) > 30
+        assert rise[one].max() == pytest.approx(POCKET_DEPTH, abs=0.3)
+        p = front.vertices[one]
+        assert layout.subnasale_y < p[:, 1].min() and p[:, 1].max() < layout.nose_tip_y
+        assert 2.0 < np.abs(p[:, 0]).min() and np.abs(p[:, 0]).max() < layout.alar_half_width
+    mirrored = front.vertices[pocket] * [-1, 1, 1]
+    dist, twin = cKDTree(front.vertices[pocket]).query(mirrored)
+    assert dist.max() < 1e-6 and np.allclose(rise[pocket[twin]], rise[pocket], atol=1e-6)
+    deep = pocket[rise[pocket] > 1.0]
+    assert pocket_clearance(FaceShape(layout), head.vertices[deep]).min() > 0.4
+    # Texture: the pocket's deep vertices are dark, the nose tip is skin.
+    def luminance(uv):
+        h, w, _ = head.texture.shape
+        px = head.texture[((1 - uv[:, 1]) * h).astype(int).clip(0, h - 1), (uv[:, 0] * w).astype(int).clip(0, w - 1)]
+        return px.astype(float).mean(axis=1)
+    tip = np.argmin(np.linalg.norm(front.vertices - front.landmark_position("9.3"), axis=1))
+    assert luminance(head.uv[deep]).max() < 0.5 * luminance(head.uv[[tip]])[0]
+
+
+def test_generated_identities_open_their_nostrils():
+    for seed in (3, 11):
+        params = FaceParameters.random(np.random.default_rng(seed), spread=0.8)
+        face, front = generate_face(params), generate_face(params, full_head=False)
+        n = front.n_vertices
+        rise = face.vertices[:n, 1] - front.vertices[:n, 1]
+        assert (rise > 2.0).sum() > 20

@@ -152,10 +152,15 @@ def rig():
 def test_dense_template_counts_on_the_default_face(rig):
     d = rig.deformer.dense
     assert d.counts == [(80, 140), (300, 560), (1160, 2240), (4560, 8960)]
-    # Every dense vertex lies on the face surface.
+    # Every dense vertex lies on the face surface (measured to the surface: on the full head's
+    # nostril pockets a point of a tall wall triangle can lie over 1 mm from its corners).
+    from core.surface_query import TriangleSet
+
     assert (d.face_triangle >= 0).all()
-    dist = rig.face.kdtree.query(d.vertices)[0]
-    assert np.percentile(dist, 99) < 1.0
+    _pos, _tri, _bary = TriangleSet(rig.face.vertices, rig.face.triangles).closest(d.vertices)
+    dist = np.linalg.norm(_pos - d.vertices, axis=1)
+    assert np.percentile(dist, 99) < 0.1
+    assert np.percentile(rig.face.kdtree.query(d.vertices)[0], 95) < 1.0      # and near the mesh's vertices
 
 
 def test_fapu_of_the_default_face(rig):
