@@ -9,7 +9,7 @@ lip, mouth opening, lip order), ``surface_points`` (pixels onto the scan surface
 ``steep_pass`` and ``confidence``.
 
 Order of the passes: greedy -> patch search round 1 and 2 -> lower lip -> mouth opening -> lip
-order (in the scan's frontal raster) -> onto the surface -> closest-point snap -> confidence ->
+order (closed mouths only; in the scan's frontal raster) -> onto the surface -> closest-point snap -> confidence ->
 upper lid -> steep sides -> eyes (``eye_pass``) -> brows (``brow_pass``) -> outliers (``outlier_pass``; each followed by the confidence again) ->
 flat evidence (``ambiguity``) -> fixed points' confidence 1.
 
@@ -59,7 +59,9 @@ the evaluation showed they are needed to reach the accuracy goals):
   inner-lip points go to the last row above the opening, the lower ones to the first row below,
   so the order upper outer > upper inner > opening > lower inner > lower outer holds. Outer-lip
   points on the wrong side of the opening and chin points (2.10, 2.1, 2.11, 2.12) found less than
-  half their model distance below the lower lip are searched again on the right side. A closed
+  half their model distance below the lower lip are searched again on the right side. The points
+  put on the opening's edges (inner lip, corners at its tips) get the source "opening": the
+  outlier pass leaves them where the shape put them. A closed
   mouth (no step, or an opening under 1.5 mm) leaves the patch-search result, except that a lower
   inner-lip point found on the lower outer lip (pressed lips) goes back to the seam, at the
   model's offset below the upper outer lip;
@@ -120,7 +122,7 @@ from core.registration.pass_results import (  # noqa: F401 - re-exported
 from core.registration.scan_features import (  # noqa: F401 - re-exported
     SEED_POINTS, InputFeatures, geometry_params, input_features, preset_points)
 from core.registration.patches import search_near_greedy, search_near_prediction
-from core.registration.mouth_passes import lip_order_pass, lower_lip_pass, mouth_opening_pass
+from core.registration.mouth_passes import lip_order_pass, lower_lip_pass, mouth_opening_pass, opening_points
 from core.registration.surface_points import pixels_to_surface, snap_to_surface
 from core.registration.confidence import match_confidence
 from core.registration.lid_pass import upper_lid_pass
@@ -174,12 +176,21 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
         if used.mouth_opening:
             passes += [mouth_opening_pass, lip_order_pass]
         est = PixelEstimates.empty(P)
+        edge_points = opening_points(ctx.template)
+        on_opening = np.zeros(P, bool)
         for pixel_pass in passes:
-            est = est.apply(pixel_pass(pctx, est))
+            if pixel_pass is lip_order_pass and on_opening.any():
+                continue   # the lip order is for a closed mouth; an open one's lips are on its edges
+            moves = pixel_pass(pctx, est)
+            est = est.apply(moves)
+            on_opening[moves.index] = (pixel_pass is mouth_opening_pass) & edge_points[moves.index]
             if pixel_pass is search_near_prediction:
                 patch_pixel = est.pixel    # where the patch search itself put each point
         # Every point's evidence is its final NCC; those on the covered scan raster move there.
         state = _apply(mctx, state.replace(evidence=est.peak), pixels_to_surface(mctx, est))
+        # Points on the mouth opening's edges are placed by the scan's shape: source "opening".
+        state = state.replace(source=tuple("opening" if on_opening[i] and s == "refined" else s
+                                           for i, s in enumerate(state.source)))
     timings["refine_s"] = time.perf_counter() - t2
     state = _apply(mctx, state, snap_to_surface(mctx, state))
     after_patches = state

@@ -121,26 +121,29 @@ def mouth_opening_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
     span_model = model_px[c1, 0] - model_px[c0, 0]
     if abs(span_model) < 1:
         return done()
-    def opening_edges(c, min_mm=OPENING_MIN_MM):
+    def opening_edges(c, min_mm=OPENING_MIN_MM, rows_from=None, rows_to=None, hole_mm=HOLE_MM):
         """(last row above, first row below) the opening in column c (absolute rows), or None when
-        it has none at least ``min_mm`` tall."""
-        if not 0 <= c < W:
+        it has none at least ``min_mm`` tall; rows searched ``rows_from``..``rows_to`` (default:
+        the philtrum to the chin), uncovered runs of at least ``hole_mm`` (and one row) count as holes."""
+        lo = top if rows_from is None else max(int(rows_from), 0)
+        hi = bottom if rows_to is None else min(int(rows_to), Hh - 1)
+        if not 0 <= c < W or hi - lo < 2:
             return None
-        zcol = depth[top:bottom + 1, c]
+        zcol = depth[lo:hi + 1, c]
         rows = np.nonzero(np.isfinite(zcol))[0]
         if len(rows) < 2:
             return None
         z = zcol[rows]
         a, b = rows[:-1], rows[1:]               # consecutive covered rows (a above b)
-        hole = (b - a - 1) * px >= HOLE_MM       # a hole in the scan (open mouth not scanned)
+        hole = (b - a - 1) >= max(1.0, hole_mm / px)   # a hole in the scan (open mouth not scanned)
         back_down = a[(z[1:] < z[:-1] - OPENING_STEP_MM) | hole]   # last rows before a step back
         back_up = b[(z[:-1] < z[1:] - OPENING_STEP_MM) | hole]     # first rows after a step forward
         if not len(back_down) or not len(back_up):
             return None
         r_up, r_lo = int(back_down[0]), int(back_up[-1])
-        if (r_lo - r_up - 1) * px < min_mm:
+        if r_lo <= r_up or (r_lo - r_up - 1) * px < min_mm:
             return None
-        return top + r_up, top + r_lo
+        return lo + r_up, lo + r_lo
 
     # The opening's horizontal extent (through its middle) stands for the corners when found: the
     # corner points sit on the outer lip contour and drift outwards when the mouth rounds.
@@ -158,9 +161,10 @@ def mouth_opening_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
             width = abs(out[c1, 0] - out[c0, 0])
             if 0.3 * width <= hi_c - lo_c <= 1.2 * width:
                 ends = (lo_c, hi_c) if out[c0, 0] < out[c1, 0] else (hi_c, lo_c)
-        tips = _opening_tips(opening_edges, c_mid, mid, W, abs(span_model))
+        tips = _opening_tips(opening_edges, c_mid, mid, W, abs(span_model), TIP_REACH * scale / px)
         if tips is not None:
-            ends = _place_corners(template, names, out, peak, moved, skip, model_px, c0, c1, tips, search)
+            ends = _place_corners(template, names, out, peak, moved, skip, model_px, c0, c1, tips, search,
+                                  TIP_REACH * scale / px)
     edges = {}
     for k in upper_in + lower_in:
         if skip[k]:
@@ -222,20 +226,25 @@ def mouth_opening_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
     return done()
 
 
-def _opening_tips(opening_edges, c_mid: int, mid: tuple[int, int], width_px: int, model_span_px: float):
-    """The open mouth's two lateral tips, ((col, row) left, (col, row) right) in pixels, or None.
+def _opening_tips(opening_edges, c_mid: int, mid: tuple[int, int], width_px: int, model_span_px: float,
+                  reach_px: float):
+    """The open mouth's two lateral tips, ((col, row, row above, row below) left, (...) right) in
+    pixels (the rows: the opening's edges in the tip's last column), or None.
 
     From the opening's middle column the opening is followed sideways, column by column, while the
-    column still has one (a hole or a depth step back of any height) overlapping the previous
-    column's: its last column is where the lips meet, the commissure. Tips implausibly near or far
-    from the middle (outside ``TIP_SPAN`` x the model's mouth width, e.g. an opening that runs
-    into a nostril or the scan's border) give None."""
+    column still has one (a hole of any size or a depth step back of any height) overlapping the
+    previous column's, searched within ``reach_px`` rows above and below it (a smile's ends rise
+    above the philtrum row where the middle's search starts, and narrow to a slit thinner than a
+    hole in the middle): its last column is where the lips meet, the commissure. Tips implausibly
+    near or far from the middle (outside ``TIP_SPAN`` x the model's mouth width, e.g. an opening
+    that runs into a nostril or the scan's border) give None."""
     tips = []
+    reach = max(1, int(round(reach_px)))
     for step in (-1, 1):
         band, last = mid, None
         c = c_mid
         while 0 <= c < width_px:
-            found = opening_edges(c, 0.0)
+            found = opening_edges(c, 0.0, band[0] - reach, band[1] + reach, 0.0)
             if found is None or found[1] < band[0] or found[0] > band[1]:
                 break
             last, band = (c, found), found
@@ -246,12 +255,12 @@ def _opening_tips(opening_edges, c_mid: int, mid: tuple[int, int], width_px: int
         half = abs(col + 0.5 * step - c_mid)
         if not TIP_SPAN[0] * model_span_px <= 2 * half <= TIP_SPAN[1] * model_span_px:
             return None
-        tips.append((col + 0.5 * step, 0.5 * (r_up + r_lo)))
+        tips.append((col + 0.5 * step, 0.5 * (r_up + r_lo), r_up, r_lo))
     return tips[0], tips[1]
 
 
 def _place_corners(template, names, out, peak, moved, skip, model_px, c0: int, c1: int, tips,
-                   search) -> tuple[float, float]:
+                   search, reach_px: float) -> tuple[float, float]:
     """Put the inner-lip corners ``c0``/``c1`` on the opening's tips and the outer-lip corners
     (``OUTER_CORNERS``) at the model's offset from them (the default face's: 1.5 mm sideways; put
     on the tip itself, SFM smiles' outer corners went 10-15 mm astray in the later passes, which
@@ -260,26 +269,33 @@ def _place_corners(template, names, out, peak, moved, skip, model_px, c0: int, c
     In an open mouth both lip contours meet at the commissure, the opening's lateral tip; the patch
     search alone leaves a smiling mouth's corners where the model's (closed, level) corners were,
     5-9 mm medial and low on a wide smile. The opening's tip is where the corner is at the least:
-    lips parted only in the middle (anger) meet farther out, so a corner already beyond its tip
-    stays (with its outer corner). With ``search``, each point goes to the covered scan
-    pixel nearest to its place (a pixel in the opening has no surface: the point would keep its
-    greedy match, on SFM anger once 25 mm away)."""
+    lips parted only in the middle (anger) meet farther out, so a corner already beyond its tip,
+    within ``reach_px`` rows of the opening's edges there (on the lip line, not on the cheek
+    above: SFM surprise, 18 mm up), stays with its outer corner (which must be there too). With
+    ``search``, each point goes to the covered scan pixel nearest to its place (a pixel in the
+    opening has no surface: the point would keep its greedy match, on SFM anger once 25 mm away)."""
     left, right = tips
     on_scan = (lambda px: px) if search is None else search.nearest_covered   # noqa: E731
     ends = []
     outer = [template.index(n) for n in OUTER_CORNERS if n in names]
     centre = 0.5 * (left[0] + right[0])
     for inner in (c0, c1):
-        tip = np.asarray(left if model_px[inner, 0] <= model_px[c0 if inner == c1 else c1, 0] else right)
-        if np.all(np.isfinite(out[inner])) and abs(out[inner, 0] - centre) >= abs(tip[0] - centre):
+        found = np.asarray(left if model_px[inner, 0] <= model_px[c0 if inner == c1 else c1, 0] else right, float)
+        tip, (r_up, r_lo) = found[:2], found[2:]
+        k = min(outer, key=lambda i: abs(model_px[i, 0] - model_px[inner, 0])) if outer else None
+
+        def beyond(i: int) -> bool:   # out past the tip, on the lip line
+            return bool(np.all(np.isfinite(out[i])) and abs(out[i, 0] - centre) >= abs(tip[0] - centre)
+                        and r_up - reach_px <= out[i, 1] <= r_lo + reach_px)
+
+        if beyond(inner) and (k is None or beyond(k)):
             ends.append(float(out[inner, 0]))   # already beyond the opening: lips that touch there
             continue
         if not skip[inner]:
             out[inner], peak[inner] = on_scan(tip), max(peak[inner], 0.5)
             moved.append(inner)
         ends.append(float(tip[0]))
-        if outer:
-            k = min(outer, key=lambda i: abs(model_px[i, 0] - model_px[inner, 0]))
+        if k is not None:
             if not skip[k]:
                 out[k] = on_scan(tip + (model_px[k] - model_px[inner]))
                 peak[k] = max(peak[k], 0.5)
@@ -287,7 +303,18 @@ def _place_corners(template, names, out, peak, moved, skip, model_px, c0: int, c
     return ends[0], ends[1]
 
 
+def opening_points(template) -> np.ndarray:
+    """(P,) bool: the points ``mouth_opening_pass`` puts on the opening's edges when it moves them
+    (the inner-lip loop and the outer corners ``OUTER_CORNERS``), not those it searches again."""
+    names = template.detected
+    return np.array([n in template.base.mouth or n in OUTER_CORNERS for n in names])
+
+
 TIP_SPAN = (0.5, 1.8)            # an opening's tip-to-tip width, as a share of the model's mouth width
+
+
+TIP_REACH = 0.05                 # x face scale: rows an opening's end is followed up or down per column,
+                                 # and a corner beyond a tip is taken to be on the lip line (half the tolerance)
 
 
 OUTER_CORNERS = ("8.3", "8.4")   # outer-lip corners, at the commissure with the inner ones

@@ -26,16 +26,22 @@ OUTLIER_DISTANCE = 0.1     # x face scale: farther than this from its prediction
 
 
 def outlier_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> SurfaceMoves:
-    """Points (not fixed, not steep: the steep pass places those) with confidence (P,) below
+    """Points (not fixed, not steep: the steep pass places those; not on the mouth opening's
+    edges: source "opening") with confidence (P,) below
     OUTLIER_CONFIDENCE and more than OUTLIER_DISTANCE x scale from their prediction by the anchors
-    (confidence > ANCHOR_CONFIDENCE, refined / seed / fixed) go to that prediction on the scan.
+    (confidence > ANCHOR_CONFIDENCE, refined / seed / fixed, and every "opening" point) go to that
+    prediction on the scan.
     No moves with fewer than 3 anchors."""
     m = ctx.model
     names = m.template.detected
     steep = steep_points(m)
     outline = np.array([n in m.template.base.outline for n in names])
-    anchor = (confidence > ANCHOR_CONFIDENCE) & ~steep & ~outline & np.array(
-        [s in ("refined", "seed", "fixed") for s in state.source])
+    # Points on the mouth opening's edges are placed by the scan's shape: they anchor the
+    # prediction whatever their confidence (an open mouth's lower lip follows them, not the closed
+    # model's; SFM surprise, untextured: 8.2 10 -> 5.5 mm) and are never moved themselves.
+    opening = np.array([s == "opening" for s in state.source])
+    anchor = ((confidence > ANCHOR_CONFIDENCE) & ~steep & ~outline & np.array(
+        [s in ("refined", "opening", "seed", "fixed") for s in state.source])) | opening
     if anchor.sum() < 3:
         return SurfaceMoves.none()
     pred = propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)

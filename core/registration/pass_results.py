@@ -143,7 +143,7 @@ class MatchState:
 
     positions : (P, 3) float, model frame, mm.
     triangle : (P,) int scan triangle, −1 while a point has no surface point; bary : (P, 3).
-    source : P str: "seed", "candidate", "refined", "fixed", "prediction".
+    source : P str: "seed", "candidate", "refined", "opening" (on the mouth opening's edge), "fixed", "prediction".
     evidence : (P,) float appearance evidence (the NCC peak; 0 when none).
     """
 
@@ -180,7 +180,7 @@ class MatchState:
 @dataclass
 class MatchResult:
     """positions (P, 3) model frame; triangle (P,) / bary (P, 3) on the input face; confidence (P,);
-    source (P,) str: "seed", "candidate", "refined", "fixed", "prediction"; timings."""
+    source (P,) str: "seed", "candidate", "refined", "opening", "fixed", "prediction"; timings."""
 
     names: tuple[str, ...]
     positions: np.ndarray

@@ -49,7 +49,7 @@ class Detection:
     timings : seconds per stage ("icp_s", "features_s", "greedy_s", "refine_s", "total_s").
     positions : name -> (3,) mm on the scan.
     transform : (4, 4) scan -> model frame (ICP).
-    sources : name -> "seed" | "candidate" | "refined" | "fixed" | "prediction".
+    sources : name -> "seed" | "candidate" | "refined" | "opening" | "fixed" | "prediction".
     scale_hint : the factor that gives the scan a human face's size in mm when its units are
         evidently not millimetres (None when they are); ``transform`` then includes that scale.
     """

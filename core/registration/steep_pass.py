@@ -56,7 +56,7 @@ def steep_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> 
     steep = steep_points(m) & ~ctx.fixed
     outline = np.array([n in m.template.base.outline for n in names])
     anchor = (confidence > ANCHOR_CONFIDENCE) & ~steep & ~outline & np.array(
-        [s in ("refined", "seed", "fixed") for s in state.source])
+        [s in ("refined", "opening", "seed", "fixed") for s in state.source])
     if not (steep.any() and anchor.sum() >= 3):
         return SurfaceMoves.none()
     pred = propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)

@@ -127,6 +127,9 @@ def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
     for j, n in enumerate(loop):
         t = j / half if j <= half else (len(loop) - j) / half
         model_px[names.index(n)] = (20 + 40 * t, 30.0)
+    for o, i in (("8.3", "2.4"), ("8.4", "2.5")):   # each outer corner 2 px beyond its inner one
+        inner = names.index(i)
+        model_px[names.index(o)] = model_px[inner] + (2.0 if model_px[inner, 0] > 40 else -2.0, 0.0)
     model_px[names.index("9.15")] = (40, 10)
     for n in ("2.10", "2.1", "2.11", "2.12"):
         model_px[names.index(n)] = (40, 70)
@@ -143,9 +146,57 @@ def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
     corners = [names.index(loop[0]), names.index(loop[half])]
     assert np.all(out[upper, 1] == 34) and np.all(out[lower, 1] == 51)
     assert np.all((out[upper + lower, 0] > 24) & (out[upper + lower, 0] < 56))
-    # The corners (cols 20 and 60) are already beyond the opening's ends (24.5, 55.5): they stay.
+    # The corners (cols 20 and 60) are already beyond the opening's ends (24.5, 55.5), 4 rows above
+    # its top (row 34, within 0.05 x scale): lips that touch there; they stay.
     np.testing.assert_array_equal(out[corners], model_px[corners])
     assert set(moves.index) == set(upper + lower) and np.all(moves.peak == 0.5)
+    # Corners as far out but 20 rows (15 mm) above the opening are on the cheek: they go to its tips,
+    # the outer corners beside them.
+    high = model_px.copy()
+    high[corners, 1] = high[[names.index("8.3"), names.index("8.4")], 1] = 10.0
+    est = PixelEstimates(high, np.zeros(P))
+    out = est.apply(mouth_opening_pass(pixel_context_for(tpl, raster, high), est)).pixel
+    np.testing.assert_array_equal(np.sort(out[corners, 0]), [24.5, 55.5])
+    assert np.all(out[corners, 1] == 42.5)
+    for o, i in (("8.3", "2.4"), ("8.4", "2.5")):
+        np.testing.assert_array_equal(out[names.index(o)] - out[names.index(i)],
+                                      high[names.index(o)] - high[names.index(i)])
+
+
+def test_a_smile_whose_ends_rise_and_thin_to_a_slit_is_followed_to_its_tips():
+    """An unscanned opening (a hole, as a virtual scan of a mesh with an open mouth shows it) whose
+    ends rise above the philtrum row the middle is searched from and thin to a one-row slit, far
+    thinner than a hole counted in the middle (HOLE_MM): the corners go to where the slit ends."""
+    from core.registration.matching import FrontalRaster
+    from core.registration.mouth_passes import mouth_opening_pass
+    from core.registration.pass_results import PixelEstimates
+
+    tpl = get_template("mpeg4_80")
+    names = tpl.detected
+    P = len(names)
+    model_px = np.full((P, 2), 40.0)
+    loop = list(tpl.base.mouth)
+    half = len(loop) // 2
+    for j, n in enumerate(loop):
+        t = j / half if j <= half else (len(loop) - j) / half
+        model_px[names.index(n)] = (25 + 30 * t, 45.0)
+    model_px[names.index("9.15")] = (40, 15)         # philtrum row: 15 + (45 - 15) / 2 = 30
+    for n in ("2.10", "2.1", "2.11", "2.12"):
+        model_px[names.index(n)] = (40, 80)
+    depth = np.zeros((95, 80))
+    for col in range(18, 63):
+        centre = 40.0 - 0.04 * (col - 40) ** 2           # the ends rise to row 20.6 / 21.0 (above 30)
+        h = 0 if abs(col - 40) > 12 else int(round(6 * (1 - abs(col - 40) / 13)))   # one row beyond
+        depth[int(round(centre)) - h:int(round(centre)) + h + 1, col] = np.nan
+    covered = np.isfinite(depth)
+    raster = FrontalRaster(0.0, 0.0, 0.75, np.where(covered, 0, -1), np.zeros(depth.shape + (3,)),
+                           np.zeros(depth.shape + (1,)), depth)
+    est = PixelEstimates(model_px.copy(), np.zeros(P))
+    out = est.apply(mouth_opening_pass(pixel_context_for(tpl, raster, model_px), est)).pixel
+    c0, c1 = names.index(loop[0]), names.index(loop[half])
+    left, right = (c0, c1) if model_px[c0, 0] < model_px[c1, 0] else (c1, c0)
+    assert out[left, 0] == 17.5 and out[right, 0] == 62.5
+    assert abs(out[left, 1] - (40.0 - 0.04 * 22 ** 2)) <= 1 and abs(out[right, 1] - (40.0 - 0.04 * 22 ** 2)) <= 1
 
 
 def test_corners_of_a_smiling_open_mouth_go_to_the_opening_tips():
@@ -254,7 +305,8 @@ def test_a_weak_point_far_from_the_confident_ones_follows_them(model):
     """The scan is the model itself; 3.7 was matched 15 mm away with confidence 0.2: it goes back to
     its place (the anchors did not move, so their prediction is the model's point), as a
     "prediction" with evidence 0. A point as far but with confidence 0.45 (some evidence), a weak
-    one only 3 mm off, and a fixed one stay where they are."""
+    one only 3 mm off, a fixed one and a weak far one on the mouth opening's edge (source "opening")
+    stay where they are."""
     from types import SimpleNamespace
 
     from core.registration.greedy import graph_distances
@@ -268,24 +320,61 @@ def test_a_weak_point_far_from_the_confident_ones_follows_them(model):
     truth = m.side.points.copy()
     positions = truth.copy()
     confidence = np.full(P, 0.9)
-    far_weak, far_doubtful, near_weak, fixed_far = (names.index(n) for n in ("3.7", "3.12", "4.4", "9.15"))
-    positions[[far_weak, far_doubtful, fixed_far]] += (0.0, 15.0, 0.0)
+    far_weak, far_doubtful, near_weak, fixed_far, on_opening = (names.index(n) for n in
+                                                                ("3.7", "3.12", "4.4", "9.15", "8.3"))
+    positions[[far_weak, far_doubtful, fixed_far, on_opening]] += (0.0, 15.0, 0.0)
     positions[near_weak] += (0.0, 3.0, 0.0)
-    confidence[[far_weak, near_weak, fixed_far]] = 0.2
+    confidence[[far_weak, near_weak, fixed_far, on_opening]] = 0.2
     confidence[far_doubtful] = 0.45
     fixed = np.zeros(P, bool)
     fixed[fixed_far] = True
     ctx = SimpleNamespace(model=m, params=MatchParams(), gdist=graph_distances(m.template, m.side.points),
                           fixed=fixed, scan_raster=None,
                           closest=lambda p: (np.zeros(len(p), int), np.tile([1.0, 0.0, 0.0], (len(p), 1)), p))
-    state = MatchState(positions, np.zeros(P, int), np.tile([1.0, 0.0, 0.0], (P, 1)), ["refined"] * P, np.ones(P))
+    sources = ["refined"] * P
+    sources[on_opening] = "opening"      # put on the mouth opening's edge by the scan's shape
+    state = MatchState(positions, np.zeros(P, int), np.tile([1.0, 0.0, 0.0], (P, 1)), sources, np.ones(P))
     moves = outlier_pass(ctx, state, confidence)
     assert list(moves.index) == [far_weak]
     after = state.apply(moves)
-    np.testing.assert_allclose(after.positions[far_weak], truth[far_weak], atol=1e-6)
+    # (to 0.01 mm: the opening point 15 mm off anchors the prediction too, with a vanishing weight there)
+    np.testing.assert_allclose(after.positions[far_weak], truth[far_weak], atol=0.01)
     assert after.source[far_weak] == "prediction" and after.evidence[far_weak] == 0.0
 
 
+
+
+def test_points_on_the_mouth_opening_anchor_the_outlier_prediction(model):
+    """An open mouth: the jaw, chin and lower lip 15 mm down; the lower inner lip on the opening's
+    edge (source "opening") with confidence 0.2, the lower outer lip 8.2 weak (0.2) and its
+    neighbours 8.7 / 8.8 doubtful (0.5, no anchors). The opening's points anchor the prediction,
+    so 8.2 (where the lower lip went) is not pulled back up to the closed model's lip."""
+    from types import SimpleNamespace
+
+    from core.registration.greedy import graph_distances
+    from core.registration.outlier_pass import outlier_pass
+    from core.registration.pass_results import MatchState
+    from core.registration.pipeline import get_model_context
+
+    m = get_model_context(model, "mpeg4_80", MatchParams())
+    names = list(m.template.detected)
+    P = len(names)
+    positions = m.side.points.copy()
+    confidence = np.full(P, 0.9)
+    lower = [names.index(n) for n in m.template.base.lower_lip_points if n in names]
+    positions[lower + [names.index(n) for n in ("2.10", "2.1", "2.11", "2.12")]] += (0.0, -15.0, 0.0)
+    opening = [names.index(n) for n in ("2.7", "2.3", "2.9")]
+    confidence[opening + [names.index("8.2")]] = 0.2
+    confidence[[names.index("8.7"), names.index("8.8")]] = 0.5
+    sources = ["opening" if i in opening else "refined" for i in range(P)]
+    ctx = SimpleNamespace(model=m, params=MatchParams(), gdist=graph_distances(m.template, m.side.points),
+                          fixed=np.zeros(P, bool), scan_raster=None,
+                          closest=lambda p: (np.zeros(len(p), int), np.tile([1.0, 0.0, 0.0], (len(p), 1)), p))
+    state = MatchState(positions, np.zeros(P, int), np.tile([1.0, 0.0, 0.0], (P, 1)), sources, np.ones(P))
+    assert len(outlier_pass(ctx, state, confidence)) == 0
+    # The same lip placed by the patch search alone (no "opening" source): 8.2 follows the closed model.
+    state = state.replace(source=("refined",) * P)
+    assert names.index("8.2") in outlier_pass(ctx, state, confidence).index
 
 
 def _brow_case(model, *, textured, band_from=None, band_to=52.0, model_band=True):
