@@ -13,7 +13,8 @@ lip's, 176 crossing triangle pairs). So the contact then compares the lips as sh
 plane: in each cell of a grid (``SHEET_CELL_EDGES`` x the lips' median edge), an upper-lip vertex
 below the lower lip's highest vertex there, or a lower-lip vertex above the upper lip's lowest, has
 crossed by that much (beyond what the rest face has); each lip gives way by half of it, spread to its
-neighbours with a Gaussian of ``SHEET_WIDTH_MM`` (the largest share wins), for a few rounds.
+neighbours with a Gaussian of ``SHEET_WIDTH_MM`` (the largest share wins), for a few rounds, fading
+out next to the mouth corners as the rims' contact does.
 
 The rims are the skin's boundary vertices along the mouth opening (the side of each from its own
 triangles, ``core.layers.fap.template.mouth_side``); "up" is the face's +y and the rims are
@@ -48,6 +49,11 @@ SHEET_CELL_EDGES = 1.5
 # How far a sheet's give-way spreads (mm, Gaussian width; cut at twice that), and its rounds.
 SHEET_WIDTH_MM = 2.5
 SHEET_ROUNDS = 3
+# Sheet overlaps below this (mm) are the cell test's own imprecision where the lips converge at a
+# corner (0.005 mm with the jaw open 200 MNS and no triangle crossing), not lips passing through each other.
+SHEET_TOLERANCE_MM = 0.02
+# Next to a mouth corner the sheets' give-way fades to nothing over this distance along the mouth (mm).
+SHEET_TAPER_MM = 1.5
 # The sheet grid covers the lips at rest and this much around them (mm): where any FAP can take them.
 SHEET_MARGIN_MM = 40.0
 
@@ -87,6 +93,14 @@ class LipContact:
         self._grid = tuple(int(n) for n in np.ceil((high - low + 2 * SHEET_MARGIN_MM) / self.cell) + 1)
         self.rest_sheet = tuple(np.maximum(o, 0.0) + TOLERANCE_MM for o in self._sheet_overlap(face.vertices))
         self.neighbours = (_neighbours(face.vertices[self.upper]), _neighbours(face.vertices[self.lower]))
+        # Next to the mouth corners the lips converge into one column of cells, and a corner raised by
+        # any layer (a control point, a muscle) rises above the other lip's cell there: the sheets'
+        # give-way fades out toward the corners, as the rims' does, so a dragged corner lands where
+        # it is dragged (a corner FAP keeps 3 crossing pairs at the corner itself).
+        ends = np.sort(face.vertices[self.upper_rim, 0])[[0, -1]]
+        self.sheet_taper = tuple(
+            np.clip(np.minimum(face.vertices[ids, 0] - ends[0], ends[1] - face.vertices[ids, 0]) / SHEET_TAPER_MM,
+                    0.0, 1.0) for ids in (self.upper, self.lower))
         self.active = True
 
     def zone(self, n_vertices: int) -> np.ndarray:
@@ -175,10 +189,13 @@ class LipContact:
         for _ in range(SHEET_ROUNDS):
             below, above = self._sheet_overlap(x)
             depth_up, depth_low = below - self.rest_sheet[0], above - self.rest_sheet[1]
+            taper_up, taper_low = self.sheet_taper
+            depth_up = np.where(depth_up > SHEET_TOLERANCE_MM, depth_up, 0.0) * taper_up
+            depth_low = np.where(depth_low > SHEET_TOLERANCE_MM, depth_low, 0.0) * taper_low
             if not ((depth_up > 0).any() or (depth_low > 0).any()):
                 return                  # the common case: no lip vertex inside the other lip
-            x[self.upper, 1] += _spread(self.neighbours[0], depth_up)
-            x[self.lower, 1] -= _spread(self.neighbours[1], depth_low)
+            x[self.upper, 1] += _spread(self.neighbours[0], depth_up) * taper_up
+            x[self.lower, 1] -= _spread(self.neighbours[1], depth_low) * taper_low
 
 
 def _neighbours(rest: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
