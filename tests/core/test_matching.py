@@ -163,14 +163,9 @@ def test_inner_lips_go_to_the_edges_of_a_mouth_opening():
                                       high[names.index(o)] - high[names.index(i)])
 
 
-def test_a_smile_whose_ends_rise_and_thin_to_a_slit_is_followed_to_its_tips():
-    """An unscanned opening (a hole, as a virtual scan of a mesh with an open mouth shows it) whose
-    ends rise above the philtrum row the middle is searched from and thin to a one-row slit, far
-    thinner than a hole counted in the middle (HOLE_MM): the corners go to where the slit ends."""
-    from core.registration.matching import FrontalRaster
-    from core.registration.mouth_passes import mouth_opening_pass
-    from core.registration.pass_results import PixelEstimates
-
+def _model_mouth_at_row_45():
+    """(template, detected names, P, model pixels (P, 2), inner-lip loop, half its length): every point
+    at (40, 40) but the inner-lip loop, a closed mouth on row 45 from column 25 to 55."""
     tpl = get_template("mpeg4_80")
     names = tpl.detected
     P = len(names)
@@ -180,6 +175,18 @@ def test_a_smile_whose_ends_rise_and_thin_to_a_slit_is_followed_to_its_tips():
     for j, n in enumerate(loop):
         t = j / half if j <= half else (len(loop) - j) / half
         model_px[names.index(n)] = (25 + 30 * t, 45.0)
+    return tpl, names, P, model_px, loop, half
+
+
+def test_a_smile_whose_ends_rise_and_thin_to_a_slit_is_followed_to_its_tips():
+    """An unscanned opening (a hole, as a virtual scan of a mesh with an open mouth shows it) whose
+    ends rise above the philtrum row the middle is searched from and thin to a one-row slit, far
+    thinner than a hole counted in the middle (HOLE_MM): the corners go to where the slit ends."""
+    from core.registration.matching import FrontalRaster
+    from core.registration.mouth_passes import mouth_opening_pass
+    from core.registration.pass_results import PixelEstimates
+
+    tpl, names, P, model_px, loop, half = _model_mouth_at_row_45()
     model_px[names.index("9.15")] = (40, 15)         # philtrum row: 15 + (45 - 15) / 2 = 30
     for n in ("2.10", "2.1", "2.11", "2.12"):
         model_px[names.index(n)] = (40, 80)
@@ -208,15 +215,7 @@ def test_corners_of_a_smiling_open_mouth_go_to_the_opening_tips():
     from core.registration.mouth_passes import mouth_opening_pass
     from core.registration.pass_results import PixelEstimates
 
-    tpl = get_template("mpeg4_80")
-    names = tpl.detected
-    P = len(names)
-    model_px = np.full((P, 2), 40.0)
-    loop = list(tpl.base.mouth)
-    half = len(loop) // 2
-    for j, n in enumerate(loop):
-        t = j / half if j <= half else (len(loop) - j) / half
-        model_px[names.index(n)] = (25 + 30 * t, 45.0)
+    tpl, names, P, model_px, loop, half = _model_mouth_at_row_45()
     c0, c1 = names.index(loop[0]), names.index(loop[half])
     outer = {names.index("8.3"), names.index("8.4")}
     for o, i in (("8.3", "2.4"), ("8.4", "2.5")):   # each outer corner 2 px beyond its inner one
