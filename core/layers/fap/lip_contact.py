@@ -98,9 +98,8 @@ class LipContact:
         # give-way fades out toward the corners, as the rims' does, so a dragged corner lands where
         # it is dragged (a corner FAP keeps 3 crossing pairs at the corner itself).
         ends = np.sort(face.vertices[self.upper_rim, 0])[[0, -1]]
-        self.sheet_taper = tuple(
-            np.clip(np.minimum(face.vertices[ids, 0] - ends[0], ends[1] - face.vertices[ids, 0]) / SHEET_TAPER_MM,
-                    0.0, 1.0) for ids in (self.upper, self.lower))
+        self.sheet_taper = tuple(_corner_taper(face.vertices[ids, 0], ends, SHEET_TAPER_MM)
+                                 for ids in (self.upper, self.lower))
         self.active = True
 
     def zone(self, n_vertices: int) -> np.ndarray:
@@ -127,7 +126,7 @@ class LipContact:
         ends = upper[order[[0, -1]], 0]
         lower = x[self.lower_rim]
         above = lower[:, 1] - np.interp(lower[:, 0], upper[order, 0], upper[order, 1], left=np.inf, right=np.inf)
-        taper = np.clip(np.minimum(lower[:, 0] - ends[0], ends[1] - lower[:, 0]) / CORNER_TAPER_MM, 0.0, 1.0)
+        taper = _corner_taper(lower[:, 0], ends, CORNER_TAPER_MM)
         inside = np.isfinite(above)
         return np.where(inside, np.where(inside, above, 0.0) * taper, -np.inf)
 
@@ -177,7 +176,7 @@ class LipContact:
         at rest with SHEET_MARGIN_MM to spare; points beyond it share its edge cells)."""
         ix = ((points[:, 0] - self._origin[0]) / self.cell).astype(np.int64)
         iz = ((points[:, 2] - self._origin[1]) / self.cell).astype(np.int64)
-        # np.minimum / np.maximum in place: np.clip's overhead was most of this every tick.
+        # In place (np.clip's call overhead was most of this; the numpy path runs when numba has not loaded).
         np.minimum(np.maximum(ix, 0, out=ix), self._grid[0] - 1, out=ix)
         np.minimum(np.maximum(iz, 0, out=iz), self._grid[1] - 1, out=iz)
         ix *= self._grid[1]
@@ -231,6 +230,12 @@ def _spread(neighbours, depth: np.ndarray) -> np.ndarray:
     give = np.repeat(0.5 * depth[crossing] + SEPARATION_MM, counts) * falloff[entries]
     np.maximum.at(out, indices[entries], give)
     return out
+
+
+def _corner_taper(x: np.ndarray, ends: np.ndarray, width_mm: float) -> np.ndarray:
+    """(k,) in [0, 1]: 0 at or beyond the mouth's corner x ``ends`` (2,) mm, rising linearly to 1 over
+    ``width_mm`` inside them, for x (k,) mm."""
+    return np.clip(np.minimum(x - ends[0], ends[1] - x) / width_mm, 0.0, 1.0)
 
 
 def _median_edge(face: Face, ids: np.ndarray) -> float:
