@@ -30,6 +30,10 @@ HAIRLINE_SOFT_MM = 8.0   # the full head's hair thins out over this band at the 
 HAIRLINE_WISPS_MM = 2.0  # ... its edge moved hair by hair by about this much
 
 
+#: Relative amplitude of the full head's skin blotches at 9, 3 and 0.7 texels (3.6, 1.2, 0.3 mm).
+FACE_SKIN_NOISE = (0.04, 0.012, 0.0)
+
+
 def _lerp_table(table: np.ndarray, t: float) -> np.ndarray:
     pos = np.clip(t, 0, 1) * (len(table) - 1)
     i = min(int(pos), len(table) - 2)
@@ -98,7 +102,13 @@ def paint_texture(layout: FaceLayout, shape, frame, size, mouth=None, full_head:
     # --- skin
     base = _lerp_table(_SKIN_TONES, p.skin_tone)
     img = np.broadcast_to(base, (H, W, 3)).copy()
-    img *= (1.0 + 0.045 * noise(9.0) + 0.025 * noise(3.0) + 0.018 * noise(0.7))[..., None]
+    coarse, medium, fine = noise(9.0), noise(3.0), noise(0.7)
+    if full_head:
+        # The head shell's skin has soft blotches and a faint grain (head.paint_head_atlas); with the
+        # front-only face's stronger 0.3 mm grain the face read as a dirty mask on a clean head.
+        img *= (1.0 + FACE_SKIN_NOISE[0] * coarse + FACE_SKIN_NOISE[1] * medium + FACE_SKIN_NOISE[2] * fine)[..., None]
+    else:
+        img *= (1.0 + 0.045 * coarse + 0.025 * medium + 0.018 * fine)[..., None]
     red = (0.55 * _gauss(AX, Y, 38, layout.subnasale_y + 4, 16, 12) + 0.45 * _gauss(AX, Y, 0, layout.nose_tip_y, 9, 8)
            + 0.25 * _gauss(AX, Y, 0, layout.chin_y, 14, 9) + 0.2 * _gauss(AX, Y, 0, layout.nasion_y + 30, 30, 14))
     img += red[..., None] * np.array([18.0, -8.0, -6.0]) * (1 - 0.5 * p.skin_tone)
