@@ -494,6 +494,25 @@ def test_lips_pressed_at_a_sliders_end_do_not_pass_through_each_other(rig, numbe
     assert np.abs(posed[lips] - rims_only[lips]).max() < 1.0
 
 
+def test_a_raised_mouth_corner_leaves_the_closed_lips_touching_not_crossing(rig):
+    """The closed mouth is a seam of copied vertices; a corner FAP lifts both lips' corner triangles,
+    which stay meeting at those copies. The exact test counted such pairs (they touch at one point or
+    along an edge); shrunk 1 % toward their centres they do not meet, and the probe no longer counts them."""
+    from core.mesh_quality import FaceQualityProbe, intersecting_pairs, triangles_intersect
+
+    probe = FaceQualityProbe(rig.face)
+    rig.reset()
+    rig.set_fap(12, 500)
+    v = rig.vertices()
+    ia, ib = intersecting_pairs(v, probe.lip_tris)                       # seam copies not welded
+    assert len(ia) > 0
+    a, b = v[probe.lip_tris[ia]], v[probe.lip_tris[ib]]
+    shrink = lambda t: t + 0.01 * (t.mean(axis=1, keepdims=True) - t)  # noqa: E731
+    assert not triangles_intersect(shrink(a), shrink(b)).any()
+    assert probe.measure(v).lip_intersections == 0
+    rig.reset()
+
+
 def test_lip_sheet_overlap_is_the_same_compiled_and_numpy(rig, monkeypatch):
     from core.layers.fap import kernels
 

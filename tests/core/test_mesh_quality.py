@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from core.face import Face
-from core.mesh_quality import (FaceQualityProbe, count_intersections, principal_stretches,
+from core.mesh_quality import (FaceQualityProbe, count_intersections, principal_stretches, welded_vertices,
                                triangles_intersect, _local_frames)
 
 
@@ -34,6 +34,17 @@ def test_count_intersections_within_and_between_sets_skips_neighbours():
     moved = vertices.copy()
     moved[3:6, 2] += 5.0
     assert count_intersections(moved, tris) == 0
+
+
+def test_a_seams_copies_of_a_vertex_count_as_one_vertex():
+    flat, upright = _pair(0.0)
+    vertices = np.vstack([flat, upright, flat[:1]])      # vertex 6: a seam's copy of vertex 0
+    welded = welded_vertices(vertices)
+    assert welded.tolist() == [0, 1, 2, 3, 4, 5, 0]
+    crossing = np.array([[6, 1, 2]]), np.array([[3, 4, 5]])
+    assert count_intersections(vertices, *crossing, welded) == 1          # no shared vertex: counted
+    touching = np.array([[0, 1, 2]]), np.array([[6, 4, 5]])                # meet at the copied vertex
+    assert count_intersections(vertices, *touching, welded) == 0
 
 
 def test_principal_stretches_of_known_maps():
