@@ -13,7 +13,8 @@ along the crease's wall it crosses the wall back and forth, so the opened margin
 line (the second difference of depth over +-``CREASE_REACH_MM``), weighted by that concavity; the
 course is those rows smoothed along u (Gaussian, ``CREASE_SMOOTH_MM``), which the LidLine keeps as
 offsets from its parabola (and the crease's depth, so a cut can stay off the walls of the eye's
-corners). Without Embree, or with no crease found, the line is returned as it was.
+corners). Without Embree, or without a crease along most of the eye (``CREASE_COVERAGE``: lids that
+meet smoothly, as FAP-closed lids do), the line is returned as it was.
 """
 
 from __future__ import annotations
@@ -39,6 +40,10 @@ CREASE_REACH_MM = 0.75
 CREASE_MIN_MM = 1.0
 #: ... and at most this (a ray through a gap in the scan's slit, to the back of the head, reads 40-60).
 CREASE_MAX_MM = 10.0
+#: An eye has a crease when it is found in at least this share of its columns (LeePerrySmith's eyes
+#: 85-92 %; the lids of generated person 2 closed by the FAPs, which meet smoothly, 10-26 %: its lower
+#: lid's fold and the scanner's depth noise here and there).
+CREASE_COVERAGE = 0.5
 #: Skin more than this share of the eye's width behind the corners' chord is not the lid (a gap in the slit).
 CREASE_DEEPEST = 0.3
 #: Width of the crease's smoothing along u, mm (the crease curves over the eye's ~30 mm).
@@ -67,7 +72,7 @@ def along_crease(line: LidLine, vertices: np.ndarray, triangles: np.ndarray, ray
     row = np.argmax(concave, axis=1)
     strength = concave[np.arange(len(s)), row]
     found = strength >= CREASE_MIN_MM
-    if found.sum() < 3:
+    if found.sum() < CREASE_COVERAGE * len(s):
         return line
     offset = across[row + k][found]
     crease_depth = depth[np.arange(len(s)), row + k][found]
