@@ -19,8 +19,10 @@ triangles between them stretch into a skin web instead of opening. :func:`animat
 A scan taken with the eyes shut gets the same treatment at each closed eye (``closed_eyes``: lid
 centres closer than a share of the eye's width): canonical vertices go with the nearer lid margin
 (:func:`canonical_lid_labels`; the template's squashed eye-opening covers split along their middle),
-the scan is cut along the lid line, skin bound to a cover follows its own lid's margin (the FAPs do
-not move covers), and the default face's eyeball sits behind the closed lid, so the lid FAPs open
+the scan is cut along the lid line moved onto its own lid crease (``core.registration.lid_crease``;
+not into the walls of the eye's corners, the cut's margin moving smoothed along the line), skin
+bound to a cover follows its own lid's margin (the FAPs do not move covers), and the default face's
+eyeball sits behind the closed lid (the canonical face's and the scan's own), so the lid FAPs open
 the scan's own eye onto it. (The FAP units measure a closed eye's IRISD0 as an open eye's of its
 width, and the lid's opening shape is an open eye's: ``core.layers.fap``.)
 
@@ -41,6 +43,7 @@ from core.layers.fap.closed_eyes import LidLine, closed_eye_side, closed_lid_lin
 from core.layers.fap.template import DenseTemplate
 from core.registration.correspondence import Registration, _adjacency, boundary_loops
 from core.registration.folds import similarity
+from core.registration.lid_crease import along_crease
 from core.registration.templates import get_template
 from core.surface_query import TriangleSet
 
@@ -60,6 +63,15 @@ EYEBALL_PARTS = {"l": "eyeball_l", "r": "eyeball_r"}
 EYE_POINTS = {"l": ("3.7", "3.11", "4.1", "4.3", "4.5"), "r": ("3.12", "3.8", "4.2", "4.4", "4.6")}
 #: Canonical vertices up to this many rings from a closed eye's lid margins go with the nearer lid.
 LID_RINGS = 8
+#: A closed eye's cut stays on skin less than this far behind its crease, mm: LeePerrySmith's lids on
+#: the line lie up to 2.6 mm behind the crease's depth (smoothed along u, it sits in front of the skin
+#: where the eye curves back to its corners), the walls of its eye corners down to 12 mm. At 2 mm the
+#: cut stopped short of the outer corners (skin flaps across the opened eye, lid crossings 760 in
+#: surprise), at 3 mm 597.
+CUT_BEHIND_CREASE_MM = 3.0
+#: A closed eye's cut margin moves smoothed along the lid line over this width, mm (2-3 crossing
+#: points of LeePerrySmith's ~3 mm triangles either side: the floor / top alternation averages out).
+MARGIN_SMOOTH_MM = 1.5
 #: How far behind a closed lid's skin the added eyeball stays at rest, mm.
 EYEBALL_BEHIND_MM = 0.5
 #: The registration template whose canonical face is the FAP rig's dense template.
@@ -306,6 +318,9 @@ def _cut_lids(skin: SkinPoints, triangles: np.ndarray, lines: list[LidLine]) -> 
     in_band = np.zeros(n, bool)
     for line in lines:
         above, inside = line.height(skin.positions)
+        # Not into the walls of the eye's corners behind the crease (where the lid line runs along
+        # them, a cut there zig-zags down the wall and opens a slit into it).
+        inside &= line.off_crease(skin.positions) > -CUT_BEHIND_CREASE_MM
         height = np.where(inside, above, height)
         in_band |= inside
     height = np.where(in_band & (np.abs(height) < 1e-6), 1e-6, height)   # no crossing at a corner
@@ -332,9 +347,10 @@ def _cut_lids(skin: SkinPoints, triangles: np.ndarray, lines: list[LidLine]) -> 
     uv = None if skin.uv is None else skin.uv[e0] + t[:, None] * (skin.uv[e1] - skin.uv[e0])
     colours = None if skin.colours is None else np.round(
         skin.colours[e0] + t[:, None] * (skin.colours[e1].astype(float) - skin.colours[e0])).astype(skin.colours.dtype)
+    along = _along_margin(points, lines)
     skin.append(np.concatenate([points, points]), None if uv is None else np.concatenate([uv, uv]),
                 None if colours is None else np.concatenate([colours, colours]),
-                scipy.sparse.vstack([skin.rows[upper_end], skin.rows[lower_end]]))
+                scipy.sparse.vstack([along @ skin.rows[upper_end], along @ skin.rows[lower_end]]))
     ab, ac = which[:len(seam)], which[len(seam):]
 
     def copy(edge, lid_side):
@@ -348,6 +364,32 @@ def _cut_lids(skin: SkinPoints, triangles: np.ndarray, lines: list[LidLine]) -> 
     keep[seam] = False
     new_side = np.concatenate([side, np.ones(m, np.int64), -np.ones(m, np.int64)])
     return np.concatenate([triangles[keep], lone, pair_first, pair_second]), new_side
+
+
+def _along_margin(points: np.ndarray, lines: list[LidLine]) -> scipy.sparse.csr_matrix:
+    """(m, m) row-stochastic: each of a cut's crossing points (m, 3) mm averaged with its eye's
+    others by a Gaussian of MARGIN_SMOOTH_MM along the lid line. A crossing point moves like its
+    edge's corner on its own lid; a scan's ~3 mm triangles span the 1-2 mm crease, so those corners
+    alternate between the crease's floor and the lid's top, which a pose moves differently (the
+    margin rises more than the lid above it): the opened margin would be saw-toothed."""
+    m = len(points)
+    rows, cols, vals = [np.arange(m)], [np.arange(m)], [np.ones(m)]
+    taken = np.zeros(m, bool)
+    for line in lines:
+        _, inside = line.height(points)
+        ids = np.nonzero(inside & ~taken)[0]
+        taken[ids] = True
+        if len(ids) < 2:
+            continue
+        s = (points[ids] - line.start) @ line.u
+        weight = np.exp(-0.5 * ((s[:, None] - s[None, :]) / MARGIN_SMOOTH_MM) ** 2)
+        weight[np.arange(len(ids)), np.arange(len(ids))] = 0.0
+        keep = weight > 1e-3
+        i, j = np.nonzero(keep)
+        rows.append(ids[i]), cols.append(ids[j]), vals.append(weight[keep])
+    smooth = scipy.sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                     shape=(m, m))
+    return scipy.sparse.diags(1.0 / np.asarray(smooth.sum(axis=1)).ravel()) @ smooth
 
 
 def _donor_parts(donor: Face, names) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -449,10 +491,14 @@ def _own_lid_rows(matrix: scipy.sparse.csr_matrix, side: np.ndarray, lid_labels:
     return scipy.sparse.csr_matrix((data, (rows, cols)), shape=matrix.shape)
 
 
-def _eyeball_part(canonical: Face, donor: Face, line: LidLine):
+def _eyeball_part(canonical: Face, donor: Face, line: LidLine, scan: Face | None = None):
     """(vertices, triangles, uv, {part: local ids}) of the donor's eyeball for the closed eye of
     ``line``, placed by a similarity on the eye's corners and brow and moved straight back until it
-    is EYEBALL_BEHIND_MM behind the closed lid everywhere; None when the donor lacks it."""
+    is EYEBALL_BEHIND_MM behind the closed lid everywhere: the canonical face's and the ``scan``'s
+    own lid skin (:func:`_lid_points`). The scan's crease lies 2-3 mm behind the canonical face,
+    which spans it: placed by the canonical face alone, the eyeball reached 1.7 mm through
+    LeePerrySmith's crease, and the FAP layer's lid guard pushed the crease's vertices out of it one
+    by one as the lid opened, a saw-toothed margin. None when the donor lacks it."""
     name = EYEBALL_PARTS[line.eye]
     points = [p for p in EYE_POINTS[line.eye] if p in canonical.landmarks and p in donor.landmarks]
     if name not in donor.parts or len(points) < 3:
@@ -464,8 +510,27 @@ def _eyeball_part(canonical: Face, donor: Face, line: LidLine):
     needed = float((EYEBALL_BEHIND_MM - depth).max())
     if needed > 0:   # rigidly, so the eyeball keeps its round front
         vertices = vertices - needed * line.w
+    lid = _lid_points(scan, line) if scan is not None else np.zeros((0, 3))
+    for _ in range(PUSH_ROUNDS if len(lid) else 0):
+        # The scan's lid points outside the ball's surface (signed: + outside); moving the ball back
+        # by the shortfall gains less where the surface is not square to w: again.
+        closest, _, _ = TriangleSet(vertices, triangles).closest(lid)
+        centre = vertices.mean(axis=0)
+        gap = np.linalg.norm(lid - closest, axis=1) * np.sign(np.einsum("kd,kd->k", lid - closest, lid - centre))
+        short = EYEBALL_BEHIND_MM - float(gap.min())
+        if short <= 1e-3:
+            break
+        vertices = vertices - short * line.w
     uv = None if donor.uv is None else donor.uv[ids]
     return vertices, triangles, uv, {name: np.arange(len(ids))}
+
+
+def _lid_points(scan: Face, line: LidLine) -> np.ndarray:
+    """(k, 3) mm: the scan's vertices on the closed eye's lids (inside the lid band of ``line``, not
+    in the walls of the eye's corners behind the crease, where the cut does not go either)."""
+    _, inside = line.height(scan.vertices)
+    inside &= line.off_crease(scan.vertices) > -CUT_BEHIND_CREASE_MM
+    return scan.vertices[inside]
 
 
 def _stacked_texture(scan_texture: np.ndarray, donor_texture: np.ndarray) -> tuple[np.ndarray, float]:
@@ -490,7 +555,8 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
     # Closed eyes are cut along their lid line (after the lips: the cut splits the triangles it
     # crosses) and get the donor's eyeballs behind the lids. cut_labels (lips and lids: far apart, no
     # triangle spans both) keep each lip's and lid's landmarks on its own side.
-    lid_lines = [line for line in closed_lid_lines(canonical) if EYEBALL_PARTS[line.eye] not in scan.parts]
+    lid_lines = [along_crease(line, scan.vertices, scan.triangles)
+                 for line in closed_lid_lines(canonical) if EYEBALL_PARTS[line.eye] not in scan.parts]
     fitted = registration.projection.dense if registration.projection is not None else None
     lid_labels, lid_carry = canonical_lid_labels(canonical, fitted, lid_lines)
     cut_labels = np.where(labels != 0, labels, lid_labels).astype(np.int8)
@@ -518,7 +584,7 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
         seen = _seen_from_the_front(skin.positions, triangles, part_vertices, forward)
         added.append((part_vertices, part_triangles[~seen[part_triangles].any(axis=1)], part_uv, part_ids))
     for line in lid_lines:
-        eyeball = _eyeball_part(canonical, donor, line)
+        eyeball = _eyeball_part(canonical, donor, line, scan)
         if eyeball is not None:
             added.append(eyeball)
     offset = n_scan + n_copies

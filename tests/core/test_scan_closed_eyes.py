@@ -200,3 +200,30 @@ def test_a_closed_eyes_upper_lid_opens_it_fully_within_the_faces_own_range(defau
     assert open_rig.describe("fap:19").minimum == -300.0 and not open_rig.describe("fap:19").note
     with pytest.raises(P.ParameterError, match="outside its range -300 to 1024"):
         open_rig.set_faps({19: -700.0})
+
+
+
+def test_the_eyeball_stays_behind_the_scans_own_closed_lid(closed_registration, default_face):
+    """Behind the scan's lid skin, not only the canonical face's, which spans a scan's lid crease: with
+    a crease 3 mm deep pressed into the scan along the lid line, the eyeball placed by the canonical
+    face alone reaches through it; placed by the scan too, every lid vertex is EYEBALL_BEHIND_MM outside."""
+    from core.layers.fap.closed_eyes import closed_lid_lines
+    from core.registration.scan_mouth import EYEBALL_BEHIND_MM, _eyeball_part, _lid_points
+    from core.surface_query import TriangleSet
+
+    canonical, scan = closed_registration.face, closed_registration.scan
+    for line in closed_lid_lines(canonical):
+        above, inside = line.height(scan.vertices)
+        groove = np.where(inside, 3.0 * np.exp(-0.5 * (above / 0.8) ** 2), 0.0)
+        creased = scan.with_vertices(scan.vertices - groove[:, None] * line.w)
+        lid = _lid_points(creased, line)
+        assert len(lid) > 100
+
+        def smallest_gap(placed):
+            vertices, triangles = placed[0], placed[1]
+            closest, _, _ = TriangleSet(vertices, triangles).closest(lid)
+            outward = np.einsum("kd,kd->k", lid - closest, lid - vertices.mean(axis=0))
+            return (np.linalg.norm(lid - closest, axis=1) * np.sign(outward)).min()
+
+        assert smallest_gap(_eyeball_part(canonical, default_face, line)) < 0          # through the crease
+        assert smallest_gap(_eyeball_part(canonical, default_face, line, creased)) > EYEBALL_BEHIND_MM - 0.05

@@ -52,17 +52,39 @@ class LidLine:
     width: float
     s_mid: float
     t_mid: float
+    #: The skin's own lid crease where it was found (``core.registration.lid_crease``): samples at
+    #: ``crease_s`` mm along u of the crease's height above the parabola (``crease_t``, mm) and its
+    #: depth along w (``crease_depth``, mm); empty: the parabola alone.
+    crease_s: tuple = ()
+    crease_t: tuple = ()
+    crease_depth: tuple = ()
+
+    def parabola(self, s: np.ndarray) -> np.ndarray:
+        """(k,) mm: the parabola's height at ``s`` (k,) mm along u."""
+        return self.t_mid * s * (self.width - s) / max(self.s_mid * (self.width - self.s_mid), 1e-9)
 
     def height(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(height above the line (k,) mm, inside the lid band (k,) bool) of points (k, 3)."""
         rel = np.asarray(points, float) - self.start
         s, t, depth = rel @ self.u, rel @ self.v, rel @ self.w
-        # The parabola through both corners and the lid centres' middle: a lid line curves smoothly.
-        line = self.t_mid * s * (self.width - s) / max(self.s_mid * (self.width - self.s_mid), 1e-9)
+        # The parabola through both corners and the lid centres' middle: a lid line curves smoothly;
+        # on a scan, moved onto the skin's own crease where one was found.
+        line = self.parabola(s)
+        if len(self.crease_s):
+            line = line + np.interp(s, self.crease_s, self.crease_t)
         above = t - line
         inside = ((s > 0.0) & (s < self.width) & (np.abs(above) < LID_BAND * self.width)
                   & (np.abs(depth) < LID_DEPTH * self.width))
         return above, inside
+
+    def off_crease(self, points: np.ndarray) -> np.ndarray:
+        """(k,) mm: how far points (k, 3) lie in front of (+) or behind (-) the crease's depth at
+        their place along u (their depth from the corners' chord without a crease)."""
+        rel = np.asarray(points, float) - self.start
+        depth = rel @ self.w
+        if not len(self.crease_s):
+            return depth
+        return depth - np.interp(rel @ self.u, self.crease_s, self.crease_depth)
 
 
 def closed_lid_lines(face: Face) -> list[LidLine]:
