@@ -108,6 +108,16 @@ CAVITY_FOLLOW_FAR_MM = 20.0
 # skin into the eyeball (default face, brows at -400: 88-172 crossing pairs per FAP), so the lid guard
 # also holds the skin they move near the ball.
 BROW_FAPS = ((31, 33, 35, 37), (32, 34, 36, 38))
+# Inner- and outer-lip FAPs of one motion (4 and 51 lower the top mid-lip, ..., 12 and 59 raise the left
+# corner): MPEG-4 moves each one's feature point by its value, but on a face the two contours meet at
+# the corners and enclose the vermilion, where both regions reach. Summed, equal values (Table B.1's
+# presets give both: joy 284 MNS to 12 and 59) moved a corner twice as far (12 + 59 at 200 MNS: 7.70 mm
+# where each alone moves 3.85; stretch 6 + 53: 18.75 mm for 9.38). Where both push the same way, their
+# common part (the smaller weight x the smaller value) is taken out (:meth:`FapDeformer._paired_lip_overlaps`):
+# there the skin moves as the larger of the two, and a FAP alone moves as before.
+PAIRED_LIP_FAPS = tuple((n, n + 47) for n in range(4, 14))
+_PAIR_INNER = np.array([i - 1 for i, _o in PAIRED_LIP_FAPS])
+_PAIR_OUTER = np.array([o - 1 for _i, o in PAIRED_LIP_FAPS])
 # FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
 LID_GUARD_COLUMNS = np.array([18, 19, 20, 21, 40, 41, *range(30, 38)])
 # Eyeball vertices whose mean motion gives the lid guard the ball's shift (see _ball_anchors).
@@ -216,6 +226,7 @@ class FapDeformer:
         F = F + self._cavity_rows(F)
         self.matrix = F.tocsr()
         self.matrix.eliminate_zeros()
+        self.pair_overlaps = self._paired_lip_overlaps()
         self.fapu_vector = np.array([self.fapu.get(s.unit, 0.0) for s in self.specs])
         self._rest = face.vertices.ravel()
         self._eyes = self._eyeball_pivots()
@@ -327,6 +338,18 @@ class FapDeformer:
         F = scipy.sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                     shape=(3 * N, N_FAPS)).tocsr()
         return F, weights
+
+    def _paired_lip_overlaps(self) -> scipy.sparse.csr_matrix:
+        """(3n, len(PAIRED_LIP_FAPS)) the part of each inner/outer lip FAP pair's FAT columns they share:
+        per row, where both move it the same way, the smaller of the two (see PAIRED_LIP_FAPS)."""
+        columns = self.matrix.tocsc()
+        out = []
+        for inner, outer in PAIRED_LIP_FAPS:
+            a = columns[:, inner - 1].toarray().ravel()
+            b = columns[:, outer - 1].toarray().ravel()
+            out.append(scipy.sparse.csr_matrix(np.where(a * b > 0, np.sign(a) * np.minimum(np.abs(a), np.abs(b)),
+                                                        0.0)[:, None]))
+        return scipy.sparse.hstack(out).tocsr()
 
     def _eye_opening_interior(self) -> np.ndarray:
         """(N,) bool: dense vertices strictly inside the triangles covering the eye openings."""
@@ -784,8 +807,12 @@ class FapDeformer:
 
     def displacement(self, values: np.ndarray) -> np.ndarray:
         """(n, 3) mm: the FAT's offsets for (68,) effective FAP values (FAP units), lids in contact."""
-        values = self.lid_values(values)
-        return (self.matrix @ (values * self.fapu_vector)).reshape(-1, 3)
+        scaled = self.lid_values(values) * self.fapu_vector
+        out = self.matrix @ scaled
+        common = _paired_common(scaled)
+        if common is not None:
+            out -= self.pair_overlaps @ common
+        return out.reshape(-1, 3)
 
     def lid_values(self, values: np.ndarray) -> np.ndarray:
         """(68,) FAP values with the lids following the eyes' vertical gaze, then in contact
@@ -848,6 +875,9 @@ class FapDeformer:
             compiled.add_active_columns(x.reshape(-1), *columns, scaled)
         else:
             x += (self.matrix @ scaled).reshape(-1, 3)
+        common = _paired_common(scaled)
+        if common is not None:
+            x -= (self.pair_overlaps @ common).reshape(-1, 3)
 
     def _close_lids(self, x: np.ndarray, values: np.ndarray) -> None:
         """Upper lids stop on the lower ones, and lids (and the cheek lift's skin) slide over the
@@ -964,6 +994,17 @@ def deformer_key(face: Face) -> str:
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]
     return fingerprint(code, data, face.vertices, face.triangles, landmarks, parts)
+
+
+def _paired_common(scaled: np.ndarray) -> np.ndarray | None:
+    """(len(PAIRED_LIP_FAPS),) mm per pair: the value both FAPs of an inner/outer lip pair share (the
+    smaller, when both have one sign; 0 otherwise), for (68,) ``scaled`` values x FAPU; None when no
+    pair shares any (the common case: one slider moved)."""
+    a, b = scaled[_PAIR_INNER], scaled[_PAIR_OUTER]
+    same = a * b > 0
+    if not same.any():
+        return None
+    return np.where(same, np.sign(a) * np.minimum(np.abs(a), np.abs(b)), 0.0)
 
 
 def _round_top(entry: dict) -> bool:
