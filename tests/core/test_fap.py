@@ -173,6 +173,26 @@ def test_zero_faps_leave_the_face_at_rest(rig):
     assert np.array_equal(rig.vertices(), rig.face.vertices)
 
 
+@pytest.mark.parametrize("inner, outer, unit", [(12, 59, "MNS"), (6, 53, "MW"), (4, 51, "MNS")])
+def test_an_inner_and_outer_lip_fap_pair_moves_its_feature_points_once(rig, inner, outer, unit):
+    """MPEG-4 moves each FAP's feature point by its value: the inner and outer lip FAPs of one motion
+    given the same value (as Table B.1's presets do) move the lip by that much, not twice; each alone
+    moves its own point by its value, as before; opposite signs still add."""
+    d = rig.deformer
+    values = lambda **v: np.array([v.get(f"f{n}", 0.0) for n in range(1, 69)])  # noqa: E731
+    alone_inner = np.linalg.norm(d.displacement(values(**{f"f{inner}": 200})), axis=1)
+    alone_outer = np.linalg.norm(d.displacement(values(**{f"f{outer}": 200})), axis=1)
+    both = np.linalg.norm(d.displacement(values(**{f"f{inner}": 200, f"f{outer}": 200})), axis=1)
+    step = 200 * rig.fapu[unit]
+    assert alone_inner.max() == pytest.approx(step, rel=0.05)
+    assert both.max() == pytest.approx(max(alone_inner.max(), alone_outer.max()), rel=1e-9)
+    assert np.all(both <= np.maximum(alone_inner, alone_outer) + 1e-9)
+    assert np.all(both >= np.maximum(alone_inner, alone_outer) - 1e-9)       # the larger of the two
+    apart = d.displacement(values(**{f"f{inner}": 200, f"f{outer}": -100}))
+    linear = d.displacement(values(**{f"f{inner}": 200})) + d.displacement(values(**{f"f{outer}": -100}))
+    assert np.allclose(apart, linear)
+
+
 def test_open_jaw_moves_chin_and_lower_lip_by_the_fapu_not_the_upper_lip(rig):
     rig.reset_faps()
     rig.set_fap(3, 512)
