@@ -864,20 +864,19 @@ class FapDeformer:
         product (no (3n,) temporary; only the columns of non-zero FAPs are read). Equal to
         ``x + displacement(values)`` up to rounding (~1e-13 mm: the terms are added one by one)."""
         scaled = self.lid_values(values) * self.fapu_vector
+        common = _paired_common(scaled)
         compiled = kernels.get()
         if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
             columns = self.__dict__.get("_fat_columns")
             if columns is None:     # built on first use, never pickled (see __getstate__)
-                csc = self.matrix.tocsc()
-                csc.sort_indices()
-                columns = self._fat_columns = (csc.indptr.astype(np.int64), csc.indices.astype(np.int64),
-                                               np.ascontiguousarray(csc.data, dtype=np.float64))
-            compiled.add_active_columns(x.reshape(-1), *columns, scaled)
+                columns = self._fat_columns = (_column_arrays(self.matrix), _column_arrays(self.pair_overlaps))
+            compiled.add_active_columns(x.reshape(-1), *columns[0], scaled)
+            if common is not None:
+                compiled.add_active_columns(x.reshape(-1), *columns[1], -common)
         else:
             x += (self.matrix @ scaled).reshape(-1, 3)
-        common = _paired_common(scaled)
-        if common is not None:
-            x -= (self.pair_overlaps @ common).reshape(-1, 3)
+            if common is not None:
+                x -= (self.pair_overlaps @ common).reshape(-1, 3)
 
     def _close_lids(self, x: np.ndarray, values: np.ndarray) -> None:
         """Upper lids stop on the lower ones, and lids (and the cheek lift's skin) slide over the
@@ -994,6 +993,13 @@ def deformer_key(face: Face) -> str:
     parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
     data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]
     return fingerprint(code, data, face.vertices, face.triangles, landmarks, parts)
+
+
+def _column_arrays(matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indptr, indices, data) of ``matrix`` in CSC form, sorted, as the compiled column product takes them."""
+    csc = matrix.tocsc()
+    csc.sort_indices()
+    return csc.indptr.astype(np.int64), csc.indices.astype(np.int64), np.ascontiguousarray(csc.data, dtype=np.float64)
 
 
 def _paired_common(scaled: np.ndarray) -> np.ndarray | None:
