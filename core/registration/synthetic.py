@@ -86,14 +86,19 @@ def _rig(person: int, seed: int):
 
 @functools.cache
 def _pose_recipe(pose: str) -> str:
-    """A short hash of the FAP values that make ``pose`` (the expression presets change with the FACS
-    tables, and a scan cached with older ones must not be read as this pose)."""
+    """A short hash of the FAP values that make ``pose`` and of the code that turns them into a face
+    (the expression presets change with the FACS tables, the FAP table with its code: a scan cached
+    with older ones must not be read as this pose)."""
     import hashlib
 
     from core.layers.fap import tables
+    from core.layers.fap.fat import deformer_code_version
 
     row = tables.expression_table()[tables.expression_id(pose)] if pose != "neutral" else np.zeros(1)
-    return hashlib.sha1(np.ascontiguousarray(row, dtype=np.float64).tobytes()).hexdigest()[:8]
+    recipe = np.ascontiguousarray(row, dtype=np.float64).tobytes()
+    if pose != "neutral":
+        recipe += deformer_code_version().encode()
+    return hashlib.sha1(recipe).hexdigest()[:8]
 
 
 def _cache_path(cache_dir, person: int, pose: str, seed: int) -> Path:

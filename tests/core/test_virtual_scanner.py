@@ -155,3 +155,19 @@ def test_synthetic_scan_is_cached_and_deterministic(tmp_path):
     assert all(case.error_mm[n] > 2.0 for n in case.hidden) and case.error_mm["9.3"] < 2.0
     with pytest.raises(SyntheticError, match="unknown pose"):
         synthetic_scan(0, "boredom", cache_dir=tmp_path)
+
+
+def test_a_cached_expression_scan_is_keyed_by_the_code_that_posed_it(monkeypatch):
+    """A scan of an expression cached before the FAP table's code changed is not read back as that
+    expression (the pose would be the old code's); the neutral does not depend on that code."""
+    import core.layers.fap.fat as fat
+    from core.registration import synthetic
+
+    synthetic._pose_recipe.cache_clear()
+    before = synthetic._cache_path("/cache", 1, "joy", 0), synthetic._cache_path("/cache", 1, "neutral", 0)
+    monkeypatch.setattr(fat, "deformer_code_version", lambda: "another version of the FAP code")
+    synthetic._pose_recipe.cache_clear()
+    after = synthetic._cache_path("/cache", 1, "joy", 0), synthetic._cache_path("/cache", 1, "neutral", 0)
+    synthetic._pose_recipe.cache_clear()
+    assert before[0] != after[0]
+    assert before[1] == after[1]

@@ -978,6 +978,14 @@ class FapDeformer:
 
 def deformer_key(face: Face) -> str:
     """The cache key of ``face``'s FapDeformer (see :meth:`FapDeformer.for_face`)."""
+    landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
+    parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
+    data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]
+    return fingerprint(deformer_code_version(), data, face.vertices, face.triangles, landmarks, parts)
+
+
+def deformer_code_version() -> str:
+    """A hash of the code that decides how FAP values move a face (for caches of posed faces)."""
     import core.layers.fap.closed_eyes as closed_eyes_module
     import core.layers.fap.template as template_module
     import core.layers.fap.limits as limits_module
@@ -987,12 +995,8 @@ def deformer_key(face: Face) -> str:
     import core.surface_query as surface_query
     import core.subdivision as subdivision
 
-    code = source_version(sys.modules[__name__], template_module, teeth_guard_module, lip_contact_module,
+    return source_version(sys.modules[__name__], template_module, teeth_guard_module, lip_contact_module,
                           limits_module, step_memo_module, tables, surface_query, subdivision, closed_eyes_module)
-    landmarks = {n: face.landmark_position(n) for n in face.landmark_names}
-    parts = {name: np.asarray(idx) for name, idx in face.parts.items()}
-    data = [resources.path(name).read_bytes() for name in ("templates/mpeg4_80.json", "mpeg4/faps.csv")]
-    return fingerprint(code, data, face.vertices, face.triangles, landmarks, parts)
 
 
 def _column_arrays(matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
