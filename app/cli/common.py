@@ -172,11 +172,11 @@ def parse_muscle_forces(text: str):
 
     A paired muscle without a side gets the force on both sides.
     """
-    from core.layers.muscles import ForceSet, control_keys, preset, preset_names
+    from core.layers.muscles import ForceSet, control_keys, preset, preset_id, preset_names
 
     text = text.strip()
-    if text in preset_names():
-        return preset(text)
+    if preset_id(text) is not None:      # an id or the name the window shows, any case
+        return preset(preset_id(text))
     if "=" not in text:
         raise CliError(f"--muscles {text!r}: not a preset ({', '.join(preset_names())}) "
                        "and not name=force pairs, e.g. --muscles risorius=40,zygomatic_major:left=9")

@@ -55,6 +55,12 @@ def test_specs_keys_and_presets():
     assert len(keys) == 19 and keys[-1] == ("orbicularis_oris", None)
     assert ("zygomatic_major", "left") in keys and ("mentalis", "right") in keys
     assert preset_names() == ("discreet_smile", "half_smile", "sadness", "disgust", "kiss")
+    from core.layers.muscles import preset_id
+
+    # By id or by the name the window shows, in any case and spacing.
+    assert preset_id("kiss") == preset_id("Kiss") == preset_id(" KISS ") == "kiss"
+    assert preset_id("Half smile, mouth open") == preset_id("half-smile") == "half_smile"
+    assert preset_id("grin") is None and preset_id("") is None
     smile = preset("discreet_smile").full()
     assert smile[("risorius", "left")] == smile[("risorius", "right")] == 42
     disgust = preset("disgust").forces

@@ -17,7 +17,7 @@ import importlib
 # without importing the solver (numba, ~0.3 s) before the face is on screen.
 _MODULE_OF = {
     "ForceFileError": "force_file", "ForceSet": "force_file", "load_force_set": "force_file",
-    "preset": "force_file", "preset_names": "force_file", "save_force_set": "force_file",
+    "preset": "force_file", "preset_id": "force_file", "preset_names": "force_file", "save_force_set": "force_file",
     "LayerSnapshot": "layer", "MuscleLayer": "layer", "MuscleModelError": "model",
     "MuscleSpec": "specs", "control_keys": "specs", "jaw_range": "specs", "muscle_specs": "specs",
     "RelaxReport": "solver", "SolverDiverged": "solver",
@@ -33,6 +33,6 @@ def __getattr__(name: str):
 
 __all__ = [
     "MuscleSpec", "muscle_specs", "control_keys", "jaw_range", "MuscleLayer", "LayerSnapshot", "ForceSet",
-    "preset_names", "preset", "load_force_set", "save_force_set", "ForceFileError", "SolverDiverged",
+    "preset_names", "preset", "preset_id", "load_force_set", "save_force_set", "ForceFileError", "SolverDiverged",
     "RelaxReport", "MuscleModelError",
 ]

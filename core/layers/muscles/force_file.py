@@ -177,6 +177,19 @@ def preset_names() -> tuple[str, ...]:
     return tuple(_presets())
 
 
+def preset_id(text: str) -> str | None:
+    """The id of the preset ``text`` names, by its id or its display name as the window shows it, in
+    any case and spacing (``"Kiss"``, ``"Half smile, mouth open"``); None when none does."""
+    def key(s: str) -> str:
+        return "_".join("".join(c if c.isalnum() else " " for c in str(s).lower()).split())
+
+    wanted = key(text)
+    for pid, data in _presets().items():
+        if wanted in (key(pid), key(data.get("name", ""))):
+            return pid
+    return None
+
+
 def preset(name: str) -> ForceSet:
     """The force set of a preset (a fresh object)."""
     presets = _presets()
