@@ -23,6 +23,14 @@ if TYPE_CHECKING:
 
 OUTLIER_CONFIDENCE = 0.3   # below this a point's evidence is weak (its confidence is a mean of NCC and distance terms)
 OUTLIER_DISTANCE = 0.1     # x face scale: farther than this from its prediction (the evaluation's tolerance)
+# A point this far from its prediction (x face scale: three tolerances, ~27 mm on an adult) has lost
+# its place unless its evidence is strong (confidence >= LOST_CONFIDENCE, the level below which the
+# picker lists a point as low confidence): steep and outline points too, which are otherwise left to
+# the steep pass and the outline. SFM person 2, textured neutral: the lower face's patch matches landed
+# ~65 mm high, and the chin 2.1 (an outline point, confidence 0.42 there) stayed on the upper lip 70 mm
+# off, the nose wing 9.5 (0.39) on the brow 58 mm off.
+GROSS_DISTANCE = 0.3
+LOST_CONFIDENCE = 0.5
 
 
 def outlier_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> SurfaceMoves:
@@ -45,8 +53,10 @@ def outlier_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -
     if anchor.sum() < 3:
         return SurfaceMoves.none()
     pred = propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)
-    far = np.linalg.norm(state.positions - pred, axis=1) > OUTLIER_DISTANCE * m.scale
-    weak = (confidence < OUTLIER_CONFIDENCE) & far & ~steep & ~anchor & ~ctx.fixed
+    off = np.linalg.norm(state.positions - pred, axis=1)
+    far, lost = off > OUTLIER_DISTANCE * m.scale, off > GROSS_DISTANCE * m.scale
+    weak = (((confidence < OUTLIER_CONFIDENCE) & far & ~steep) | ((confidence < LOST_CONFIDENCE) & lost)) \
+        & ~anchor & ~ctx.fixed
     if not weak.any():
         return SurfaceMoves.none()
     # At the closest scan point, not the frontal ray: beside the eye the surface turns away from the

@@ -343,6 +343,38 @@ def test_a_weak_point_far_from_the_confident_ones_follows_them(model):
 
 
 
+def test_a_point_that_lost_its_place_follows_the_confident_ones_even_on_the_outline(model):
+    """The chin 2.1 (an outline point) 40 mm up on the face with confidence 0.42, the nose wing 9.5
+    as far with 0.39: more than three tolerances (0.3 x the face's scale) from where the confident
+    matches put them, they go back there although their evidence is not weak (< 0.3); the brow 4.4
+    as far but with confidence 0.6 (evidence the picker would not list) stays."""
+    from types import SimpleNamespace
+
+    from core.registration.greedy import graph_distances
+    from core.registration.outlier_pass import GROSS_DISTANCE, outlier_pass
+    from core.registration.pass_results import MatchState
+    from core.registration.pipeline import get_model_context
+
+    m = get_model_context(model, "mpeg4_80", MatchParams())
+    names = list(m.template.detected)
+    P = len(names)
+    truth = m.side.points.copy()
+    positions = truth.copy()
+    confidence = np.full(P, 0.9)
+    chin, wing, brow = (names.index(n) for n in ("2.1", "9.5", "4.4"))
+    assert 40.0 > GROSS_DISTANCE * m.scale
+    positions[[chin, wing, brow]] += (0.0, 40.0, 0.0)
+    confidence[[chin, wing, brow]] = (0.42, 0.39, 0.6)
+    ctx = SimpleNamespace(model=m, params=MatchParams(), gdist=graph_distances(m.template, m.side.points),
+                          fixed=np.zeros(P, bool), scan_raster=None,
+                          closest=lambda p: (np.zeros(len(p), int), np.tile([1.0, 0.0, 0.0], (len(p), 1)), p))
+    state = MatchState(positions, np.zeros(P, int), np.tile([1.0, 0.0, 0.0], (P, 1)), ("refined",) * P, np.ones(P))
+    moves = outlier_pass(ctx, state, confidence)
+    assert sorted(moves.index) == sorted([chin, wing])
+    after = state.apply(moves)
+    np.testing.assert_allclose(after.positions[[chin, wing]], truth[[chin, wing]], atol=0.5)
+
+
 def test_points_on_the_mouth_opening_anchor_the_outlier_prediction(model):
     """An open mouth: the jaw, chin and lower lip 15 mm down; the lower inner lip on the opening's
     edge (source "opening") with confidence 0.2, the lower outer lip 8.2 weak (0.2) and its
