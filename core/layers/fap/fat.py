@@ -608,7 +608,16 @@ class FapDeformer:
             # the clearance at once it jumped forward at the first tick of a lid FAP.
             clearance = (np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM)
                          + REST_GAP_KEPT * np.maximum(rest_gap - LID_CLEARANCE_MM, 0.0))
-            guards.append(LidGuard(lid, centre, np.minimum(rest_gap, clearance), clearance, radii, float(radii.max()), faps,
+            # Skin triangles that straddle an open rim (a vertex tucked behind it, under the least
+            # clearance) have the rim's sharp edge just under them: all their vertices start from
+            # their own rest gaps (a scanned pose moving the default face's outer eye corner 0.2 mm
+            # put the rim through them: blend sadness 2 crossing pairs, disgust 21 -> 19).
+            behind = np.zeros(self.face.n_vertices, bool)
+            behind[lid[rest_gap < MIN_LID_CLEARANCE_MM]] = True
+            straddling = np.zeros(self.face.n_vertices, bool)
+            straddling[self.face.triangles[behind[self.face.triangles].any(axis=1)]] = True
+            rest_clearance = np.where(straddling[lid], rest_gap, np.minimum(rest_gap, clearance))
+            guards.append(LidGuard(lid, centre, rest_clearance, clearance, radii, float(radii.max()), faps,
                                    self.face.vertices[lid], float(np.median(_radius_profile(ball - centre)))))
         return guards
 
