@@ -13,8 +13,9 @@ The map holds the radius over two angles instead, in the azimuthal equidistant p
 sin phi)`` rad, on a square grid of ``RADIUS_MAP_STEP_RAD`` cells reaching ``RADIUS_MAP_REACH_RAD``
 from the axis (no singular pole, cells of nearly one size). Each node holds the largest radius of
 the ball's surface over the four cells around it, so a bilinear read anywhere in a cell is at least
-the surface's largest radius in that cell: interpolation never dips inside the mesh. Directions the
-ball does not cover (behind a cap's open rim) read 0: no ball there.
+the surface's largest radius in that cell: interpolation never dips inside the mesh. Behind a
+cap's open rim the map continues the rim's radius for ``SKIRT_RAD`` (skin tucked behind the rim is
+not read as free of the ball); farther round it reads 0: no ball there.
 """
 
 from __future__ import annotations
@@ -31,6 +32,10 @@ RADIUS_MAP_REACH_RAD = float(np.radians(100.0))
 # Surface samples per cell edge are spaced at most this far (mm); the sampled cell maxima then miss
 # the surface's by at most 0.002 mm (checked with samples 0.03 mm apart on both identities).
 SAMPLE_SPACING_MM = 0.05
+# How far behind an open rim the map continues the rim's radius (rad), in azimuth bins of the second
+# constant. The default face's ball is a front cap whose rim lies 67-72 degrees off the gaze axis; the
+# socket skin under it reaches 80 degrees. Read as free of the ball there (0), its triangles that the
+# cheek lift pulls over the rim crossed it: lift_l_cheek 400 87 lid crossing pairs, 31 with the skirt.
 SKIRT_RAD = float(np.radians(30.0))
 SKIRT_AZIMUTH_STEP_RAD = float(np.radians(2.0))
 
@@ -87,7 +92,9 @@ def _with_skirt(cells: np.ndarray) -> np.ndarray:
     rim_radius = np.zeros(bins)
     np.maximum.at(rim_radius, which[rim], cells[rim])
     rim_radius = np.max([np.roll(rim_radius, k) for k in (-1, 0, 1)], axis=0)
-    outermost = np.min([np.where(outermost < 0, np.inf, np.roll(outermost, k)) for k in (-1, 0, 1)], axis=0)
+    # The skirt starts at the nearest rim of the neighbouring azimuths (bins the ball misses: none).
+    outermost = np.min([np.where(rolled < 0, np.inf, rolled) for rolled in (np.roll(outermost, k) for k in (-1, 0, 1))],
+                       axis=0)
     skirt = ~covered & (theta > outermost[which]) & (theta <= outermost[which] + SKIRT_RAD)
     out = cells.copy()
     out[skirt] = rim_radius[which[skirt]]
