@@ -416,6 +416,32 @@ def test_closed_lids_stay_in_front_of_the_eyeball(rig):
     rig.reset_faps()
 
 
+def test_the_lid_guard_reads_the_eyeballs_real_surface(rig):
+    """Rest gaps are measured to the ball's own mesh along each vertex's direction from the centre
+    (a ray cast, known answer): a profile by the angle from the gaze axis alone put 352 vertices per
+    eye of the default face up to 1.65 mm inside a ball they lie outside of, and pushed them out."""
+    import trimesh
+
+    from core.layers.fap.eyeball_surface import map_radius
+
+    f = rig.face
+    for guard, name in zip(rig.deformer._lid_guards, ("eyeball_l", "eyeball_r")):
+        in_ball = np.zeros(f.n_vertices, bool)
+        in_ball[f.parts[name]] = True
+        ball = trimesh.Trimesh(f.vertices, f.triangles[in_ball[f.triangles].all(axis=1)], process=False)
+        offsets = guard.rest - guard.centre
+        length = np.linalg.norm(offsets, axis=1)
+        where, ray, _tri = ball.ray.intersects_location(np.broadcast_to(guard.centre, offsets.shape),
+                                                        offsets / length[:, None], multiple_hits=False)
+        true_gap = length[ray] - np.linalg.norm(where - guard.centre, axis=1)
+        gap = length[ray] - map_radius(offsets[ray], guard.radii)
+        assert len(ray) > 500                                   # most of the guarded skin lies over the ball
+        assert (true_gap > 0).all() and (gap > 0).all()         # outside it, and read so
+        assert (gap <= true_gap + 0.002).all() and (gap >= true_gap - 0.2).all()   # the 1-degree filter
+    rig.reset()
+    assert np.array_equal(rig.vertices(), f.vertices)           # the neutral face is untouched
+
+
 def _eye_rim(face, side):
     """Boundary vertices of the skin around the eye opening of one side."""
     b = np.unique(boundary_edges(face.triangles).ravel())

@@ -112,18 +112,51 @@ def lip_sheet_spread(indptr, indices, falloff, depth, separation, out):  # pragm
 
 
 @_JIT
-def close_lids_over_eyeball(x, lid, centre, clearance, angles, radii):  # pragma: no cover
-    """Push lid vertices ``x[lid]`` (k,) forward (+z) onto the eyeball's guard surface: the
-    radius profile ``radii`` (b,) mm over ``angles`` (b,) rad from the gaze axis, plus each
-    vertex's ``clearance`` (k,) mm. Two passes per vertex: a push forward turns the vertex
-    toward the cornea, which is higher."""
+def _map_radius(rx, ry, rz, radii, step, reach):  # pragma: no cover - compiled
+    """The eyeball's radius map ``radii`` (m, m) mm read bilinearly in direction (rx, ry, rz)
+    from its centre, 0 outside the map: ``eyeball_surface.map_radius`` for one direction, the
+    same sums."""
+    m = radii.shape[0]
+    planar = np.sqrt(rx * rx + ry * ry)
+    theta = np.arctan2(planar, rz)
+    scale = theta / planar if planar > 0.0 else 0.0
+    fu = (rx * scale + reach) / step
+    fv = (ry * scale + reach) / step
+    i, j = np.floor(fu), np.floor(fv)
+    if not (i >= 0.0 and j >= 0.0 and i < m - 1 and j < m - 1):
+        return 0.0
+    tu, tv = fu - i, fv - j
+    a, b = int(i), int(j)
+    return ((radii[a, b] * (1.0 - tu) + radii[a + 1, b] * tu) * (1.0 - tv)
+            + (radii[a, b + 1] * (1.0 - tu) + radii[a + 1, b + 1] * tu) * tv)
+
+
+@_JIT
+def close_lids_over_eyeball(x, lid, rest, shift, centre, rest_clearance, full_clearance, ramp, slide, bulge,
+                            radii, max_radius, step, reach):  # pragma: no cover - compiled
+    """One eye's lid guard (``FapDeformer._close_lids``; numpy: ``_guard_clearance`` then
+    ``eyeball_surface.push_outside``, the same sums). Each vertex ``x[lid[i]]`` gets its clearance,
+    from ``rest_clearance[i]`` to ``full_clearance[i]`` (mm) by the larger of ``ramp`` and how far it
+    slid from ``rest[i]`` (k, 3) after the ball's ``shift`` (3,) in units of ``slide`` mm, plus
+    ``bulge`` x the slide past ``slide`` mm; then, if inside the guard surface (the radius map
+    ``radii`` (m, m) mm about ``centre``, cells of ``step`` rad reaching ``reach`` rad, largest
+    ``max_radius``, plus the clearance), it is pushed forward (+z) onto it. Two passes: a push
+    forward turns the vertex toward the cornea, which is higher."""
     for i in range(lid.shape[0]):
         v = lid[i]
+        dx = x[v, 0] - rest[i, 0] - shift[0]
+        dy = x[v, 1] - rest[i, 1] - shift[1]
+        dz = x[v, 2] - rest[i, 2] - shift[2]
+        slid = np.sqrt(dx * dx + dy * dy + dz * dz) / slide
+        clearance = rest_clearance[i] + (full_clearance[i] - rest_clearance[i]) * min(max(ramp, slid), 1.0)
+        if bulge != 0.0:
+            clearance = clearance + bulge * max(slid - 1.0, 0.0) * slide
         for _ in range(2):
             rx, ry, rz = x[v, 0] - centre[0], x[v, 1] - centre[1], x[v, 2] - centre[2]
             length = np.sqrt(rx * rx + ry * ry + rz * rz)
-            cos = min(max(rz / max(length, 1e-9), -1.0), 1.0)
-            need = _interp(np.arccos(cos), angles, radii) + clearance[i]
+            if not length < max_radius + clearance:     # outside the ball's largest radius: no lookup
+                break
+            need = _map_radius(rx, ry, rz, radii, step, reach) + clearance
             if not length < need:
                 break
             planar = rx * rx + ry * ry

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 import scipy.sparse
@@ -53,6 +53,8 @@ from core.cache import DiskCache, fingerprint, source_version
 from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import kernels, tables
+from core.layers.fap.eyeball_surface import (RADIUS_MAP_REACH_RAD, RADIUS_MAP_STEP_RAD, map_radius, push_outside,
+                                             radius_map)
 from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
 from core.layers.fap.limits import (EASE_START, FOLD_REASON, bisect, clean_limits, finished_limits, keeping,
                                     preset_reach, soft_limit)
@@ -82,10 +84,23 @@ SMOOTHING_STEPS = 30
 ROUND_TOP = 0.95
 LID_CLEARANCE_MM = 0.4      # a closing lid slides this far outside the eyeball
 MIN_LID_CLEARANCE_MM = 0.1  # ... or at least this far (a 2 mm lid triangle sags 0.03 mm into a 15 mm ball)
-CHEEK_GUARD_REACH_MM = 4.0  # cheek-lift skin farther from the eyeball than this is not guarded
+CHEEK_GUARD_REACH_MM = 4.0  # cheek-lift and brow skin that comes no nearer the eyeball than this is not guarded
+GUARD_REACH_SAMPLES = 9     # values along each cheek / brow FAP's range at which that is checked
 # Skin that moved this far (mm) takes the lid guard's full clearance (face_quality on the presets: joy's
 # lid/eyeball crossings 34 -> 0, folds 370 -> 394; 1 mm: 8 crossings, 4 mm: 8 and 168 folds).
 GUARD_SLIDE_MM = 2.0
+# The lid guard reads the eyeball's real surface (eyeball_surface: a radius map over both angles about
+# the gaze axis), so skin that lies outside the ball has a true, positive rest gap. Measured together
+# by core.mesh_quality on the default face (generated identity), lid crossings / folded triangles:
+# skin pushed from its rest gap r > LID_CLEARANCE_MM keeps this share of r - LID_CLEARANCE_MM (0:
+# lift_l_cheek 400 3 / 34 (0 / 18), joy 2 / 90 (2 / 173); 0.25 with CHEEK_BULGE 0.1: 0 / 10
+# (0 / 2), 0 / 38 (0 / 137); 0.5: 8 / 12 on lift_l_cheek 400 alone) ...
+REST_GAP_KEPT = 0.25
+# ... and with the cheek raised (in full from CHEEK_CARRY_BLEND ENS) skin that slid past GUARD_SLIDE_MM
+# stands this many mm farther off per mm slid beyond (0: lift_l_cheek 400 4 / 7, both cheeks 220
+# 8 / 12, joy 8 / 36; 0.1: 0 / 10, 0 / 14, 0 / 38; 0.25: 0 / 33, 0 / 42, 0 / 66; gated by the lids
+# instead of the cheek, the closed lids bulged into each other: blink 8 -> 26 crossings).
+CHEEK_BULGE = 0.1
 # How far the lid margins follow the cornea's vertical travel as the eye turns down (upper, lower) and
 # up. Measured on the default face (core.mesh_quality, lid/eyeball crossings, folded triangles): both
 # eyes 15 deg down 208 -> 0 crossings, 0 folds; 30 deg down 324 -> 27 (53 folds; 0.9/0.4 left 39 and
@@ -189,6 +204,20 @@ def smooth_ramp(u: float, width: float) -> float:
     if u >= width:
         return u - width / 2
     return u * u / (2 * width)
+
+
+class LidGuard(NamedTuple):
+    """One eye's lid guard (:meth:`FapDeformer._lid_guards_over_eyeballs`)."""
+
+    lid: np.ndarray               # (k,) the guarded skin's vertex indices
+    centre: np.ndarray            # (3,) mm, the eyeball's centre at rest (a sphere fit)
+    rest_clearance: np.ndarray    # (k,) mm, the clearance at rest (the rest gap where smaller)
+    full_clearance: np.ndarray    # (k,) mm, the clearance of a closed eye or of skin that slid
+    radii: np.ndarray             # (m, m) mm, the eyeball's radius map about ``centre`` (eyeball_surface)
+    max_radius: float             # mm, the map's largest radius (skin farther out needs no lookup)
+    faps: tuple[int, int, int]    # the eye's upper lid, lower lid and cheek lift FAP numbers
+    rest: np.ndarray              # (k, 3) mm, the guarded vertices at rest
+    gaze_radius: float            # mm, the eye's radius for the lids' gaze following (see _radius_profile)
 
 
 class FapDeformer:
@@ -549,23 +578,20 @@ class FapDeformer:
             out[name] = mid - coef[3:] / (2 * coef[:3]) if (coef[:3] > 0).all() else sphere_centre
         return out
 
-    def _lid_guards_over_eyeballs(self) -> list[tuple]:
+    def _lid_guards_over_eyeballs(self) -> list[LidGuard]:
         """Guards that keep each eye's lids outside its eyeball.
 
         The FAT moves a lid in a straight line, but the eyeball bulges forward, and its cornea
         more: a closing lid would pass behind the cornea (the eye then shows through the closed
         lid). Lid vertices are kept at least ``LID_CLEARANCE_MM`` outside the eyeball's own surface
-        in their direction from the centre (its radius as a function of the angle from the gaze
-        axis, which covers the cornea), or by their rest clearance when that is smaller (at least
-        ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball), so the neutral face
-        is unchanged. Skin closer than that at rest starts from its own gap and reaches the
-        clearance over the first ``GUARD_RAMP`` units of the eye's closing FAPs (no jump when one
-        leaves 0; lids opening in surprise or fear leave the socket skin where it is), or as it slides
-        over the ball: in full once it moved ``GUARD_SLIDE_MM`` (joy's cheek lift at the outer corners).
-
-        Per eye: (lid vertex indices, eyeball centre (3,), clearance at rest (k,) mm, full clearance
-        (k,) mm, radius profile angles (b,) rad and radii (b,) mm, the eye's FAP numbers, the lid
-        vertices at rest (k, 3) mm).
+        in their direction from the centre (its radius map over both angles about the gaze axis,
+        which covers the cornea: ``eyeball_surface``), or by their rest clearance when that is
+        smaller (at least ``MIN_LID_CLEARANCE_MM``, more than a lid triangle's sag over the ball), so
+        the neutral face is unchanged. Skin closer than that at rest starts from its own gap and
+        reaches the clearance over the first ``GUARD_RAMP`` units of the eye's closing FAPs (no jump
+        when one leaves 0; lids opening in surprise or fear leave the socket skin where it is), or as
+        it slides over the ball: in full once it moved ``GUARD_SLIDE_MM`` (joy's cheek lift at the
+        outer corners).
         """
         guards = []
         # The cheek lift (41/42) pushes the lower lid up over the ball as well (joy's AU 6), and the
@@ -574,27 +600,48 @@ class FapDeformer:
             if name not in self._eyes:
                 continue
             idx, centre = self._eyes[name]
-            angles, radii = _radius_profile(self.face.vertices[idx] - centre)
+            ball = self.face.vertices[idx]
+            in_ball = np.zeros(self.face.n_vertices, bool)
+            in_ball[idx] = True
+            radii = radius_map(self.face.vertices, self.face.triangles[in_ball[self.face.triangles].all(axis=1)],
+                               centre)
             def moved_by(numbers):
                 weights = sum(self.binding @ self.template_weights[f] for f in numbers if f in self.template_weights)
                 return np.asarray(weights) > 1e-6
 
             lids_move = moved_by(faps[:2])
             candidates = np.nonzero(lids_move | moved_by(faps[2:] + brows))[0]
-            r = self.face.vertices[candidates] - centre
-            length = np.linalg.norm(r, axis=1)
-            angle = np.arccos(np.clip(r[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0))
-            rest_gap = length - np.interp(angle, angles, radii)
+            offsets = self.face.vertices[candidates] - centre
+            rest_gap = np.sqrt((offsets ** 2).sum(axis=1)) - map_radius(offsets, radii)
             # The cheek lift's and brows' wide regions only where they can reach the ball (the guard
-            # runs per tick).
-            near = lids_move[candidates] | (rest_gap < CHEEK_GUARD_REACH_MM)
-            lid, r, length, angle, rest_gap = candidates[near], r[near], length[near], angle[near], rest_gap[near]
-            clearance = np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM)
-            # Skin closer than that at rest (socket skin inside the profile of a ball that is not a
-            # sphere about the fitted centre) starts from its own gap: held at the clearance at once
-            # it jumped 2.5 mm forward at the first tick of a lid FAP and folded the lower lid.
-            guards.append((lid, centre, np.minimum(rest_gap, clearance), clearance, angles, radii, faps,
-                           self.face.vertices[lid]))
+            # runs per tick): skin that one of those FAPs, anywhere along its slider's range, brings
+            # within reach of the ball.
+            closest = rest_gap.copy()
+            for number in faps[2:] + brows:
+                spec = self.specs[number - 1]
+                column = self.matrix[:, number - 1].toarray().reshape(-1, 3)[candidates] * self.fapu_vector[number - 1]
+                for value in np.linspace(spec.minimum, spec.maximum, GUARD_REACH_SAMPLES):
+                    moved = offsets + column * value
+                    closest = np.minimum(closest, np.sqrt((moved ** 2).sum(axis=1)) - map_radius(moved, radii))
+            near = lids_move[candidates] | (closest < CHEEK_GUARD_REACH_MM)
+            lid, rest_gap = candidates[near], rest_gap[near]
+            # Skin farther out at rest stays farther out: two rows the FAT moves over one another
+            # are not pressed into one shell, where they cross. Skin closer than the clearance at
+            # rest (behind the rim of a ball that is a front cap) starts from its own gap: held at
+            # the clearance at once it jumped forward at the first tick of a lid FAP.
+            clearance = (np.clip(rest_gap, MIN_LID_CLEARANCE_MM, LID_CLEARANCE_MM)
+                         + REST_GAP_KEPT * np.maximum(rest_gap - LID_CLEARANCE_MM, 0.0))
+            # Skin triangles that straddle an open rim (a vertex tucked behind it, under the least
+            # clearance) have the rim's sharp edge just under them: all their vertices start from
+            # their own rest gaps (a scanned pose moving the default face's outer eye corner 0.2 mm
+            # put the rim through them: blend sadness 2 crossing pairs, disgust 21 -> 19).
+            behind = np.zeros(self.face.n_vertices, bool)
+            behind[lid[rest_gap < MIN_LID_CLEARANCE_MM]] = True
+            straddling = np.zeros(self.face.n_vertices, bool)
+            straddling[self.face.triangles[behind[self.face.triangles].any(axis=1)]] = True
+            rest_clearance = np.where(straddling[lid], rest_gap, np.minimum(rest_gap, clearance))
+            guards.append(LidGuard(lid, centre, rest_clearance, clearance, radii, float(radii.max()), faps,
+                                   self.face.vertices[lid], float(np.median(_radius_profile(ball - centre)))))
         return guards
 
     def _in_any_part(self) -> np.ndarray:
@@ -609,7 +656,7 @@ class FapDeformer:
         and guards), the lip contact and the teeth guard."""
         empty = np.zeros(0, np.int64)
         lid_writes = np.concatenate([upper for upper, _lower in self._eye_rims]
-                                    + [guard[0] for guard in self._lid_guards] + [empty])
+                                    + [guard.lid for guard in self._lid_guards] + [empty])
         # The lid guards also read the eyeballs (a layer that carries a ball along carries its guard).
         balls = [self._ball_anchors(name) for name in self._eyes] if self._lid_guards else []
         lid_reads = np.concatenate([lower for _upper, lower in self._eye_rims] + balls + [lid_writes])
@@ -744,7 +791,7 @@ class FapDeformer:
         for upper, _lower in self._eye_rims:
             mask[upper] = True
         for guard in self._lid_guards:
-            mask[guard[0]] = True
+            mask[guard.lid] = True
         return mask
 
     def finish_zone(self) -> np.ndarray:
@@ -844,13 +891,12 @@ class FapDeformer:
         return out
 
     def _gaze_lid_constants(self, name: str, upper: int, lower: int) -> tuple[float, float, float]:
-        """(the eyeball's radius mm (the median of its lid guard's profile), mm down per unit of FAP
+        """(the eyeball's radius mm (:attr:`LidGuard.gaze_radius`), mm down per unit of FAP
         ``upper``, mm up per unit of FAP ``lower`` at their lid margins (the FAT's mean vertical offset
         of the eye's rim vertices)); computed once."""
         constants = self.__dict__.setdefault("_gaze_lids", {})
         if name not in constants:
-            radius = next((float(np.median(g[5])) for g in self._lid_guards if (19 in g[6]) == (name == "eyeball_l")),
-                          0.0)
+            radius = next((g.gaze_radius for g in self._lid_guards if (19 in g.faps) == (name == "eyeball_l")), 0.0)
             rims = self._eye_rims[0 if name == "eyeball_l" else 1]
             gains = []
             for number, rim, sign in ((upper, rims[0], -1.0), (lower, rims[1], 1.0)):
@@ -891,40 +937,29 @@ class FapDeformer:
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
         if (values[18:22].any() or values[40:42].any() or values[30:38].any()
-                or any(not np.array_equal(x[guard[0]], guard[7]) for guard in self._lid_guards)):
+                or any(not np.array_equal(x[guard.lid], guard.rest) for guard in self._lid_guards)):
             compiled = kernels.get()
-            for lid, centre, rest_clearance, full_clearance, angles, radii, faps, rest in self._lid_guards:
+            for lid, centre, rest_clearance, full_clearance, radii, max_radius, faps, rest, _ in self._lid_guards:
                 # From the rest gap to the full clearance as the eye closes (opening lids leave it).
                 ramp = min(max(max(values[f - 1] for f in faps), 0.0) / GUARD_RAMP, 1.0)
                 # A layer that carried the eyeball along (a head moved as a whole) carries its guard:
                 # only skin that moved relative to the ball slid over it. (The FAPs turn the eyeballs
                 # after this step: for them the shift is zero.)
                 ball = self._ball_anchors("eyeball_l" if 19 in faps else "eyeball_r")
-                shift = (x[ball] - face_rest[ball]).mean(axis=0) if face_rest is not None else 0.0
+                shift = (x[ball] - face_rest[ball]).mean(axis=0) if face_rest is not None else np.zeros(3)
                 centre = centre + shift
                 # Skin that slid over the ball (the cheek lift moves the socket skin millimetres) takes
-                # the full clearance too: at its rest gap, below the ball's profile, its triangles cut
-                # the ball wherever it now lies.
-                slid = np.sqrt(((x[lid] - rest - shift) ** 2).sum(axis=1)) / GUARD_SLIDE_MM
-                ramp = np.minimum(np.maximum(ramp, slid), 1.0)
-                clearance = rest_clearance + (full_clearance - rest_clearance) * ramp
+                # the full clearance too: at a rest gap under it, its triangles cut the ball wherever
+                # it now lies. A raised cheek bunches the skin under the eye: what slid farther stands
+                # off farther (rides over the rows above it instead of through them).
+                bulge = min(max(values[faps[2] - 1], 0.0) / CHEEK_CARRY_BLEND, 1.0) * CHEEK_BULGE
                 if compiled is not None:
-                    compiled.close_lids_over_eyeball(x, lid, centre, clearance, angles, radii)
-                    continue
-                # Two passes: pushing a vertex forward turns it toward the cornea, which is higher.
-                for _ in range(2):
-                    r = x[lid] - centre
-                    length = np.sqrt((r * r).sum(axis=1))
-                    angle = np.arccos(np.clip(r[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0))
-                    need = np.interp(angle, angles, radii) + clearance
-                    inside = length < need
-                    if not inside.any():
-                        break
-                    # Push forward (not radially) onto the guard surface: the lid keeps its height,
-                    # so closing lids still meet where the FAT puts them.
-                    sel = lid[inside]
-                    planar = (r[inside, :2] ** 2).sum(axis=1)
-                    x[sel, 2] = centre[2] + np.sqrt(np.maximum(need[inside] ** 2 - planar, 0.0))
+                    compiled.close_lids_over_eyeball(x, lid, rest, shift, centre, rest_clearance, full_clearance,
+                                                     ramp, GUARD_SLIDE_MM, bulge, radii, max_radius,
+                                                     RADIUS_MAP_STEP_RAD, RADIUS_MAP_REACH_RAD)
+                else:
+                    clearance = _guard_clearance(x[lid] - rest - shift, rest_clearance, full_clearance, ramp, bulge)
+                    push_outside(x, lid, centre, clearance, radii)
 
     def finish(self, x: np.ndarray, values: np.ndarray, *, in_place: bool = False) -> np.ndarray:
         """(n, 3) ``x`` (all offsets added) after the FAPs' non-additive steps: upper lids stop on the
@@ -987,6 +1022,7 @@ def deformer_key(face: Face) -> str:
 def deformer_code_version() -> str:
     """A hash of the code that decides how FAP values move a face (for caches of posed faces)."""
     import core.layers.fap.closed_eyes as closed_eyes_module
+    import core.layers.fap.eyeball_surface as eyeball_surface_module
     import core.layers.fap.template as template_module
     import core.layers.fap.limits as limits_module
     import core.layers.fap.lip_contact as lip_contact_module
@@ -996,7 +1032,8 @@ def deformer_code_version() -> str:
     import core.subdivision as subdivision
 
     return source_version(sys.modules[__name__], template_module, teeth_guard_module, lip_contact_module,
-                          limits_module, step_memo_module, tables, surface_query, subdivision, closed_eyes_module)
+                          limits_module, step_memo_module, tables, surface_query, subdivision, closed_eyes_module,
+                          eyeball_surface_module)
 
 
 def _column_arrays(matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1040,6 +1077,20 @@ def _relax(w: np.ndarray, graph: scipy.sparse.csr_matrix, fixed: np.ndarray, ste
     return out
 
 
+def _guard_clearance(slid_by: np.ndarray, rest_clearance: np.ndarray, full_clearance: np.ndarray, ramp: float,
+                     bulge: float) -> np.ndarray:
+    """(k,) mm: the lid guard's clearance of each vertex that moved ``slid_by`` (k, 3) mm over the
+    ball, from ``rest_clearance`` to ``full_clearance`` (k,) by the larger of ``ramp`` and its slide
+    in ``GUARD_SLIDE_MM``, plus ``bulge`` x its slide past that (the numpy twin of the compiled
+    ``close_lids_over_eyeball``'s first lines)."""
+    dx, dy, dz = slid_by[:, 0], slid_by[:, 1], slid_by[:, 2]
+    slid = np.sqrt(dx * dx + dy * dy + dz * dz) / GUARD_SLIDE_MM
+    clearance = rest_clearance + (full_clearance - rest_clearance) * np.minimum(np.maximum(ramp, slid), 1.0)
+    if bulge != 0.0:
+        clearance = clearance + bulge * np.maximum(slid - 1.0, 0.0) * GUARD_SLIDE_MM
+    return clearance
+
+
 def _same_sparse(a, b) -> bool:
     """Whether sparse matrices ``a`` and ``b`` hold the same values (a cached deformer's binding and the
     one asked for: the key hashes the face, not how a scan's cut skin is bound)."""
@@ -1051,10 +1102,11 @@ def _moved(x: np.ndarray, rest: np.ndarray | None, *rows: np.ndarray) -> bool:
     return rest is not None and any(not np.array_equal(x[r], rest[r]) for r in rows)
 
 
-def _radius_profile(offsets: np.ndarray, step_deg: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
-    """An eyeball's outer radius by angle from +z: (angles (b,) rad, radii (b,) mm) from its
-    vertices' offsets (k, 3) from the centre; each bin holds the largest radius within one bin of it
-    (so interpolation never dips below the surface), empty bins the largest radius of all."""
+def _radius_profile(offsets: np.ndarray, step_deg: float = 2.0) -> np.ndarray:
+    """(b,) mm: an eyeball's outer radius by angle from +z in ``step_deg`` bins from its vertices'
+    offsets (k, 3) from the centre; each bin holds the largest radius within one bin of it, empty
+    bins the largest radius of all. Its median is the eye's radius for the lids' gaze following
+    (:attr:`LidGuard.gaze_radius`; the lid guard itself reads the ball's radius map)."""
     length = np.linalg.norm(offsets, axis=1)
     angle = np.degrees(np.arccos(np.clip(offsets[:, 2] / np.maximum(length, 1e-9), -1.0, 1.0)))
     bins = np.arange(0.0, 180.0 + step_deg, step_deg)
@@ -1067,7 +1119,7 @@ def _radius_profile(offsets: np.ndarray, step_deg: float = 2.0) -> tuple[np.ndar
     radii[found] = best[found]
     widened = np.maximum(radii, np.maximum(np.roll(radii, 1), np.roll(radii, -1)))
     widened[0], widened[-1] = max(radii[0], radii[1]), max(radii[-1], radii[-2])
-    return np.radians(bins), widened
+    return widened
 
 
 def _yaw_pitch(yaw: float, pitch: float) -> np.ndarray:
