@@ -535,7 +535,9 @@ def test_evidence_along_a_ridge_is_flat_and_a_bump_is_distinct(shape, distinct):
     search = _search_on(channel, channel, (100, 100))
     scale_px = 91.0 / 0.75
     got = distinctness(search, np.array([[100.0, 100.0]]), np.array([True]), scale_px)
-    assert got[0] == pytest.approx(distinct, abs=1e-6)
+    # (to 1e-4: the NCC is summed in float32, and its last bits depend on the CPU's vector width:
+    # 4.8e-6 on one machine, 0 on another)
+    assert got[0] == pytest.approx(distinct, abs=1e-4)
     # Not placed by the patch search: nothing measured.
     assert distinctness(search, np.array([[100.0, 100.0]]), np.array([False]), scale_px)[0] == 1.0
 
