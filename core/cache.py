@@ -33,6 +33,11 @@ FORMAT_VERSION = 1  # bump when the layout of the cache folder itself changes
 T = TypeVar("T")
 
 
+#: How the notes name each kind of entry (other kinds: "<kind> data").
+_PLAIN_KINDS = {"fap": "face's FAP table", "preview": "face's preview mesh",
+                "closed_eye_raster": "closed-eye reference", "export-lod": "export's level of detail"}
+
+
 def cache_dir() -> Path:
     """The user's Mimica cache folder (not created here)."""
     explicit = os.environ.get(CACHE_ENV)
@@ -107,8 +112,9 @@ class DiskCache:
         except (FileNotFoundError, NotADirectoryError):
             return None
         except Exception as exc:  # noqa: BLE001 - any damage means "rebuild", never a crash
-            self.notes.append(f"The cached {kind} data was unreadable ({type(exc).__name__}) and is "
-                              f"being rebuilt; the damaged file {path.name} was deleted.")
+            self.notes.append(f"Mimica's saved copy of the {_PLAIN_KINDS.get(kind, kind + ' data')} could not "
+                              f"be read (damaged or cut short); it was deleted and is being rebuilt — nothing "
+                              f"of yours is lost. (File {path.name}: {type(exc).__name__}.)")
             try:
                 path.unlink()
             except OSError:
