@@ -112,9 +112,10 @@ class DiskCache:
         except (FileNotFoundError, NotADirectoryError):
             return None
         except Exception as exc:  # noqa: BLE001 - any damage means "rebuild", never a crash
-            self.notes.append(f"Mimica's saved copy of the {_PLAIN_KINDS.get(kind, kind + ' data')} could not "
-                              f"be read (damaged or cut short); it was deleted and is being rebuilt — nothing "
-                              f"of yours is lost. (File {path.name}: {type(exc).__name__}.)")
+            # (The window shows notes that name the cache in its status bar: app/face_files.py.)
+            self.notes.append(f"Mimica's cache of the {_PLAIN_KINDS.get(kind, kind + ' data')} could not be "
+                              f"read (damaged or cut short); it was deleted and is being rebuilt — nothing "
+                              f"of yours is lost ({type(exc).__name__}).")
             try:
                 path.unlink()
             except OSError:

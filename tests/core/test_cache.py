@@ -44,6 +44,7 @@ def test_a_damaged_entry_is_deleted_and_rebuilt_with_a_note(tmp_path):
     cache.path("kind", "k").write_bytes(b"\x80\x05garbage")
     assert cache.get_or_build("kind", "k", lambda: "rebuilt") == "rebuilt"
     assert len(cache.notes) == 1 and "rebuilt" in cache.notes[0] and "kind" in cache.notes[0]
+    assert "cache" in cache.notes[0]            # the window puts notes naming the cache in its status bar
     assert cache.get("kind", "k") == "rebuilt"
 
 
