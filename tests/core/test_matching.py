@@ -300,21 +300,33 @@ def test_moves_are_applied_to_a_copy_and_results_are_read_only():
 
 
 
+def _outlier_case(model, fixed_names=()):
+    """(model context, detected names, the context the outlier pass reads): the scan is the model
+    itself, each point's closest scan point is the point itself; ``fixed_names`` are fixed."""
+    from types import SimpleNamespace
+
+    from core.registration.greedy import graph_distances
+    from core.registration.pipeline import get_model_context
+
+    m = get_model_context(model, "mpeg4_80", MatchParams())
+    names = list(m.template.detected)
+    fixed = np.array([n in fixed_names for n in names])
+    ctx = SimpleNamespace(model=m, params=MatchParams(), gdist=graph_distances(m.template, m.side.points),
+                          fixed=fixed, scan_raster=None,
+                          closest=lambda p: (np.zeros(len(p), int), np.tile([1.0, 0.0, 0.0], (len(p), 1)), p))
+    return m, names, ctx
+
+
 def test_a_weak_point_far_from_the_confident_ones_follows_them(model):
     """The scan is the model itself; 3.7 was matched 15 mm away with confidence 0.2: it goes back to
     its place (the anchors did not move, so their prediction is the model's point), as a
     "prediction" with evidence 0. A point as far but with confidence 0.45 (some evidence), a weak
     one only 3 mm off, a fixed one and a weak far one on the mouth opening's edge (source "opening")
     stay where they are."""
-    from types import SimpleNamespace
-
-    from core.registration.greedy import graph_distances
     from core.registration.outlier_pass import outlier_pass
     from core.registration.pass_results import MatchState
-    from core.registration.pipeline import get_model_context
 
-    m = get_model_context(model, "mpeg4_80", MatchParams())
-    names = list(m.template.detected)
+    m, names, ctx = _outlier_case(model, fixed_names=("9.15",))
     P = len(names)
     truth = m.side.points.copy()
     positions = truth.copy()
@@ -325,11 +337,6 @@ def test_a_weak_point_far_from_the_confident_ones_follows_them(model):
     positions[near_weak] += (0.0, 3.0, 0.0)
     confidence[[far_weak, near_weak, fixed_far, on_opening]] = 0.2
     confidence[far_doubtful] = 0.45
-    fixed = np.zeros(P, bool)
-    fixed[fixed_far] = True
-    ctx = SimpleNamespace(model=m, params=MatchParams(), gdist=graph_distances(m.template, m.side.points),
-                          fixed=fixed, scan_raster=None,
-                          closest=lambda p: (np.zeros(len(p), int), np.tile([1.0, 0.0, 0.0], (len(p), 1)), p))
     sources = ["refined"] * P
     sources[on_opening] = "opening"      # put on the mouth opening's edge by the scan's shape
     state = MatchState(positions, np.zeros(P, int), np.tile([1.0, 0.0, 0.0], (P, 1)), sources, np.ones(P))
@@ -348,15 +355,10 @@ def test_a_point_that_lost_its_place_follows_the_confident_ones_even_on_the_outl
     as far with 0.39: more than three tolerances (0.3 x the face's scale) from where the confident
     matches put them, they go back there although their evidence is not weak (< 0.3); the brow 4.4
     as far but with confidence 0.6 (evidence the picker would not list) stays."""
-    from types import SimpleNamespace
-
-    from core.registration.greedy import graph_distances
     from core.registration.outlier_pass import GROSS_DISTANCE, outlier_pass
     from core.registration.pass_results import MatchState
-    from core.registration.pipeline import get_model_context
 
-    m = get_model_context(model, "mpeg4_80", MatchParams())
-    names = list(m.template.detected)
+    m, names, ctx = _outlier_case(model)
     P = len(names)
     truth = m.side.points.copy()
     positions = truth.copy()
@@ -365,9 +367,6 @@ def test_a_point_that_lost_its_place_follows_the_confident_ones_even_on_the_outl
     assert 40.0 > GROSS_DISTANCE * m.scale
     positions[[chin, wing, brow]] += (0.0, 40.0, 0.0)
     confidence[[chin, wing, brow]] = (0.42, 0.39, 0.6)
-    ctx = SimpleNamespace(model=m, params=MatchParams(), gdist=graph_distances(m.template, m.side.points),
-                          fixed=np.zeros(P, bool), scan_raster=None,
-                          closest=lambda p: (np.zeros(len(p), int), np.tile([1.0, 0.0, 0.0], (len(p), 1)), p))
     state = MatchState(positions, np.zeros(P, int), np.tile([1.0, 0.0, 0.0], (P, 1)), ("refined",) * P, np.ones(P))
     moves = outlier_pass(ctx, state, confidence)
     assert sorted(moves.index) == sorted([chin, wing])
@@ -380,15 +379,10 @@ def test_points_on_the_mouth_opening_anchor_the_outlier_prediction(model):
     edge (source "opening") with confidence 0.2, the lower outer lip 8.2 weak (0.2) and its
     neighbours 8.7 / 8.8 doubtful (0.5, no anchors). The opening's points anchor the prediction,
     so 8.2 (where the lower lip went) is not pulled back up to the closed model's lip."""
-    from types import SimpleNamespace
-
-    from core.registration.greedy import graph_distances
     from core.registration.outlier_pass import outlier_pass
     from core.registration.pass_results import MatchState
-    from core.registration.pipeline import get_model_context
 
-    m = get_model_context(model, "mpeg4_80", MatchParams())
-    names = list(m.template.detected)
+    m, names, ctx = _outlier_case(model)
     P = len(names)
     positions = m.side.points.copy()
     confidence = np.full(P, 0.9)
@@ -398,9 +392,6 @@ def test_points_on_the_mouth_opening_anchor_the_outlier_prediction(model):
     confidence[opening + [names.index("8.2")]] = 0.2
     confidence[[names.index("8.7"), names.index("8.8")]] = 0.5
     sources = ["opening" if i in opening else "refined" for i in range(P)]
-    ctx = SimpleNamespace(model=m, params=MatchParams(), gdist=graph_distances(m.template, m.side.points),
-                          fixed=np.zeros(P, bool), scan_raster=None,
-                          closest=lambda p: (np.zeros(len(p), int), np.tile([1.0, 0.0, 0.0], (len(p), 1)), p))
     state = MatchState(positions, np.zeros(P, int), np.tile([1.0, 0.0, 0.0], (P, 1)), sources, np.ones(P))
     assert len(outlier_pass(ctx, state, confidence)) == 0
     # The same lip placed by the patch search alone (no "opening" source): 8.2 follows the closed model.
