@@ -175,8 +175,9 @@ def parse_muscle_forces(text: str):
     from core.layers.muscles import ForceSet, control_keys, preset, preset_id, preset_names
 
     text = text.strip()
-    if preset_id(text) is not None:      # an id or the name the window shows, any case
-        return preset(preset_id(text))
+    named = preset_id(text)              # an id or the name the window shows, any case
+    if named is not None:
+        return preset(named)
     if "=" not in text:
         raise CliError(f"--muscles {text!r}: not a preset ({', '.join(preset_names())}) "
                        "and not name=force pairs, e.g. --muscles risorius=40,zygomatic_major:left=9")
