@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from core.layers.fap import kernels
-from core.layers.fap.eyeball_surface import (RADIUS_MAP_REACH_RAD, RADIUS_MAP_STEP_RAD, map_radius, push_outside,
-                                             radius_map)
+from core.layers.fap.eyeball_surface import (PUSH_TURN_END_RAD, PUSH_TURN_START_RAD, RADIUS_MAP_REACH_RAD,
+                                             RADIUS_MAP_STEP_RAD, map_radius, push_outside, radius_map)
 
 CENTRE = np.array([31.5, 33.0, -43.0])
 SEMI_AXES = np.array([15.0, 12.0, 14.0])    # mm: wider than high, as the default face's ball
@@ -101,5 +101,36 @@ def test_skin_inside_the_ball_is_pushed_forward_onto_it_at_its_clearance_compile
     compiled = start.copy()
     # At full clearance (ramp 1) and not slid (rest = start): the same clearance as above.
     built.close_lids_over_eyeball(compiled, lid, start.copy(), np.zeros(3), CENTRE, clearance, clearance, 1.0, 2.0, 0.0,
-                                  radii, float(radii.max()), RADIUS_MAP_STEP_RAD, RADIUS_MAP_REACH_RAD)
+                                  radii, float(radii.max()), RADIUS_MAP_STEP_RAD, RADIUS_MAP_REACH_RAD,
+                                  PUSH_TURN_START_RAD, PUSH_TURN_END_RAD)
     assert np.abs(compiled - pushed).max() <= 1e-12
+
+
+def test_skin_beside_the_ball_is_pushed_out_radially_not_far_forward(cap):
+    """Skin tucked behind the rim, beside the ball (85-95 degrees off the gaze axis, in the map's skirt),
+    1-2 mm inside: pushed straight out by its depth. Forward, onto a surface of about its own distance
+    from the centre, it would have moved ~6 mm (a generated face's outer eye corner jumped 7.8 mm
+    forward as the lids closed)."""
+    _vertices, _triangles, radii = cap
+    rng = np.random.default_rng(8)
+    n = 100
+    d = unit(rng.uniform(86, 95, n), rng.uniform(-60, 60, n))      # beside the ball, toward the temple
+    offsets = d * (map_radius(d, radii) - rng.uniform(1.0, 2.0, n))[:, None]
+    start = CENTRE + offsets
+    lid = np.arange(n, dtype=np.int64)
+    clearance = np.full(n, 0.1)
+    pushed = start.copy()
+    push_outside(pushed, lid, CENTRE, clearance, radii)
+    step = pushed - start
+    depth = map_radius(offsets, radii) + clearance - np.linalg.norm(offsets, axis=1)
+    np.testing.assert_allclose(np.linalg.norm(step, axis=1), depth, rtol=1e-9)
+    np.testing.assert_allclose(np.cross(step, offsets), 0.0, atol=1e-9)             # along the radius
+    forward = np.sqrt((map_radius(offsets, radii) + clearance) ** 2 - (offsets[:, :2] ** 2).sum(axis=1)) - offsets[:, 2]
+    assert (forward > 2.5 * depth).all()
+    built = kernels.get()
+    if built is not None:
+        compiled = start.copy()
+        built.close_lids_over_eyeball(compiled, lid, start.copy(), np.zeros(3), CENTRE, clearance, clearance, 1.0, 2.0,
+                                      0.0, radii, float(radii.max()), RADIUS_MAP_STEP_RAD, RADIUS_MAP_REACH_RAD,
+                                      PUSH_TURN_START_RAD, PUSH_TURN_END_RAD)
+        assert np.abs(compiled - pushed).max() <= 1e-12

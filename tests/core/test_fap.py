@@ -1038,3 +1038,34 @@ def test_lip_overlap_reads_tied_rim_vertices_alike_compiled_and_numpy(monkeypatc
     reference = contact._overlap(x)
     assert np.isfinite(reference).sum() > 90
     np.testing.assert_array_equal(compiled, reference)
+
+
+def test_skin_beside_a_front_only_faces_eyeball_does_not_jump_when_the_lids_or_cheek_move():
+    """A generated front-only face (the synthetic database's person 2): skin beside the ball (a front
+    cap) at about its rim's radius was pushed forward onto it — 7.8 mm at the outer eye corner as the
+    upper lid closed, 7.3 mm under the lower lid at 320 IRISD — and skin beyond the radius map's skirt
+    (no ball in its direction) kept its whole distance to the centre as clearance: lift_l_cheek 220
+    threw a temple vertex 25.6 mm forward. Now the guard moves skin beside the ball by at most its
+    depth inside (radially), and skin with no ball in its direction at rest hardly at all."""
+    from core.layers.fap.eyeball_surface import map_radius
+    from core.layers.fap.fat import FapDeformer
+    from core.registration import synthetic
+
+    deformer = FapDeformer(synthetic.identity_face(2))
+    rest = deformer._rest.reshape(-1, 3)
+    idx, centre = deformer._eyes["eyeball_l"]
+    guard = next(g for g in deformer._lid_guards if 19 in g.faps)
+    offsets = rest - centre
+    beside = (offsets[:, 2] < 3.0) & (np.hypot(offsets[:, 0], offsets[:, 1]) < 25.0) & (offsets[:, 0] > 0)
+    beside[idx] = False
+    no_ball = guard.lid[map_radius(rest[guard.lid] - guard.centre, guard.radii) == 0.0]
+    assert beside.sum() > 200 and len(no_ball) > 20
+
+    def guard_push(number, value):
+        values = np.zeros(68)
+        values[number - 1] = value
+        return np.linalg.norm(deformer.deform(values) - (rest + deformer.displacement(values)), axis=1)
+
+    assert guard_push(19, 1024.0)[beside].max() < 1.5
+    assert guard_push(21, 320.0)[beside].max() < 1.5
+    assert guard_push(41, 220.0)[no_ball].max() < 0.5

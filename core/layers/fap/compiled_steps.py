@@ -133,15 +133,16 @@ def _map_radius(rx, ry, rz, radii, step, reach):  # pragma: no cover - compiled
 
 @_JIT
 def close_lids_over_eyeball(x, lid, rest, shift, centre, rest_clearance, full_clearance, ramp, slide, bulge,
-                            radii, max_radius, step, reach):  # pragma: no cover - compiled
+                            radii, max_radius, step, reach, turn_start, turn_end):  # pragma: no cover - compiled
     """One eye's lid guard (``FapDeformer._close_lids``; numpy: ``_guard_clearance`` then
     ``eyeball_surface.push_outside``, the same sums). Each vertex ``x[lid[i]]`` gets its clearance,
     from ``rest_clearance[i]`` to ``full_clearance[i]`` (mm) by the larger of ``ramp`` and how far it
     slid from ``rest[i]`` (k, 3) after the ball's ``shift`` (3,) in units of ``slide`` mm, plus
     ``bulge`` x the slide past ``slide`` mm; then, if inside the guard surface (the radius map
     ``radii`` (m, m) mm about ``centre``, cells of ``step`` rad reaching ``reach`` rad, largest
-    ``max_radius``, plus the clearance), it is pushed forward (+z) onto it. Two passes: a push
-    forward turns the vertex toward the cornea, which is higher."""
+    ``max_radius``, plus the clearance), it is pushed onto it: forward (+z), turning radial between
+    ``turn_start`` and ``turn_end`` rad off the gaze axis. Two passes: a push forward turns the
+    vertex toward the cornea, which is higher."""
     for i in range(lid.shape[0]):
         v = lid[i]
         dx = x[v, 0] - rest[i, 0] - shift[0]
@@ -159,8 +160,19 @@ def close_lids_over_eyeball(x, lid, rest, shift, centre, rest_clearance, full_cl
             need = _map_radius(rx, ry, rz, radii, step, reach) + clearance
             if not length < need:
                 break
-            planar = rx * rx + ry * ry
-            x[v, 2] = centre[2] + np.sqrt(max(need * need - planar, 0.0))
+            # eyeball_surface.push_direction, then the push along it onto the guard surface
+            planar = np.sqrt(rx * rx + ry * ry)
+            w = min(max((np.arctan2(planar, rz) - turn_start) / (turn_end - turn_start), 0.0), 1.0)
+            w = w * w * (3.0 - 2.0 * w)
+            inv = 1.0 / max(length, 1e-300)
+            dx, dy, dz = w * rx * inv, w * ry * inv, w * rz * inv + (1.0 - w)
+            norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+            dx, dy, dz = dx / norm, dy / norm, dz / norm
+            along = rx * dx + ry * dy + rz * dz
+            t = -along + np.sqrt(max(along * along - length * length + need * need, 0.0))
+            x[v, 0] += t * dx
+            x[v, 1] += t * dy
+            x[v, 2] += t * dz
 
 
 @_JIT

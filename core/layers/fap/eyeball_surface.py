@@ -37,6 +37,13 @@ SAMPLE_SPACING_MM = 0.05
 # socket skin under it reaches 80 degrees. Read as free of the ball there (0), its triangles that the
 # cheek lift pulls over the rim crossed it: lift_l_cheek 400 87 lid crossing pairs, 31 with the skirt.
 SKIRT_RAD = float(np.radians(30.0))
+# The lid guard pushes skin forward (+z) up to this angle from the gaze axis and radially beyond the
+# second, turning smoothly in between. The balls' rims lie 69-72 degrees off the axis (default face and
+# a generated identity); skin beside a rim, tucked behind it at about the rim's radius, pushed forward
+# onto it jumped 7.8 mm forward at the outer eye corner when a generated face closed its eyes (the
+# radial push there is 1-2 mm), and 10 mm at its temple with the cheek lift.
+PUSH_TURN_START_RAD = float(np.radians(60.0))
+PUSH_TURN_END_RAD = float(np.radians(85.0))
 SKIRT_AZIMUTH_STEP_RAD = float(np.radians(2.0))
 
 
@@ -104,11 +111,10 @@ def _with_skirt(cells: np.ndarray) -> np.ndarray:
 def push_outside(x: np.ndarray, lid: np.ndarray, centre: np.ndarray, clearance: np.ndarray,
                  radii: np.ndarray) -> None:
     """Push the vertices ``x[lid]`` ((n, 3) mm, in place; ``lid`` (k,)) that lie inside the guard
-    surface (the radius map ``radii`` about ``centre`` (3,) mm plus ``clearance`` (k,) mm) forward
-    (+z) onto it; the numpy twin of ``compiled_steps.close_lids_over_eyeball``.
+    surface (the radius map ``radii`` about ``centre`` (3,) mm plus ``clearance`` (k,) mm) onto it
+    along :func:`push_direction`; the numpy twin of ``compiled_steps.close_lids_over_eyeball``.
 
-    Forward, not radially: the lid keeps its height, so closing lids still meet where the FAT puts
-    them. Two passes: pushing a vertex forward turns it toward the cornea, which is higher."""
+    Two passes: pushing a vertex forward turns it toward the cornea, which is higher."""
     for _ in range(2):
         r = x[lid] - centre
         length = np.sqrt((r * r).sum(axis=1))
@@ -116,8 +122,27 @@ def push_outside(x: np.ndarray, lid: np.ndarray, centre: np.ndarray, clearance: 
         inside = length < need
         if not inside.any():
             break
-        planar = (r[inside, :2] ** 2).sum(axis=1)
-        x[lid[inside], 2] = centre[2] + np.sqrt(np.maximum(need[inside] ** 2 - planar, 0.0))
+        r, need = r[inside], need[inside]
+        d = push_direction(r)
+        along = (r * d).sum(axis=1)
+        t = -along + np.sqrt(np.maximum(along * along - (r * r).sum(axis=1) + need * need, 0.0))
+        x[lid[inside]] += t[:, None] * d
+
+
+def push_direction(offsets: np.ndarray) -> np.ndarray:
+    """(k, 3) unit directions in which the lid guard pushes skin at ``offsets`` (k, 3) mm from the
+    ball's centre: forward (+z) in front of the ball, so the lid keeps its height and closing lids
+    meet where the FAT puts them; turning to the radial direction between ``PUSH_TURN_START_RAD``
+    and ``PUSH_TURN_END_RAD`` from the gaze axis, where a forward push onto a surface of about the
+    skin's own distance from the centre would be many times longer than the skin's depth inside it."""
+    planar = np.sqrt(offsets[:, 0] ** 2 + offsets[:, 1] ** 2)
+    theta = np.arctan2(planar, offsets[:, 2])
+    w = np.clip((theta - PUSH_TURN_START_RAD) / (PUSH_TURN_END_RAD - PUSH_TURN_START_RAD), 0.0, 1.0)
+    w = w * w * (3.0 - 2.0 * w)
+    radial = offsets / np.maximum(np.sqrt((offsets ** 2).sum(axis=1)), 1e-300)[:, None]
+    d = w[:, None] * radial
+    d[:, 2] += 1.0 - w
+    return d / np.maximum(np.sqrt((d ** 2).sum(axis=1)), 1e-300)[:, None]
 
 
 def _nodes() -> int:

@@ -53,7 +53,8 @@ from core.cache import DiskCache, fingerprint, source_version
 from core.face import Face
 from core.surface_query import TriangleSet
 from core.layers.fap import kernels, tables
-from core.layers.fap.eyeball_surface import (RADIUS_MAP_REACH_RAD, RADIUS_MAP_STEP_RAD, map_radius, push_outside,
+from core.layers.fap.eyeball_surface import (PUSH_TURN_END_RAD, PUSH_TURN_START_RAD, RADIUS_MAP_REACH_RAD,
+                                             RADIUS_MAP_STEP_RAD, map_radius, push_outside,
                                              radius_map)
 from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
 from core.layers.fap.limits import (EASE_START, FOLD_REASON, bisect, clean_limits, finished_limits, keeping,
@@ -618,7 +619,14 @@ class FapDeformer:
             lids_move = moved_by(faps[:2])
             candidates = np.nonzero(lids_move | moved_by(faps[2:] + brows))[0]
             offsets = self.face.vertices[candidates] - centre
-            rest_gap = np.sqrt((offsets ** 2).sum(axis=1)) - map_radius(offsets, radii)
+            # Beyond the map's skirt it reads 0 (no ball in that direction): a gap measured there is
+            # the whole distance to the centre, and kept as clearance it pushed skin that drifted
+            # back over the skirt far forward (a front-only face's temple, 2 mm lateral to the
+            # ball's rim: lift_l_cheek 220 moved it 25.6 mm). There the gap is taken to the ball's
+            # largest radius instead, which the skin cannot be pushed beyond.
+            reference = map_radius(offsets, radii)
+            reference = np.where(reference > 0.0, reference, float(radii.max()))
+            rest_gap = np.sqrt((offsets ** 2).sum(axis=1)) - reference
             # The cheek lift's and brows' wide regions only where they can reach the ball (the guard
             # runs per tick): skin that one of those FAPs, anywhere along its slider's range, brings
             # within reach of the ball.
@@ -962,7 +970,8 @@ class FapDeformer:
                 if compiled is not None:
                     compiled.close_lids_over_eyeball(x, lid, rest, shift, centre, rest_clearance, full_clearance,
                                                      ramp, GUARD_SLIDE_MM, bulge, radii, max_radius,
-                                                     RADIUS_MAP_STEP_RAD, RADIUS_MAP_REACH_RAD)
+                                                     RADIUS_MAP_STEP_RAD, RADIUS_MAP_REACH_RAD, PUSH_TURN_START_RAD,
+                                                     PUSH_TURN_END_RAD)
                 else:
                     clearance = _guard_clearance(x[lid] - rest - shift, rest_clearance, full_clearance, ramp, bulge)
                     push_outside(x, lid, centre, clearance, radii)

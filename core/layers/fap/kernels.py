@@ -54,7 +54,7 @@ def _warm(k: SimpleNamespace) -> None:
     k.lip_sheet_overlap(rest, rows, rows, 0.0, 0.0, 1.0, 2, 2, np.empty(3), np.empty(3))
     k.lip_sheet_spread(np.array([0, 1, 2, 3], np.int64), rows, np.ones(3), np.ones(3), 0.05, np.empty(3))
     k.close_lids_over_eyeball(x, rows, x.copy(), np.zeros(3), np.zeros(3), np.zeros(3), np.ones(3), 0.5, 2.0, 0.1,
-                              np.ones((3, 3)), 1.0, 1.0, 1.0)
+                              np.ones((3, 3)), 1.0, 1.0, 1.0, 1.0, 1.5)
     k.push_out_of_row(x, rows, x.copy(), np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3), True, np.zeros(3),
                       -1.0, 2.0, 180, 4, 1.0, 1.0, np.zeros(720), 1.0, True, np.zeros(3, np.int64), np.zeros((3, 3)))
     k.spread_pushes(x, rows, rows, np.zeros((3, 3)), np.arange(4, dtype=np.int64), rows, np.ones(3))
