@@ -195,8 +195,8 @@ class BlendDock(QDockWidget):
 
     def transfer(self, method: str | None = None, library=None) -> bool:
         """Transfer ``library`` (default: the current one, else the built-in one) onto this face's
-        canonical face (its FAP rig's dense template) by ``method`` ("bbox" or "deformation"; asked
-        when None); the dock then says which method made the poses."""
+        canonical face (its FAP rig's dense template) by ``method`` ("fap_units", "deformation" or
+        "bbox"; asked when None); the dock then says which method made the poses."""
         from core.layers.blend.builtin import builtin_library, transferred_to
         from core.layers.blend.library import LibraryError
         from core.layers.blend.transfer import METHODS
@@ -210,9 +210,9 @@ class BlendDock(QDockWidget):
             from PySide6.QtWidgets import QInputDialog
 
             labels = {"deformation": "Deformation transfer (adapts to the face's local shape)",
+                      "fap_units": "Scaling by FAP units per region (MPEG-4: mouth by its width, eyes by theirs…)",
                       "bbox": "Bounding-box scaling (thesis A eqs. 4.4–4.6)"}
-            text, ok = QInputDialog.getItem(self, "Transfer expressions", "Method:", [labels[m] for m in
-                                            ("deformation", "bbox")], 0, False)
+            text, ok = QInputDialog.getItem(self, "Transfer expressions", "Method:", list(labels.values()), 0, False)
             if not ok:
                 return False
             method = next(m for m, t in labels.items() if t == text)
@@ -222,7 +222,8 @@ class BlendDock(QDockWidget):
         if dense is None or len(dense.vertices) != library.n_vertices:
             return self._message(f"This face has no canonical face of template {library.template!r} to transfer onto.")
         try:
-            self.set_library(transferred_to(library, dense.vertices, method), source=library)
+            weights = getattr(self.rig.deformer, "template_weights", None)
+            self.set_library(transferred_to(library, dense.vertices, method, region_weights=weights), source=library)
         except (LibraryError, ValueError) as exc:
             return self._message(str(exc))
         return True

@@ -113,11 +113,13 @@ class SyntheticScan:
     face : Face carrying every source landmark (projected onto the scan).
     visible : frozenset of landmark names the scanner saw (projection within ``VISIBLE_MM``).
     error_mm : name -> distance (mm) of the projected landmark from the posed source landmark.
+    transform : (4, 4) rigid transform from the person's rig frame to the scan's (the pose jitter).
     """
 
     face: Face
     visible: frozenset
     error_mm: dict
+    transform: np.ndarray
 
     @property
     def hidden(self) -> tuple[str, ...]:
@@ -240,4 +242,5 @@ def _from_payload(payload: dict, source: str) -> SyntheticScan:
     )
     names = [str(n) for n in payload["landmark_names"]]
     visible = frozenset(n for n, ok in zip(names, payload["landmark_visible"]) if ok)
-    return SyntheticScan(face, visible, dict(zip(names, map(float, payload["landmark_error_mm"]))))
+    return SyntheticScan(face, visible, dict(zip(names, map(float, payload["landmark_error_mm"]))),
+                         np.asarray(payload["transform"], float).reshape(4, 4))

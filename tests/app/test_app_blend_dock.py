@@ -67,6 +67,8 @@ def test_blend_dock_transfers_and_says_which_method(qtbot, win):
     assert dock.transfer("bbox")
     lib = win.rig.layer("blend").library
     assert lib.transfer == "bbox" and "(bbox)" in dock.info_label.text()
+    assert dock.transfer("fap_units")
+    assert win.rig.layer("blend").library.transfer == "fap_units" and "fap_units" in dock.info_label.text()
     assert dock.transfer("deformation")
     assert "deformation" in dock.info_label.text()
     win.rig.set_values({"blend:joy": 50.0})

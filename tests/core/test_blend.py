@@ -371,6 +371,43 @@ def test_a_persons_scans_become_a_library_with_a_summary(default_rig):
         library_from_scans(neutral, {"Joy!": joy}, landmarks=given)
 
 
+def test_fap_unit_transfer_scales_each_region_by_its_own_unit():
+    """Known answers: onto the base itself the identity, onto a uniformly scaled copy that scale; onto
+    a face whose mouth alone is wider (mouth width +14 %, head's width +1 %) the mouth corner's
+    sideways motion grows with the mouth's width, and skin no FAP region reaches follows the
+    bounding box."""
+    from core.layers.blend.builtin import builtin_library
+    from core.layers.blend.transfer import canonical_fapu, fap_unit_scales, region_weights_of, transfer_fap_units
+    from core.registration.templates import get_template
+
+    lib = builtin_library()
+    weights = region_weights_of(lib.rest, "mpeg4_80")
+    np.testing.assert_allclose(transfer_fap_units(lib.rest, lib.displacements, lib.rest, weights),
+                               lib.displacements, atol=1e-12)
+    model, R = _rigid(1.1 * lib.rest, angle_deg=12.0)
+    np.testing.assert_allclose(transfer_fap_units(lib.rest, lib.displacements, model, weights),
+                               1.1 * lib.displacements @ R.T, atol=1e-9)
+    base = get_template("mpeg4_80").base
+    corner = base.index("8.3")
+    mouth = 0.5 * (lib.rest[corner] + lib.rest[base.index("8.4")])
+    near = np.exp(-np.sum((lib.rest - mouth) ** 2, axis=1) / (2 * 30.0 ** 2))   # a Gaussian about the mouth
+    wide = lib.rest.copy()
+    wide[:, 0] = mouth[0] + (lib.rest[:, 0] - mouth[0]) * (1 + 0.2 * near)
+    ratio = canonical_fapu(wide, "mpeg4_80")["MW"] / canonical_fapu(lib.rest, "mpeg4_80")["MW"]
+    S = fap_unit_scales(lib.rest, wide, weights)
+    bbox = (wide.max(0) - wide.min(0)) / (lib.rest.max(0) - lib.rest.min(0))
+    assert ratio > 1.12 and bbox[0] < 1.03
+    assert S[corner, 0] > 1 + 0.7 * (ratio - 1) and abs(S[corner, 1] - 1.0) < 0.02     # wider, not taller
+    reached = sum(np.abs(w) for w in weights.values())
+    untouched = np.nonzero(reached == 0)[0]
+    assert len(untouched) > 100
+    np.testing.assert_allclose(S[untouched], np.tile(bbox, (len(untouched), 1)), atol=1e-5)   # (after alignment)
+    with pytest.raises(LibraryError, match="region weights cover"):
+        fap_unit_scales(lib.rest, wide, {3: np.ones(5)})
+    moved = transfer_library(lib, wide, method="fap_units", region_weights=weights)
+    assert moved.transfer == "fap_units"
+
+
 def _canonical_default(rig):
     from core.face import Face
     from core.registration.correspondence import canonical_triangles, with_canonical_landmarks

@@ -164,12 +164,15 @@ def builtin_library_for(face, deformer=None, method: str = "deformation"):
     if m is None:
         return None
     # Another face with a FAP rig: its dense template is its canonical face; move the library onto it.
-    return transferred_to(lib, deformer.dense.vertices, method), m
+    return transferred_to(lib, deformer.dense.vertices, method, region_weights=deformer.template_weights), m
 
 
-def transferred_to(library: ExpressionLibrary, canonical_vertices, method: str = "deformation") -> ExpressionLibrary:
+def transferred_to(library: ExpressionLibrary, canonical_vertices, method: str = "deformation", *,
+                   region_weights: dict | None = None) -> ExpressionLibrary:
     """``library`` transferred (``core.layers.blend.transfer``) onto a canonical face (N, 3) mm of its
-    template; the library itself when that face is its rest already."""
+    template; the library itself when that face is its rest already. ``region_weights``: the face's
+    FAP region weights on that canonical face (its rig's ``deformer.template_weights``), for
+    "fap_units" (measured when not given)."""
     from core.layers.blend.transfer import transfer_library
     from core.registration.correspondence import canonical_triangles
 
@@ -177,7 +180,7 @@ def transferred_to(library: ExpressionLibrary, canonical_vertices, method: str =
     if method == "deformation" and v.shape == library.rest.shape and np.allclose(v, library.rest, atol=1e-3):
         return library
     return transfer_library(library, v, canonical_triangles(library.template if library.template != "custom"
-                                                            else TEMPLATE), method=method)
+                                                            else TEMPLATE), method=method, region_weights=region_weights)
 
 
 def _scan_and_register(rig, preset: str, name, index: int, report, neutral, *, detect: bool = True):
