@@ -7,8 +7,8 @@ triplegangers.com) at run time and never writes it or anything derived from it, 
 rendered contact sheet ``docs/blend_transfer_lps.png``. The scan goes through the project's own
 pipeline (automatic landmarks -> the unit scale they suggest -> registration, as ``mimica
 landmarks`` / ``mimica register`` do), the built-in library is transferred onto the registered face
-by both methods (``builtin_library_for``: deformation transfer and the thesis's bounding-box
-scaling), and joy, surprise, sadness and anger are rendered front and three-quarter on the scan
+by each method (``builtin_library_for``: deformation transfer, scaling by FAP units per region and
+the thesis's bounding-box scaling), and joy, surprise, sadness and anger are rendered front and three-quarter on the scan
 itself at its full resolution (``scan_animation``: lips cut, a mouth cavity and teeth, as the
 window shows it after Build correspondence).
 ``--save-face OBJ`` also writes the canonical face (to try ``mimica render OBJ --blend joy:80``).
@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 
 TILE = 300
 POSES = (("neutral", 0.0), ("joy", 90.0), ("surprise", 90.0), ("sadness", 100.0), ("anger", 100.0))
-METHODS = ("deformation", "bbox")
+METHODS = ("deformation", "fap_units", "bbox")
 VIEWS = ("front", "three-quarter")
 
 
