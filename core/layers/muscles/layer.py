@@ -14,8 +14,9 @@ jaw opening add their rotations. Use one of the two for the jaw.
 
 Binding: face skin vertices on the upper / lower lip bind only to tissue triangles of their own
 lip, so the lower lip never drags the upper one; vertices beyond the template's outline fade
-out over 6 mm. Eyeballs, upper teeth and the mouth cavity do not move; the lower teeth follow
-the jaw rotation rigidly.
+out over 6 mm. Eyeballs and upper teeth do not move; the lower teeth follow the jaw rotation
+rigidly; attached to a rig, the mouth cavity's lining follows the skin in front of it as it does
+for the FAPs (``FapDeformer.cavity_follow``), so lips pulled inward do not pass through it.
 
 Controls are validated (ValueError with a message, never clamped); ``changed`` (psygnal) is
 emitted after every control change and every pose update; call ``relax`` from a timer until
@@ -280,6 +281,10 @@ class MuscleLayer:
         if dense is not None and (dense is self.model.dense or (
                 dense.vertices.shape == self.model.skin_mm.shape and np.allclose(dense.vertices, self.model.skin_mm))):
             self.model.use_binding(getattr(rig.deformer, "binding", None))
+        follow = getattr(getattr(rig, "deformer", None), "cavity_follow", None)
+        if follow is not None:
+            self.model.follow_cavity(follow())
+            self._offsets = None
         rig.add_layer(self)
         self._rig = rig
 

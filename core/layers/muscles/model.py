@@ -268,17 +268,34 @@ class TissueModel:
         jaw = load_definitions()["jaw"]
         self.glide_per_rad = np.degrees(np.array(jaw.get("glide_mm_per_degree", (0.0, 0.0, 0.0)), float)) / 10.0
         self.skin_set = TriangleSet(skin_mm, tri)
-        self._binding: scipy.sparse.csr_matrix | None = None
+        self._skin_binding: scipy.sparse.csr_matrix | None = None    # skin rows only
+        self._cavity_follow: scipy.sparse.csr_matrix | None = None   # (n_face, n_face), see follow_cavity
+        self._binding: scipy.sparse.csr_matrix | None = None         # the two composed
         self.teeth_lower = np.asarray(face.parts.get("teeth_lower", np.zeros(0, np.int64)), np.int64)
         self.fixed_parts = tuple(sorted(n for n in face.parts if n != "teeth_lower"))
 
     # ------------------------------------------------------------ binding to the full face
     @property
     def binding(self) -> scipy.sparse.csr_matrix:
-        """(n_face, N) csr: face skin vertex offset = binding @ tissue skin offset (built on first use)."""
+        """(n_face, N) csr: face vertex offset = binding @ tissue skin offset (built on first use): the
+        skin's rows, and the mouth cavity's when it follows the skin (:meth:`follow_cavity`)."""
         if self._binding is None:
-            self._binding = self._bind()
+            if self._skin_binding is None:
+                self._skin_binding = self._bind()
+            B = self._skin_binding
+            self._binding = B if self._cavity_follow is None else (B + self._cavity_follow @ B).tocsr()
         return self._binding
+
+    def follow_cavity(self, follow: scipy.sparse.csr_matrix | None) -> None:
+        """Let the mouth cavity's lining follow the skin in front of it: ``follow`` (n_face, n_face) as
+        ``FapDeformer.cavity_follow()`` (a lining vertex's row holds its closest skin point's weights,
+        fading with its distance behind the skin; None: the lining stays still). Held still, the lining
+        let the lips the orbicularis pulls forward and inward pass through it (default face, kiss:
+        265 crossing pairs), as it did for the FAPs before they got the same rows."""
+        if follow is not None and follow.shape != (self.face.n_vertices,) * 2:
+            raise ValueError(f"cavity follow must have shape {(self.face.n_vertices,) * 2}, got {follow.shape}")
+        self._cavity_follow = None if follow is None or follow.nnz == 0 else scipy.sparse.csr_matrix(follow)
+        self._binding = None
 
     def use_binding(self, binding) -> bool:
         """Adopt a prebuilt binding of the face on this same template (e.g. ``FapDeformer.binding``).
@@ -286,7 +303,8 @@ class TissueModel:
         Returns False (and keeps its own) if the shape does not match."""
         if binding is None or binding.shape != (self.face.n_vertices, self.n):
             return False
-        self._binding = scipy.sparse.csr_matrix(binding)
+        self._skin_binding = scipy.sparse.csr_matrix(binding)
+        self._binding = None
         return True
 
     # ------------------------------------------------------------ counts
