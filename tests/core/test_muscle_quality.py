@@ -62,3 +62,50 @@ def test_kiss_lips_stay_in_front_of_the_cavity(rig, muscles, probe):
     """Held still, the lining let the pursed lips pass through it: 265 crossing pairs on the default face."""
     q = probe.measure(_pose(rig, muscles, "kiss"))
     assert q.cavity_intersections == 0
+
+
+def _edge_slopes(model, weights, near_mm):
+    """Largest |w_i - w_j| / |p_i - p_j| (1/mm) over the tissue's skin edges within ``near_mm`` of a mouth corner."""
+    from core.subdivision import unique_edges
+
+    edges = unique_edges(model.triangles)[0]
+    p = model.skin_mm
+    corners = p[[model.template.index(c) for c in ("8.3", "8.4")]]
+    mid = (p[edges[:, 0]] + p[edges[:, 1]]) / 2
+    near = np.linalg.norm(mid[:, None] - corners[None], axis=2).min(axis=1) < near_mm
+    length = np.linalg.norm(p[edges[:, 0]] - p[edges[:, 1]], axis=1)
+    keep = near & (length > 1e-6)      # the template's welded seam copies have no length
+    return (np.abs(weights[edges[keep, 0]] - weights[edges[keep, 1]]) / length[keep]).max()
+
+
+def test_jaw_weights_blend_into_the_mouth_corners():
+    """The model's own jaw weights: the lower lip's 1 and the upper lip's 0 met the corner's 0.4 in a
+    step across sub-millimetre edges (2.3 per mm); blended over a quarter mouth width they change by
+    at most ~1.5 x 0.6 / 12 mm per mm, and the corners keep 0.4."""
+    from core.layers.muscles.model import TissueModel, dense_template
+
+    face = load_default_face()
+    model = TissueModel(face, dense_template(face, 2))
+    corners = [model.template.index(c) for c in ("8.3", "8.4")]
+    assert np.allclose(model.jaw_weight[corners], 0.4)
+    assert model.jaw_weight[model.template.index("8.2")] == pytest.approx(1.0, abs=0.02)
+    assert _edge_slopes(model, model.jaw_weight, 5.0) < 0.2
+
+
+def test_attached_muscle_jaw_moves_the_skin_as_fap_3_does(rig, muscles, probe):
+    """On a rig the muscle jaw takes FAP 3's weights; opened 8 degrees alone it leaves the mouth
+    corners whole (its own weights: texture stretch 10.5 at a corner, 10 folded triangles)."""
+    from core.layers.muscles import ForceSet
+
+    w3 = rig.deformer.template_weights[3]
+    assert np.allclose(muscles.model.jaw_weight, w3 / w3.max())
+    muscles.apply(ForceSet({}, 8.0, "jaw"))
+    muscles.solve()
+    x = rig.vertices()
+    from core.mesh_quality import principal_stretches
+
+    big, _small = principal_stretches(probe._rest_frames, x[probe.skin_tris])
+    centroids = rig.face.vertices[probe.skin_tris].mean(axis=1)
+    corners = np.array([rig.face.landmark_position(c) for c in ("8.3", "8.4")])
+    near = np.linalg.norm(centroids[:, None] - corners[None], axis=2).min(axis=1) < 6.0
+    assert big[near & probe._measurable].max() < 2.0

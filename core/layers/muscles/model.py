@@ -48,8 +48,11 @@ Resolution scaling (a choice the thesis leaves open): the thesis constants are p
     7.1 mm (level 3); time constants (damping/mass = 60 1/s) do not change with the level.
 
 Jaw (thesis C §3.4): a weight w_i in [0, 1] per column (1 on the lower lip and chin, fading
-    inside the FAP-3 jaw region of the template, 0.4 at the mouth corners, 0 on the upper lip)
-    and a hinge axis through two points behind the ears. Opening by theta rotates column i (all
+    inside the FAP-3 jaw region of the template, 0.4 at the mouth corners, 0 on the upper lip,
+    blended smoothly into the corners' weight around each corner) and a hinge axis through two
+    points behind the ears. Attached to a rig, the model takes FAP 3 open_jaw's own weights instead
+    (``use_jaw_weights``: graded along the lower lip, tapered to 0 at the region's border), so both
+    jaws move the skin alike. Opening by theta rotates column i (all
     three layers) by w_i theta and moves it by w_i glide(theta), the forward-down slide of the
     condyle on the articular eminence (0.4 mm forward, 0.25 mm down per degree): without it the
     chin of a depth-compressed scan swings back more than down. The rotated configuration becomes the rest configuration (anchors,
@@ -75,6 +78,10 @@ from core.subdivision import unique_edges
 from core.surface_query import TriangleSet
 
 OUTSIDE_FADE_MM = 6.0  # face skin beyond the template outline follows it, fading over this distance
+# Around a mouth corner the jaw weights blend into the corner's weight within this distance (mouth
+# widths, 12 mm on the default face): the lower lip's full weight and the upper lip's none met in a
+# step at the corner (jaw at 8 degrees: texture stretch 10.5 there, 3.4 with the blend).
+JAW_CORNER_TAPER_MW = 0.25
 LAYERS = ("skin", "fascia", "bone")
 
 
@@ -307,6 +314,20 @@ class TissueModel:
         self._binding = None
         return True
 
+    def use_jaw_weights(self, weights) -> bool:
+        """Adopt (N,) jaw weights on this same template, e.g. FAP 3 open_jaw's (``FapDeformer.template_weights[3]``):
+        the muscle jaw then moves the skin as the FAP jaw does, with its weights graded along the lower
+        lip toward the corners and tapered to 0 at the region's border (this model's own stop at about
+        half weight at the jaw's ends, a seam: jaw at 8 degrees, texture stretch 3.4 there, 2.4 with
+        FAP 3's). Returns False (and keeps its own) if the shape does not match."""
+        if weights is None or np.shape(weights) != (self.n,):
+            return False
+        w = np.clip(np.asarray(weights, float), 0.0, None)
+        if w.max() <= 0:
+            return False
+        self.jaw_weight = w / w.max()
+        return True
+
     # ------------------------------------------------------------ counts
     @property
     def n_nodes(self) -> int:
@@ -399,7 +420,14 @@ class TissueModel:
             weight[ids] = np.maximum(weight[ids], w * entry.get("scale", 1.0))
         weight[self.lip > 0] = 0.0  # the upper lip never follows the jaw
         corners = [t.index(c) for c in spec["corners"]]
-        weight[corners] = spec["corner_weight"]
+        corner_weight = spec["corner_weight"]
+        # Around each mouth corner the weights blend into the corner's: the lower lip (weight 1) and
+        # the upper lip (0) meet there a fraction of a millimetre apart (JAW_CORNER_TAPER_MW).
+        reach = JAW_CORNER_TAPER_MW * self.fapu["MW"]
+        near = np.linalg.norm(self.skin_mm[:, None, :] - self.skin_mm[corners][None], axis=2).min(axis=1)
+        s = np.clip(near / reach, 0.0, 1.0)
+        blend = s * s * (3.0 - 2.0 * s)
+        weight = corner_weight + (weight - corner_weight) * blend
         return weight
 
     def _hinge(self) -> np.ndarray:
