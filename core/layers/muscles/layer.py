@@ -12,6 +12,10 @@ displacements add as vectors, so the corner moves by their sum, without the stif
 change of muscle direction a coupled simulation would show, and a FAP jaw opening plus a muscle
 jaw opening add their rotations. Use one of the two for the jaw.
 
+The face sees the tissue's skin displacement through a Gaussian filter of 2 mm that never mixes
+the lips (``model.SKIN_FILTER_MM``): the spring lattice's element-scale artefacts (buckled wrinkles,
+strain piled into the template's slivers at the mouth corners) stay in the simulation.
+
 Binding: face skin vertices on the upper / lower lip bind only to tissue triangles of their own
 lip, so the lower lip never drags the upper one; vertices beyond the template's outline fade
 out over 6 mm. Eyeballs and upper teeth do not move; the lower teeth follow the jaw rotation
@@ -260,6 +264,7 @@ class MuscleLayer:
         if self._offsets is None:
             m = self.model
             u = (self._state.x[:m.n] - m.rest[:m.n]) * 10.0   # cm -> mm
+            u = self.solver.kernels.matvec3(m.skin_filter, u)   # without the lattice's element-scale artefacts
             out = self.solver.kernels.matvec3(m.binding, u)
             if len(m.teeth_lower) and self._state.jaw != 0.0:
                 p = self.face.vertices[m.teeth_lower]

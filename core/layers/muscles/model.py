@@ -82,6 +82,17 @@ OUTSIDE_FADE_MM = 6.0  # face skin beyond the template outline follows it, fadin
 # widths, 12 mm on the default face): the lower lip's full weight and the upper lip's none met in a
 # step at the corner (jaw at 8 degrees: texture stretch 10.5 there, 3.4 with the blend).
 JAW_CORNER_TAPER_MW = 0.25
+# The face shows the tissue's skin displacement filtered by a Gaussian of this width (mm), never
+# across the mouth (upper and lower lip nodes do not mix). The spring lattice has no bending
+# stiffness and the template is a fan of slivers at the mouth corners, so its solution carries
+# element-scale artefacts that the face's finer, regular skin showed as they were: the kiss's
+# sphincter buckled the lips into millimetre wrinkles (default face: 94 folded triangles, 35 lip
+# crossings), a smile piled its strain into the corner's slivers (texture stretch 6.9). Measured on
+# the default and a generated face (thesis presets): 1 mm left stretch 2.4-4.1 and 4 kiss folds;
+# 1.5 mm no kiss fold or crossing, stretch 2.0-3.2; 2 mm stretch 1.9-2.9. The price is the peak of
+# the displacement: 2 mm takes 0.5-0.9 mm off the kiss's protrusion (9.1 -> 8.4 mm at 8.1) and
+# 1.3-1.7 mm off a smiling corner's 10-11 mm (1.5 mm: 0.4-0.6 and 0.9-1.3).
+SKIN_FILTER_MM = 2.0
 LAYERS = ("skin", "fascia", "bone")
 
 
@@ -182,6 +193,7 @@ class TissueModel:
     coordinate, the k2 prism matrix plus the restoring diagonal.  prisms : (M, 6) node ids.
     lip : (N,) +1 upper lip, -1 lower lip, 0 elsewhere.  jaw_weight : (N,).  hinge : (2, 3) cm.
     binding : (n_face, N) csr, face skin vertex = binding @ tissue skin (lazy).  teeth_lower : (k,) face ids.
+    skin_filter : (N, N) csr, the filter the face sees the tissue's displacement through (lazy).
     """
 
     def __init__(self, face: Face, dense: DenseTemplate, params: TissueParams | None = None):
@@ -278,6 +290,7 @@ class TissueModel:
         self._skin_binding: scipy.sparse.csr_matrix | None = None    # skin rows only
         self._cavity_follow: scipy.sparse.csr_matrix | None = None   # (n_face, n_face), see follow_cavity
         self._binding: scipy.sparse.csr_matrix | None = None         # the two composed
+        self._skin_filter: scipy.sparse.csr_matrix | None = None
         self.teeth_lower = np.asarray(face.parts.get("teeth_lower", np.zeros(0, np.int64)), np.int64)
         self.fixed_parts = tuple(sorted(n for n in face.parts if n != "teeth_lower"))
 
@@ -292,6 +305,15 @@ class TissueModel:
             B = self._skin_binding
             self._binding = B if self._cavity_follow is None else (B + self._cavity_follow @ B).tocsr()
         return self._binding
+
+    @property
+    def skin_filter(self) -> scipy.sparse.csr_matrix:
+        """(N, N) csr, rows summing to 1: the Gaussian filter (``SKIN_FILTER_MM``) the face sees the
+        tissue's skin displacement through: node-area weighted, cut at 3 widths, and never mixing the
+        upper lip's nodes with the lower lip's (built on first use)."""
+        if self._skin_filter is None:
+            self._skin_filter = smoothing_matrix(self.skin_mm, self.node_area, self.lip, SKIN_FILTER_MM)
+        return self._skin_filter
 
     def follow_cavity(self, follow: scipy.sparse.csr_matrix | None) -> None:
         """Let the mouth cavity's lining follow the skin in front of it: ``follow`` (n_face, n_face) as
@@ -490,6 +512,25 @@ class TissueModel:
 
 
 # ------------------------------------------------------------------ helpers
+def smoothing_matrix(points: np.ndarray, area: np.ndarray, lip: np.ndarray, width: float) -> scipy.sparse.csr_matrix:
+    """(n, n) csr with rows summing to 1: row i averages the points within 3 ``width`` of point i
+    ((n, 3) mm) with Gaussian weights of that width times their ``area`` (n,), leaving out points of
+    the other lip (``lip`` (n,): +1 upper, -1 lower, 0 either). ``width`` <= 0: the identity."""
+    n = len(points)
+    if width <= 0:
+        return scipy.sparse.identity(n, format="csr")
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(points).query_pairs(3.0 * width, output_type="ndarray")
+    i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(n)])
+    j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(n)])
+    same_side = lip[i].astype(np.int64) * lip[j] >= 0
+    i, j = i[same_side], j[same_side]
+    w = np.exp(-np.sum((points[i] - points[j]) ** 2, axis=1) / (2.0 * width * width)) * np.maximum(area[j], 1e-12)
+    W = scipy.sparse.coo_matrix((w, (i, j)), shape=(n, n)).tocsr()
+    return (scipy.sparse.diags(1.0 / np.asarray(W.sum(axis=1)).ravel()) @ W).tocsr()
+
+
 def _rotations(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """(n, 3, 3) rotations by ``angles`` (n,) rad about the unit ``axis`` (Rodrigues)."""
     k = np.asarray(axis, float)
