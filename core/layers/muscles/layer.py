@@ -264,7 +264,9 @@ class MuscleLayer:
         if self._offsets is None:
             m = self.model
             u = (self._state.x[:m.n] - m.rest[:m.n]) * 10.0   # cm -> mm
-            u = self.solver.kernels.matvec3(m.skin_filter, u)   # without the lattice's element-scale artefacts
+            rows, F = m.skin_filter(self._acted_on())   # without the lattice's element-scale artefacts
+            if len(rows):
+                u[rows] = self.solver.kernels.matvec3(F, u)
             out = self.solver.kernels.matvec3(m.binding, u)
             if len(m.teeth_lower) and self._state.jaw != 0.0:
                 p = self.face.vertices[m.teeth_lower]
@@ -361,6 +363,14 @@ class MuscleLayer:
         C = len(self._keys)
         x = self.model.rest[:self.model.n_free].copy()
         return State(x, np.zeros_like(x), np.zeros(C), np.zeros(C))
+
+    def _acted_on(self) -> np.ndarray:
+        """(N,) bool: skin nodes a muscle pulls or the jaw turns."""
+        m = self.model
+        acted = m.jaw_weight > 0
+        for nodes in [mus.nodes for mus in self.muscles.linear] + [self.muscles.sphincter.nodes]:
+            acted[nodes] = True
+        return acted
 
     def _signature(self) -> tuple:
         return (self._controls.tobytes(), self._jaw_deg)
