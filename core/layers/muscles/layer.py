@@ -288,8 +288,10 @@ class MuscleLayer:
         if dense is not None and (dense is self.model.dense or (
                 dense.vertices.shape == self.model.skin_mm.shape and np.allclose(dense.vertices, self.model.skin_mm))):
             self.model.use_binding(getattr(rig.deformer, "binding", None))
-            self.model.use_jaw_weights(getattr(rig.deformer, "template_weights", {}).get(3))
-            self.solver.forget_frame()
+            if self.model.use_jaw_weights(getattr(rig.deformer, "template_weights", {}).get(3)):
+                self.solver.forget_frame()
+                if self._state.jaw != 0.0:    # a pose opened with the old weights: settle it again
+                    self._relaxed_for = None
         follow = getattr(getattr(rig, "deformer", None), "cavity_follow", None)
         if follow is not None:
             self.model.follow_cavity(follow())
