@@ -149,3 +149,21 @@ def test_kiss_purses_the_lips_without_folding_them(rig, muscles, probe):
     assert (x - rest)[near["8.1"], 2] > 7.0 and (x - rest)[near["8.2"], 2] > 7.0
     width = lambda v: v[near["8.3"], 0] - v[near["8.4"], 0]
     assert width(rest) - width(x) > 6.0
+
+
+def test_skin_filter_keeps_the_lips_apart_but_blends_them_at_the_corners(rig, muscles):
+    """Relaxed along the mesh (no edge crosses the mouth), the lip labels stay +-1 at the inner lips'
+    midpoints and are 0 at the corners: the filter row of an inner lip point takes nothing of the
+    other lip, a corner's row takes both lips (hard labels left a step there: stretch 2.7 -> 2.4 in the
+    discreet smile)."""
+    m = muscles.model
+    side = m._lip_side()
+    index = {n: m.template.index(n) for n in ("2.2", "2.3", "8.3", "8.4")}
+    assert side[index["2.2"]] == pytest.approx(1.0, abs=1e-6) and side[index["2.3"]] == pytest.approx(-1.0, abs=1e-6)
+    assert abs(side[index["8.3"]]) < 0.05 and abs(side[index["8.4"]]) < 0.05
+    rows, F = m.skin_filter(np.ones(m.n, bool))
+    for name, other in (("2.2", -1), ("2.3", 1)):
+        row = F[index[name]]
+        assert row.data[m.lip[row.indices] == other].sum() == 0.0
+    corner = F[index["8.3"]]     # most of its weight is on the unlabelled corner nodes (8 % on each lip)
+    assert corner.data[m.lip[corner.indices] > 0].sum() > 0.05 and corner.data[m.lip[corner.indices] < 0].sum() > 0.05
