@@ -367,11 +367,15 @@ class MuscleLayer:
         return State(x, np.zeros_like(x), np.zeros(C), np.zeros(C))
 
     def _acted_on(self) -> np.ndarray:
-        """(N,) bool: skin nodes a muscle pulls or the jaw turns."""
+        """(N,) bool: skin nodes a muscle pulls or the jaw turns (kept while the jaw weights are the same)."""
         m = self.model
+        cached = self.__dict__.get("_acted")
+        if cached is not None and cached[0] is m.jaw_weight:
+            return cached[1]
         acted = m.jaw_weight > 0
         for nodes in [mus.nodes for mus in self.muscles.linear] + [self.muscles.sphincter.nodes]:
             acted[nodes] = True
+        self._acted = (m.jaw_weight, acted)
         return acted
 
     def _signature(self) -> tuple:

@@ -304,7 +304,7 @@ class TissueModel:
         self._skin_binding: scipy.sparse.csr_matrix | None = None    # skin rows only
         self._cavity_follow: scipy.sparse.csr_matrix | None = None   # (n_face, n_face), see follow_cavity
         self._binding: scipy.sparse.csr_matrix | None = None         # the two composed
-        self._skin_filter: tuple | None = None      # (mask key, rows, filter), see skin_filter
+        self._skin_filter: tuple | None = None      # (mask key, rows, filter, mask), see skin_filter
         self.teeth_lower = np.asarray(face.parts.get("teeth_lower", np.zeros(0, np.int64)), np.int64)
         self.fixed_parts = tuple(sorted(n for n in face.parts if n != "teeth_lower"))
 
@@ -325,8 +325,11 @@ class TissueModel:
         the face sees the tissue's skin displacement through, u[rows] <- F @ u: node-area weighted,
         cut at ``FILTER_CUT`` widths, keeping the lips apart (``_lip_side``, ``OPPOSITE_SIDES``), for
         the skin nodes within that cut of a node in ``acted_on`` ((N,) bool; built once per mask)."""
+        cached = self._skin_filter
+        if cached is not None and cached[3] is acted_on:      # the same mask as last time (each tick)
+            return cached[1], cached[2]
         key = np.packbits(acted_on).tobytes()
-        if self._skin_filter is None or self._skin_filter[0] != key:
+        if cached is None or cached[0] != key:
             from scipy.spatial import cKDTree
 
             reach = FILTER_CUT * SKIN_FILTER_MM
@@ -336,8 +339,9 @@ class TissueModel:
                 near = np.isfinite(cKDTree(sources).query(self.skin_mm, distance_upper_bound=reach)[0])
             rows = np.flatnonzero(near)
             F = smoothing_matrix(self.skin_mm, self.node_area, self._lip_side(), SKIN_FILTER_MM)[rows]
-            self._skin_filter = (key, rows, F.tocsr())
-        return self._skin_filter[1], self._skin_filter[2]
+            cached = (key, rows, F.tocsr())
+        self._skin_filter = cached[:3] + (acted_on,)
+        return cached[1], cached[2]
 
     def _lip_side(self) -> np.ndarray:
         """(N,) the lip labels (+1 upper, -1 lower, 0 elsewhere) relaxed by ``LIP_SIDE_STEPS`` Jacobi
