@@ -12,10 +12,15 @@ displacements add as vectors, so the corner moves by their sum, without the stif
 change of muscle direction a coupled simulation would show, and a FAP jaw opening plus a muscle
 jaw opening add their rotations. Use one of the two for the jaw.
 
+The face sees the tissue's skin displacement through a Gaussian filter of 2 mm that never mixes
+the lips (``model.SKIN_FILTER_MM``): the spring lattice's element-scale artefacts (buckled wrinkles,
+strain piled into the template's slivers at the mouth corners) stay in the simulation.
+
 Binding: face skin vertices on the upper / lower lip bind only to tissue triangles of their own
 lip, so the lower lip never drags the upper one; vertices beyond the template's outline fade
-out over 6 mm. Eyeballs, upper teeth and the mouth cavity do not move; the lower teeth follow
-the jaw rotation rigidly.
+out over 6 mm. Eyeballs and upper teeth do not move; the lower teeth follow the jaw rotation
+rigidly; attached to a rig, the mouth cavity's lining follows the skin in front of it as it does
+for the FAPs (``FapDeformer.cavity_follow``), so lips pulled inward do not pass through it.
 
 Controls are validated (ValueError with a message, never clamped); ``changed`` (psygnal) is
 emitted after every control change and every pose update; call ``relax`` from a timer until
@@ -259,6 +264,9 @@ class MuscleLayer:
         if self._offsets is None:
             m = self.model
             u = (self._state.x[:m.n] - m.rest[:m.n]) * 10.0   # cm -> mm
+            rows, F = m.skin_filter(self._acted_on())   # without the lattice's element-scale artefacts
+            if len(rows):
+                u[rows] = self.solver.kernels.matvec3(F, u)
             out = self.solver.kernels.matvec3(m.binding, u)
             if len(m.teeth_lower) and self._state.jaw != 0.0:
                 p = self.face.vertices[m.teeth_lower]
@@ -280,6 +288,14 @@ class MuscleLayer:
         if dense is not None and (dense is self.model.dense or (
                 dense.vertices.shape == self.model.skin_mm.shape and np.allclose(dense.vertices, self.model.skin_mm))):
             self.model.use_binding(getattr(rig.deformer, "binding", None))
+            if self.model.use_jaw_weights(getattr(rig.deformer, "template_weights", {}).get(3)):
+                self.solver.forget_frame()
+                if self._state.jaw != 0.0:    # a pose opened with the old weights: settle it again
+                    self._relaxed_for = None
+        follow = getattr(getattr(rig, "deformer", None), "cavity_follow", None)
+        if follow is not None:
+            self.model.follow_cavity(follow())
+            self._offsets = None
         rig.add_layer(self)
         self._rig = rig
 
@@ -349,6 +365,18 @@ class MuscleLayer:
         C = len(self._keys)
         x = self.model.rest[:self.model.n_free].copy()
         return State(x, np.zeros_like(x), np.zeros(C), np.zeros(C))
+
+    def _acted_on(self) -> np.ndarray:
+        """(N,) bool: skin nodes a muscle pulls or the jaw turns (kept while the jaw weights are the same)."""
+        m = self.model
+        cached = self.__dict__.get("_acted")
+        if cached is not None and cached[0] is m.jaw_weight:
+            return cached[1]
+        acted = m.jaw_weight > 0
+        for nodes in [mus.nodes for mus in self.muscles.linear] + [self.muscles.sphincter.nodes]:
+            acted[nodes] = True
+        self._acted = (m.jaw_weight, acted)
+        return acted
 
     def _signature(self) -> tuple:
         return (self._controls.tobytes(), self._jaw_deg)

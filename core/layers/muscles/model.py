@@ -48,8 +48,11 @@ Resolution scaling (a choice the thesis leaves open): the thesis constants are p
     7.1 mm (level 3); time constants (damping/mass = 60 1/s) do not change with the level.
 
 Jaw (thesis C §3.4): a weight w_i in [0, 1] per column (1 on the lower lip and chin, fading
-    inside the FAP-3 jaw region of the template, 0.4 at the mouth corners, 0 on the upper lip)
-    and a hinge axis through two points behind the ears. Opening by theta rotates column i (all
+    inside the FAP-3 jaw region of the template, 0.4 at the mouth corners, 0 on the upper lip,
+    blended smoothly into the corners' weight around each corner) and a hinge axis through two
+    points behind the ears. Attached to a rig, the model takes FAP 3 open_jaw's own weights instead
+    (``use_jaw_weights``: graded along the lower lip, tapered to 0 at the region's border), so both
+    jaws move the skin alike. Opening by theta rotates column i (all
     three layers) by w_i theta and moves it by w_i glide(theta), the forward-down slide of the
     condyle on the articular eminence (0.4 mm forward, 0.25 mm down per degree): without it the
     chin of a depth-compressed scan swings back more than down. The rotated configuration becomes the rest configuration (anchors,
@@ -75,6 +78,35 @@ from core.subdivision import unique_edges
 from core.surface_query import TriangleSet
 
 OUTSIDE_FADE_MM = 6.0  # face skin beyond the template outline follows it, fading over this distance
+# Around a mouth corner the jaw weights blend into the corner's weight within this distance (mouth
+# widths, 12 mm on the default face): the lower lip's full weight and the upper lip's none met in a
+# step at the corner (jaw at 8 degrees: texture stretch 10.5 there, 3.4 with the blend).
+JAW_CORNER_TAPER_MW = 0.25
+# The face shows the tissue's skin displacement filtered by a Gaussian of this width (mm), never
+# across the mouth (upper and lower lip nodes do not mix). The spring lattice has no bending
+# stiffness and the template is a fan of slivers at the mouth corners, so its solution carries
+# element-scale artefacts that the face's finer, regular skin showed as they were: the kiss's
+# sphincter buckled the lips into millimetre wrinkles (default face: 94 folded triangles, 35 lip
+# crossings), a smile piled its strain into the corner's slivers (texture stretch 6.9). Measured on
+# the default and a generated face (thesis presets): 1 mm left stretch 2.4-4.1 and 4 kiss folds;
+# 1.5 mm no kiss fold or crossing, stretch 2.0-3.2; 2 mm stretch 1.9-2.9. The price is the peak of
+# the displacement: 2 mm takes 0.5-0.9 mm off the kiss's protrusion (9.1 -> 8.4 mm at 8.1) and
+# 1.3-1.7 mm off a smiling corner's 10-11 mm (1.5 mm: 0.4-0.6 and 0.9-1.3).
+SKIN_FILTER_MM = 2.0
+# The filter's Gaussian is cut at this many widths, and only the skin within that reach of a node a
+# muscle or the jaw acts on is filtered (elsewhere the displacement is smooth): 232k weights cut at 3
+# widths everywhere cost 0.36 ms per pose, 18 % of a playback frame; at 2.5 widths the stretch of the
+# thesis presets is within 0.08 of the 3-width filter's.
+FILTER_CUT = 2.5
+# The filter keeps the lips apart by their side labels relaxed along the mesh (``_lip_side``: this
+# many Jacobi steps; the mesh has no edge across the mouth, so the labels stay +-1 along it and fade
+# only toward the corners, where the lips meet), a pair of nodes weighted by
+# clip(1 + side_i side_j / OPPOSITE_SIDES, 0, 1). Hard labels left a step at the corners between the
+# nodes of one lip (which average that lip only) and their unlabelled neighbours (which average both):
+# stretch 2.7 there in the discreet smile; relaxed (10 steps, 0.5): 2.4, the generated face's sadness
+# and disgust 2.14/2.03 -> 1.92/1.68, no lip crossing anywhere (5 steps: 2.5; 20 steps: same as 10).
+LIP_SIDE_STEPS = 10
+OPPOSITE_SIDES = 0.5
 LAYERS = ("skin", "fascia", "bone")
 
 
@@ -175,6 +207,7 @@ class TissueModel:
     coordinate, the k2 prism matrix plus the restoring diagonal.  prisms : (M, 6) node ids.
     lip : (N,) +1 upper lip, -1 lower lip, 0 elsewhere.  jaw_weight : (N,).  hinge : (2, 3) cm.
     binding : (n_face, N) csr, face skin vertex = binding @ tissue skin (lazy).  teeth_lower : (k,) face ids.
+    skin_filter(acted_on) : the filter the face sees the tissue's displacement through (lazy).
     """
 
     def __init__(self, face: Face, dense: DenseTemplate, params: TissueParams | None = None):
@@ -268,17 +301,72 @@ class TissueModel:
         jaw = load_definitions()["jaw"]
         self.glide_per_rad = np.degrees(np.array(jaw.get("glide_mm_per_degree", (0.0, 0.0, 0.0)), float)) / 10.0
         self.skin_set = TriangleSet(skin_mm, tri)
-        self._binding: scipy.sparse.csr_matrix | None = None
+        self._skin_binding: scipy.sparse.csr_matrix | None = None    # skin rows only
+        self._cavity_follow: scipy.sparse.csr_matrix | None = None   # (n_face, n_face), see follow_cavity
+        self._binding: scipy.sparse.csr_matrix | None = None         # the two composed
+        self._skin_filter: tuple | None = None      # (mask key, rows, filter, mask), see skin_filter
         self.teeth_lower = np.asarray(face.parts.get("teeth_lower", np.zeros(0, np.int64)), np.int64)
         self.fixed_parts = tuple(sorted(n for n in face.parts if n != "teeth_lower"))
 
     # ------------------------------------------------------------ binding to the full face
     @property
     def binding(self) -> scipy.sparse.csr_matrix:
-        """(n_face, N) csr: face skin vertex offset = binding @ tissue skin offset (built on first use)."""
+        """(n_face, N) csr: face vertex offset = binding @ tissue skin offset (built on first use): the
+        skin's rows, and the mouth cavity's when it follows the skin (:meth:`follow_cavity`)."""
         if self._binding is None:
-            self._binding = self._bind()
+            if self._skin_binding is None:
+                self._skin_binding = self._bind()
+            B = self._skin_binding
+            self._binding = B if self._cavity_follow is None else (B + self._cavity_follow @ B).tocsr()
         return self._binding
+
+    def skin_filter(self, acted_on: np.ndarray) -> tuple[np.ndarray, scipy.sparse.csr_matrix]:
+        """(rows (k,), F (k, N) csr with rows summing to 1): the Gaussian filter (``SKIN_FILTER_MM``)
+        the face sees the tissue's skin displacement through, u[rows] <- F @ u: node-area weighted,
+        cut at ``FILTER_CUT`` widths, keeping the lips apart (``_lip_side``, ``OPPOSITE_SIDES``), for
+        the skin nodes within that cut of a node in ``acted_on`` ((N,) bool; built once per mask)."""
+        cached = self._skin_filter
+        if cached is not None and cached[3] is acted_on:      # the same mask as last time (each tick)
+            return cached[1], cached[2]
+        key = np.packbits(acted_on).tobytes()
+        if cached is None or cached[0] != key:
+            from scipy.spatial import cKDTree
+
+            reach = FILTER_CUT * SKIN_FILTER_MM
+            sources = self.skin_mm[acted_on]
+            near = np.zeros(self.n, bool)
+            if len(sources):
+                near = np.isfinite(cKDTree(sources).query(self.skin_mm, distance_upper_bound=reach)[0])
+            rows = np.flatnonzero(near)
+            F = smoothing_matrix(self.skin_mm, self.node_area, self._lip_side(), SKIN_FILTER_MM)[rows]
+            cached = (key, rows, F.tocsr())
+        self._skin_filter = cached[:3] + (acted_on,)
+        return cached[1], cached[2]
+
+    def _lip_side(self) -> np.ndarray:
+        """(N,) the lip labels (+1 upper, -1 lower, 0 elsewhere) relaxed by ``LIP_SIDE_STEPS`` Jacobi
+        steps along the mesh's edges, which do not cross the mouth: deep in a lip and along the mouth
+        they stay near +-1, toward a corner, where the lips meet, they fade through 0."""
+        edges = unique_edges(self.triangles)[0]
+        both = (np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]])
+        A = scipy.sparse.coo_matrix((np.ones(2 * len(edges)), both), shape=(self.n, self.n)).tocsr()
+        A = A + scipy.sparse.identity(self.n, format="csr")
+        A = scipy.sparse.diags(1.0 / np.asarray(A.sum(axis=1)).ravel()) @ A
+        side = self.lip.astype(float)
+        for _ in range(LIP_SIDE_STEPS):
+            side = A @ side
+        return side
+
+    def follow_cavity(self, follow: scipy.sparse.csr_matrix | None) -> None:
+        """Let the mouth cavity's lining follow the skin in front of it: ``follow`` (n_face, n_face) as
+        ``FapDeformer.cavity_follow()`` (a lining vertex's row holds its closest skin point's weights,
+        fading with its distance behind the skin; None: the lining stays still). Held still, the lining
+        let the lips the orbicularis pulls forward and inward pass through it (default face, kiss:
+        265 crossing pairs), as it did for the FAPs before they got the same rows."""
+        if follow is not None and follow.shape != (self.face.n_vertices,) * 2:
+            raise ValueError(f"cavity follow must have shape {(self.face.n_vertices,) * 2}, got {follow.shape}")
+        self._cavity_follow = None if follow is None or follow.nnz == 0 else scipy.sparse.csr_matrix(follow)
+        self._binding = None
 
     def use_binding(self, binding) -> bool:
         """Adopt a prebuilt binding of the face on this same template (e.g. ``FapDeformer.binding``).
@@ -286,7 +374,22 @@ class TissueModel:
         Returns False (and keeps its own) if the shape does not match."""
         if binding is None or binding.shape != (self.face.n_vertices, self.n):
             return False
-        self._binding = scipy.sparse.csr_matrix(binding)
+        self._skin_binding = scipy.sparse.csr_matrix(binding)
+        self._binding = None
+        return True
+
+    def use_jaw_weights(self, weights) -> bool:
+        """Adopt (N,) jaw weights on this same template, e.g. FAP 3 open_jaw's (``FapDeformer.template_weights[3]``):
+        the muscle jaw then moves the skin as the FAP jaw does, with its weights graded along the lower
+        lip toward the corners and tapered to 0 at the region's border (this model's own stop at about
+        half weight at the jaw's ends, a seam: jaw at 8 degrees, texture stretch 3.4 there, 2.4 with
+        FAP 3's). Returns False (and keeps its own) if the shape does not match."""
+        if weights is None or np.shape(weights) != (self.n,):
+            return False
+        w = np.clip(np.asarray(weights, float), 0.0, None)
+        if w.max() <= 0:
+            return False
+        self.jaw_weight = w / w.max()
         return True
 
     # ------------------------------------------------------------ counts
@@ -381,7 +484,14 @@ class TissueModel:
             weight[ids] = np.maximum(weight[ids], w * entry.get("scale", 1.0))
         weight[self.lip > 0] = 0.0  # the upper lip never follows the jaw
         corners = [t.index(c) for c in spec["corners"]]
-        weight[corners] = spec["corner_weight"]
+        corner_weight = spec["corner_weight"]
+        # Around each mouth corner the weights blend into the corner's: the lower lip (weight 1) and
+        # the upper lip (0) meet there a fraction of a millimetre apart (JAW_CORNER_TAPER_MW).
+        reach = JAW_CORNER_TAPER_MW * self.fapu["MW"]
+        near = np.linalg.norm(self.skin_mm[:, None, :] - self.skin_mm[corners][None], axis=2).min(axis=1)
+        s = np.clip(near / reach, 0.0, 1.0)
+        blend = s * s * (3.0 - 2.0 * s)
+        weight = corner_weight + (weight - corner_weight) * blend
         return weight
 
     def _hinge(self) -> np.ndarray:
@@ -444,6 +554,28 @@ class TissueModel:
 
 
 # ------------------------------------------------------------------ helpers
+def smoothing_matrix(points: np.ndarray, area: np.ndarray, side: np.ndarray, width: float) -> scipy.sparse.csr_matrix:
+    """(n, n) csr with rows summing to 1: row i averages the points within ``FILTER_CUT`` x ``width`` of point i
+    ((n, 3) mm) with Gaussian weights of that width times their ``area`` (n,) times
+    clip(1 + side_i side_j / OPPOSITE_SIDES, 0, 1), ``side`` (n,) in [-1, 1] the lip each point is on
+    (+1 upper, -1 lower, 0 neither): points of the other lip are left out. ``width`` <= 0: the identity."""
+    n = len(points)
+    if width <= 0:
+        return scipy.sparse.identity(n, format="csr")
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(points).query_pairs(FILTER_CUT * width, output_type="ndarray")
+    i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(n)])
+    j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(n)])
+    side = np.asarray(side, float)
+    apart = np.clip(1.0 + side[i] * side[j] / OPPOSITE_SIDES, 0.0, 1.0)
+    keep = apart > 0
+    i, j, apart = i[keep], j[keep], apart[keep]
+    w = np.exp(-np.sum((points[i] - points[j]) ** 2, axis=1) / (2.0 * width * width)) * np.maximum(area[j], 1e-12) * apart
+    W = scipy.sparse.coo_matrix((w, (i, j)), shape=(n, n)).tocsr()
+    return (scipy.sparse.diags(1.0 / np.asarray(W.sum(axis=1)).ravel()) @ W).tocsr()
+
+
 def _rotations(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """(n, 3, 3) rotations by ``angles`` (n,) rad about the unit ``axis`` (Rodrigues)."""
     k = np.asarray(axis, float)

@@ -202,6 +202,11 @@ class TissueSolver:
         self._frame = Frame(angle, X0, l0, b_lin, b_bone, normals, V0, r0, self.muscles.field(X0), x_all)
         return self._frame
 
+    def forget_frame(self) -> None:
+        """Drop the cached rest frame (after the model's jaw weights changed)."""
+        self._frame = None
+        self._aa = None
+
     def _prism_volumes(self, x: np.ndarray) -> np.ndarray:
         """(M,) right-prism volumes (thesis C): skin triangle area x mean skin-fascia edge length."""
         t, N = self.model.triangles, self.N
