@@ -23,8 +23,17 @@ in the shape: the lid bulge under the brow ridge, between the nose and the templ
   eyes, the shape fits poorly (NCC 0.4-0.6) and the painted eyes can look closed. Surface points
   from the scan's frontal raster, source "refined", evidence the eye's shape NCC.
 
+* **no eye in the shape** (scans without texture): where the best shape NCC of the eye box is under
+  ``EYE_SHAPE_NCC`` the scan's eye region has no lid or eyeball relief (Surrey Face Model scans: a
+  smooth shell). The patch search then had nothing to go by: its NCC is flat (~0.35 across +-12 mm)
+  and its peaks land on the slope up to the brow ridge (inner corners ~5 mm, outer corners up to
+  16 mm high), and the box fit is no better (3-4 mm low). All the eye's points are then predicted
+  from the anchors (the confident non-eye points, as in ``steep_pass``; the aligned model's place
+  when there are fewer than 3) and put at the closest scan point (beside the eye the surface turns
+  away from the view); source "prediction", evidence 0, so they are reported low confidence.
+
 A side is left alone when its corners are not in the template, the eye box leaves the raster, or
-no eye is found (shape NCC <= 0); fixed points never move."""
+no eye is found (shape NCC <= 0, with texture); fixed points never move."""
 
 from __future__ import annotations
 
@@ -45,6 +54,10 @@ EYE_SEARCH = 0.16          # x face scale: farthest the eye is searched from whe
 EYE_SIZES = (0.85, 0.92, 1.0, 1.08, 1.16)   # eye sizes tried, relative to the model's
 EYE_MARGIN = (0.055, 0.035)   # x face scale: the box around the eye points (x, y): lid bulge and corners
 EYE_MOVE = 0.1             # x face scale: a closed eye's upper lid farther than this from its lid line moves
+# Without texture, an eye box whose best shape NCC is under this shows no eye. Measured (find_eye's
+# NCC, untextured scans): generated faces 0.71-0.91 (3 people x neutral/joy/anger, 30 eyes), Surrey
+# Face Model scans 0.35-0.50 (4 people x neutral/sadness, 16 eyes).
+EYE_SHAPE_NCC = 0.6
 CLOSED_FAPS = {19: 1024.0, 20: 1024.0}   # close_t_l/r_eyelid at full closure (IRISD units: 1024 = the iris)
 
 
@@ -155,7 +168,8 @@ def eye_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> Su
     textured = ctx.textured and raster.channels.shape[-1] >= 5
     closed_raster = closed_model_raster(ctx.model) if textured else None
     reach = max(1, int(round(EYE_SEARCH * scale / px)))
-    index, tri, bary, evidence = [], [], [], []
+    index, tri, bary, evidence, source = [], [], [], [], []
+    anchored = None               # the anchors' prediction (P, 3), made when a shapeless eye needs it
     for side in EYES:
         present = [n for n in side if n in names]
         if side[0] not in present or side[1] not in present:
@@ -166,9 +180,27 @@ def eye_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> Su
         hi = pts[:, :2].max(axis=0) + np.array(EYE_MARGIN) * scale
         (c0, r0), (c1, r1) = np.round(raster.to_pixel([[lo[0], hi[1], 0.0], [hi[0], lo[1], 0.0]])).astype(int)
         found = find_eye(model_shape, scan_shape, (c0, r0, c1, r1), reach)
-        if found is None or found[0] <= 0:
+        if found is None:
             continue
         ncc, size, shift = found
+        shapeless = not ctx.textured and ncc < EYE_SHAPE_NCC
+        if shapeless and anchored is None:
+            anchored = _anchor_prediction(ctx, state, confidence)
+        if shapeless and anchored is not None:
+            # No eye in the shape: every point where the anchors put it, at the closest scan point.
+            moved = [i for i in idx if not ctx.fixed[i]]
+            if moved:
+                t, b, _ = ctx.closest(anchored[moved])
+                index += moved
+                tri += [int(x) for x in t]
+                bary += list(b)
+                evidence += [0.0] * len(moved)
+                source += ["prediction"] * len(moved)
+            continue
+        if shapeless:
+            size, shift = 1.0, (0.0, 0.0)     # too few anchors: where the aligned model has the eye
+        elif ncc <= 0:
+            continue
         closed = False
         if closed_raster is not None:
             grey_open = _grey_ncc(ctx.model.raster.channels[..., 3], raster.channels[..., 3], (c0, r0, c1, r1), size, shift)
@@ -184,7 +216,7 @@ def eye_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> Su
         # A lost eye (its points' mean confidence below the detector's "worth checking" level: the
         # open eye's patches found nothing real, e.g. a closed eye) takes all its points from the
         # fit; a found eye keeps them, except a closed eye's upper lid still at the open lid's place.
-        lost = float(np.mean(confidence[idx])) < LOW_CONFIDENCE
+        lost = shapeless or float(np.mean(confidence[idx])) < LOW_CONFIDENCE
         for k, (i, n) in enumerate(zip(idx, present)):
             if ctx.fixed[i]:
                 continue
@@ -198,6 +230,25 @@ def eye_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> Su
                 index.append(i)
                 tri.append(int(raster.triangle[row, col]))
                 bary.append(raster.bary[row, col])
-                evidence.append(ncc)
-    n = len(index)
-    return SurfaceMoves(index, tri, bary, source=["refined"] * n, evidence=evidence)
+                evidence.append(0.0 if shapeless else ncc)
+                source.append("prediction" if shapeless else "refined")
+    return SurfaceMoves(index, tri, bary, source=source, evidence=evidence)
+
+
+def _anchor_prediction(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> np.ndarray | None:
+    """(P, 3) model frame, mm: every point predicted from the anchors (confidence >
+    ``steep_pass.ANCHOR_CONFIDENCE``, refined / opening / seed / fixed, not steep, not on the outline,
+    not an eye point: a shapeless eye's own points are no evidence), by the graph-distance Gaussian
+    propagation of ``greedy.propagated``; None with fewer than 3 anchors."""
+    from core.registration.greedy import propagated
+    from core.registration.steep_pass import ANCHOR_CONFIDENCE, steep_points
+
+    m = ctx.model
+    names = m.template.detected
+    eye = np.array([any(n in side for side in EYES) for n in names])
+    outline = np.array([n in m.template.base.outline for n in names])
+    anchor = (confidence > ANCHOR_CONFIDENCE) & ~steep_points(m) & ~outline & ~eye & np.array(
+        [s in ("refined", "opening", "seed", "fixed") for s in state.source])
+    if anchor.sum() < 3:
+        return None
+    return propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)

@@ -82,7 +82,9 @@ the evaluation showed they are needed to reach the accuracy goals):
   the brows). Their source is "prediction" and their evidence 0;
 * ``eyes`` (``eye_pass``): each eye found as a whole (its box of surface normals, NCC over a few
   sizes); eye points far from where it puts them go there, and a closed eye (its texture closer
-  to the model's with the lids closed) gets its upper lid on the lid line;
+  to the model's with the lids closed) gets its upper lid on the lid line; without texture, an eye
+  whose region shows no eye shape (no lid or eyeball relief) has its points predicted from the
+  confident non-eye points instead (source "prediction");
 * ``brows`` (``brow_pass``, textured scans): the brow is a band that looks the same along its
   length, so the patch search slides along it; the band's middle row is followed both ways from
   the model's place relative to the eye's corners to its ends: the outer end 4.5/4.6 goes to the
