@@ -333,7 +333,10 @@ class BlendDock(QDockWidget):
             self.info_label.setText(NO_LIBRARY)
         else:
             lib = layer.library
-            how = f", transferred ({lib.transfer})" if lib.transfer else ""
+            from core.layers.blend.transfer import METHOD_NAMES
+
+            name = METHOD_NAMES.get(lib.transfer, lib.transfer)
+            how = f", transferred by {name}" if lib.transfer and name not in lib.base else ""
             self.info_label.setText(f"{len(lib.names)} poses of {lib.base or 'a person'}{how}; "
                                     f"template {lib.template}, {lib.n_vertices} vertices")
         for key in keys:

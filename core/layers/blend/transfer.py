@@ -50,10 +50,13 @@ import scipy.sparse.linalg
 
 from core.layers.blend.library import ExpressionLibrary, LibraryError, _points, rigid_align
 
-__all__ = ["METHODS", "TransferResult", "DeformationTransfer", "fap_unit_scales", "region_weights_of",
+__all__ = ["METHODS", "METHOD_NAMES", "TransferResult", "DeformationTransfer", "fap_unit_scales", "region_weights_of",
            "transfer_bbox", "transfer_displacements", "transfer_fap_units", "transfer_library"]
 
 METHODS = ("bbox", "deformation", "fap_units")
+# What each method is called where a person reads it (the dock's line, a transferred library's base).
+METHOD_NAMES = {"bbox": "bounding-box scaling", "deformation": "deformation transfer",
+                "fap_units": "FAP-unit scaling"}
 # Weight of the bounding-box ratio against the FAP regions' ratios at a vertex (region weights are
 # 0..1 per FAP): only where no region reaches does the bounding box decide. Chosen, not fitted
 # (0.05 / 0.2 / 1 gave 0.882 / 0.883 / 0.890 mm on bench_transfer's synthetic pairs).
@@ -310,4 +313,5 @@ def transfer_library(library: ExpressionLibrary, model_rest, triangles=None, *, 
     result = transfer_displacements(library.rest, library.displacements, model, triangles, method=method,
                                     template=template, region_weights=region_weights)
     return library.replace(rest=model, displacements=result.displacements, transfer=result.method,
-                           base=base or f"transferred from {library.base or 'the base person'} ({result.method})")
+                           base=base or f"{library.base or 'the base person'}, transferred by "
+                                        f"{METHOD_NAMES[result.method]}")
