@@ -236,19 +236,11 @@ def eye_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> Su
 
 
 def _anchor_prediction(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> np.ndarray | None:
-    """(P, 3) model frame, mm: every point predicted from the anchors (confidence >
-    ``steep_pass.ANCHOR_CONFIDENCE``, refined / opening / seed / fixed, not steep, not on the outline,
-    not an eye point: a shapeless eye's own points are no evidence), by the graph-distance Gaussian
-    propagation of ``greedy.propagated``; None with fewer than 3 anchors."""
-    from core.registration.greedy import propagated
-    from core.registration.steep_pass import ANCHOR_CONFIDENCE, steep_points
+    """(P, 3) model frame, mm: every point predicted from the anchors (``steep_pass.anchor_prediction``),
+    steep points and the eye points left out (a shapeless eye's own points are no evidence); None
+    with fewer than 3 anchors."""
+    from core.registration.steep_pass import anchor_prediction, steep_points
 
-    m = ctx.model
-    names = m.template.detected
+    names = ctx.model.template.detected
     eye = np.array([any(n in side for side in EYES) for n in names])
-    outline = np.array([n in m.template.base.outline for n in names])
-    anchor = (confidence > ANCHOR_CONFIDENCE) & ~steep_points(m) & ~outline & ~eye & np.array(
-        [s in ("refined", "opening", "seed", "fixed") for s in state.source])
-    if anchor.sum() < 3:
-        return None
-    return propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)
+    return anchor_prediction(ctx, state, confidence, steep_points(ctx.model) | eye)

@@ -52,15 +52,29 @@ def steep_pass(ctx: MatchContext, state: MatchState, confidence: np.ndarray) -> 
     of ``greedy``, σ = ``sigma`` × scale) and put on the scan; source "prediction", evidence 0.
     No moves unless there are steep points and at least 3 anchors."""
     m = ctx.model
-    names = m.template.detected
     steep = steep_points(m) & ~ctx.fixed
-    outline = np.array([n in m.template.base.outline for n in names])
-    anchor = (confidence > ANCHOR_CONFIDENCE) & ~steep & ~outline & np.array(
-        [s in ("refined", "opening", "seed", "fixed") for s in state.source])
-    if not (steep.any() and anchor.sum() >= 3):
+    if not steep.any():
         return SurfaceMoves.none()
-    pred = propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)
+    pred = anchor_prediction(ctx, state, confidence, steep)
+    if pred is None:
+        return SurfaceMoves.none()
+    outline = np.array([n in m.template.base.outline for n in m.template.detected])
     return predictions_on_scan(ctx, np.nonzero(steep)[0], pred, outline)
+
+
+def anchor_prediction(ctx: MatchContext, state: MatchState, confidence: np.ndarray,
+                      excluded: np.ndarray) -> np.ndarray | None:
+    """(P, 3) model frame, mm: every point predicted from the anchors (confidence (P,) >
+    ANCHOR_CONFIDENCE, source refined / opening / seed / fixed, not on the outline, not ``excluded``
+    (P,) bool) by the graph-distance Gaussian propagation of ``greedy``, σ = ``sigma`` × scale;
+    None with fewer than 3 anchors."""
+    m = ctx.model
+    outline = np.array([n in m.template.base.outline for n in m.template.detected])
+    anchor = (confidence > ANCHOR_CONFIDENCE) & ~excluded & ~outline & np.array(
+        [s in ("refined", "opening", "seed", "fixed") for s in state.source])
+    if anchor.sum() < 3:
+        return None
+    return propagated(m.side.points, state.positions, anchor, ctx.params.sigma * m.scale, ctx.gdist)
 
 
 def predictions_on_scan(ctx: MatchContext, points, pred: np.ndarray, closest: np.ndarray) -> SurfaceMoves:

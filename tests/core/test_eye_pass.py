@@ -155,20 +155,26 @@ def untextured_scans():
     return scan, _flatten_eyes(scan)
 
 
+def _eye_errors(scan):
+    """(detection, {eye point: mm from its truth}, tolerance mm = 0.1 x outer-eye-corner distance) of
+    ``detect_landmarks`` on ``scan``, which carries the true landmarks."""
+    from core.registration.correspondence import landmark_positions_on
+    from core.registration.pipeline import detect_landmarks
+
+    truth = landmark_positions_on(scan, dict(scan.landmarks))
+    det = detect_landmarks(scan)
+    err = {n: float(np.linalg.norm(det.positions[n] - truth[n])) for n in LEFT + RIGHT}
+    return det, err, 0.1 * float(np.linalg.norm(truth["3.7"] - truth["3.12"]))
+
+
 def test_an_eye_the_shape_does_not_show_follows_the_face(untextured_scans):
     """Untextured scan whose eyes are smooth shells (no lid or eyeball relief, like the Surrey Face
     Model's): nothing in the eye region's shape says where the eye is, so its points are predicted
     from the rest of the face and reported as predictions. Known answer: every eye point within
     0.35 x the tolerance of the truth (measured 2.3 mm at most; the patch search alone put the upper
     lids 6.2 mm low)."""
-    from core.registration.correspondence import landmark_positions_on
-    from core.registration.pipeline import detect_landmarks
-
     _, flat = untextured_scans
-    truth = landmark_positions_on(flat, dict(flat.landmarks))
-    tol = 0.1 * float(np.linalg.norm(truth["3.7"] - truth["3.12"]))
-    det = detect_landmarks(flat)
-    err = {n: float(np.linalg.norm(det.positions[n] - truth[n])) for n in LEFT + RIGHT}
+    det, err, tol = _eye_errors(flat)
     assert max(err.values()) < 0.35 * tol, err
     assert all(det.sources[n] == "prediction" for n in LEFT + RIGHT), det.sources
     assert all(det.confidence[n] < 0.5 for n in LEFT + RIGHT)
@@ -177,13 +183,7 @@ def test_an_eye_the_shape_does_not_show_follows_the_face(untextured_scans):
 def test_an_eye_the_shape_shows_is_found_by_its_shape(untextured_scans):
     """The same scan with its eyes' relief: the eye is in the shape, so the points stay where the
     patch search put them (not predictions) and are within 0.2 x the tolerance."""
-    from core.registration.correspondence import landmark_positions_on
-    from core.registration.pipeline import detect_landmarks
-
     scan, _ = untextured_scans
-    truth = landmark_positions_on(scan, dict(scan.landmarks))
-    tol = 0.1 * float(np.linalg.norm(truth["3.7"] - truth["3.12"]))
-    det = detect_landmarks(scan)
-    err = {n: float(np.linalg.norm(det.positions[n] - truth[n])) for n in LEFT + RIGHT}
+    det, err, tol = _eye_errors(scan)
     assert max(err.values()) < 0.2 * tol, err
     assert not any(det.sources[n] == "prediction" for n in LEFT + RIGHT), det.sources

@@ -112,12 +112,11 @@ def region_weights_of(canonical_vertices, template: str) -> dict[int, np.ndarray
     """{FAP number: (n,) weight 0..1} of each FAP's influence region on a canonical face (n, 3) mm of
     ``template``: the FAT's template weights (``core.layers.fap.fat.FapDeformer``) of that face. A rig
     already holds them (``deformer.template_weights``, on its dense template): pass those instead."""
-    from core.layers.fap.fat import FapDeformer
-    from core.registration.correspondence import _base_vertex_landmarks, canonical_triangles
     from core.face import Face
+    from core.layers.fap.fat import FapDeformer
+    from core.registration.correspondence import canonical_triangles, with_canonical_landmarks
 
-    tri = canonical_triangles(template)
-    face = Face(np.asarray(canonical_vertices, float), tri, landmarks=_base_vertex_landmarks(template, tri))
+    face = with_canonical_landmarks(Face(np.asarray(canonical_vertices, float), canonical_triangles(template)))
     return FapDeformer(face).template_weights
 
 
@@ -127,10 +126,14 @@ def fap_unit_scales(base_rest, model_rest, region_weights, template: str = "mpeg
 
     base_rest, model_rest : (n, 3) mm canonical faces of ``template``; region_weights : {FAP number:
     (n,) weight} on those faces (:func:`region_weights_of`)."""
+    b = _points(base_rest, "base rest")
+    return _fap_unit_frame_and_scales(b, _points(model_rest, "model rest", len(b)), region_weights, template)[1]
+
+
+def _fap_unit_frame_and_scales(b: np.ndarray, m: np.ndarray, region_weights, template: str):
+    """(R, (n, 3) scales): :func:`fap_unit_scales` and the rotation of the model onto the base."""
     from core.layers.fap import tables
 
-    b = _points(base_rest, "base rest")
-    m = _points(model_rest, "model rest", len(b))
     R, bbox = _bbox_scale_and_frame(b, m)
     unit_base, unit_model = canonical_fapu(b, template), canonical_fapu(m @ R.T, template)
     num = FALLBACK_WEIGHT * np.tile(bbox, (len(b), 1))
@@ -146,7 +149,7 @@ def fap_unit_scales(base_rest, model_rest, region_weights, template: str = "mpeg
         ratio = unit_model[spec.unit] / unit_base[spec.unit]
         num += ratio * w[:, None] * along
         den += w[:, None] * along
-    return num / den
+    return R, num / den
 
 
 def transfer_fap_units(base_rest, displacements, model_rest, region_weights, template: str = "mpeg4_80") -> np.ndarray:
@@ -157,8 +160,8 @@ def transfer_fap_units(base_rest, displacements, model_rest, region_weights, tem
     d = np.asarray(displacements, float).reshape(-1, len(b), 3)
     if not np.all(np.isfinite(d)):
         raise LibraryError("displacements hold NaN or infinite values")
-    R, _ = _bbox_scale_and_frame(b, m)
-    return (d * fap_unit_scales(b, m, region_weights, template)) @ R
+    R, scales = _fap_unit_frame_and_scales(b, m, region_weights, template)
+    return (d * scales) @ R
 
 
 def _frames(v: np.ndarray, tri: np.ndarray) -> np.ndarray:
