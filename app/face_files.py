@@ -237,6 +237,7 @@ class FaceFilesMixin:
         if face is None:
             return
         notes = list(getattr(face.metadata, "notes", []) or [])
+        notes_before_build = list(notes)   # what the rig build adds (the cache's news) is told after it
         seen, self._notes_seen = self._notes_seen, None
         if seen is not None:  # an edited copy of the shown face: only what is new is news
             notes = [n for n in notes if n not in seen]
@@ -247,7 +248,7 @@ class FaceFilesMixin:
 
         # The rig builds (or loads from the cache) on the loader thread while this thread shows the
         # face: its result arrives through the event loop, after set_face below.
-        self.loads.start(work, lambda result: self._on_rig_built(face, result, shown, notes),
+        self.loads.start(work, lambda result: self._on_rig_built(face, result, shown, notes, notes_before_build),
                          lambda text: self._on_load_failed(text, path), self._on_load_progress)
         self.set_face(face, path=path or None, rig=None, rig_message=PREPARING_MESSAGE, rig_pending=True)
         if path:
@@ -258,15 +259,15 @@ class FaceFilesMixin:
                 self._show_notes(notes, shown)
         self.progress_bar.setValue(0)
 
-    def _on_rig_built(self, face, result, shown: str, notes: list[str]) -> None:
+    def _on_rig_built(self, face, result, shown: str, notes: list[str], notes_before_build: list[str]) -> None:
         self._finish_load()
         if self.face is not face:   # the user moved on
             return
         rig, message = result
         self.document.set_rig(rig, message)
-        cache_notes = [n for n in getattr(face.metadata, "notes", []) or [] if "cache" in n.lower()]
-        if cache_notes:
-            self.statusBar().showMessage(cache_notes[0], 15000)
+        build_notes = [n for n in getattr(face.metadata, "notes", []) or [] if n not in notes_before_build]
+        if build_notes:   # e.g. a damaged cache entry was rebuilt (build_rig adds the cache's notes)
+            self.statusBar().showMessage(build_notes[0], 15000)
         elif notes:   # back to the load notes, after the build's progress messages
             self.statusBar().showMessage(f"Loaded {shown} — " + "; ".join(notes), 15000)
         elif rig is None and message:

@@ -570,6 +570,25 @@ def test_a_loaded_face_shows_before_its_rig_is_built(qtbot, window, tmp_path, mo
     qtbot.waitUntil(lambda: window.landmark_editor.active, timeout=LOAD_TIMEOUT_MS)
 
 
+def test_what_the_rig_build_adds_to_the_notes_reaches_the_status_bar(qtbot, window, tmp_path, monkeypatch):
+    """A note the rig build adds (e.g. a damaged cache entry rebuilt) is shown when the rig arrives,
+    whatever its wording; the load's own notes are not repeated as news."""
+    import app.face_files
+    from app.document import build_rig
+
+    news = "The face's animation table was rebuilt; nothing of yours is lost."
+
+    def noting_build(face, cache=None, progress=None):
+        face.metadata.notes.append(news)
+        return build_rig(face, cache, progress)
+
+    monkeypatch.setattr(app.face_files, "build_rig", noting_build)
+    path = write_obj(make_synthetic_face(n_u=16, n_v=16), tmp_path / "noted.obj")
+    with qtbot.waitSignal(window.load_finished, timeout=LOAD_TIMEOUT_MS):
+        window.load_face_file(path)
+    assert window.statusBar().currentMessage() == news
+
+
 def test_build_correspondence_shows_the_scan_animated_and_keeps_edited_points(qtbot, window, tmp_path, monkeypatch):
     """Issue 15: after Build correspondence the window shows the scan itself (every scan vertex where it
     was, lips cut, a mouth cavity and teeth added) animated by the rig, not the 4560-vertex canonical
