@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from core.face import Face, FaceMetadata, SurfacePoint
 from core.default_face.mouth import MouthInterior
 from core.default_face.params import FaceLayout, FaceParameters
+from core.default_face.rim_slivers import remove_rim_slivers
 from core.default_face.shape import OUTLINE_T, FaceShape, polar_cap_triangles
 from core.default_face.texture import atlas_map, eye_atlas_centre, mouth_atlas, paint_texture
 
@@ -291,7 +292,8 @@ def _smooth_outer_rim(shape: FaceShape, xy: np.ndarray, tris: np.ndarray, h: flo
 
 
 def _cut_eye_openings(layout: FaceLayout, xy: np.ndarray, tris: np.ndarray):
-    """Remove skin inside the palpebral openings and move the rim onto the lid margins."""
+    """Remove skin inside the palpebral openings and move the rim onto the lid margins (then the
+    slivers that leaves, ``rim_slivers``)."""
     centroid = xy[tris].mean(axis=1)
     hole = layout.inside_fissure(centroid[:, 0], centroid[:, 1])
     kept = tris[~hole]
@@ -303,11 +305,16 @@ def _cut_eye_openings(layout: FaceLayout, xy: np.ndarray, tris: np.ndarray):
     xy[rim] = outline[nearest]
     # The eye corners are exact: the rim vertex nearest each canthus goes there.
     y_in, _ = layout.lid_margins(np.array([layout.eye_inner_x, layout.eye_outer_x]))
+    corners = np.zeros(len(xy), bool)
     for sx in (-1.0, 1.0):
         for cx, cy in zip((layout.eye_inner_x, layout.eye_outer_x), y_in):
             k = rim[np.argmin(np.hypot(xy[rim, 0] - sx * cx, xy[rim, 1] - cy))]
             xy[k] = (sx * cx, cy)
-    return xy, kept
+            corners[k] = True
+    # Three neighbouring rim vertices snapped onto the margin almost in a line span slivers.
+    on_rim = np.zeros(len(xy), bool)
+    on_rim[rim] = True
+    return xy, remove_rim_slivers(xy, kept, on_rim, pinned=corners)
 
 
 def _drop_unused(xy: np.ndarray, tris: np.ndarray):
