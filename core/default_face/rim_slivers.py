@@ -1,13 +1,13 @@
 """Remove the sliver triangles that snapping a grid's rim onto a curve leaves behind.
 
 The front of the default face is a regular grid; the rims of the eye openings are snapped onto the
-lid margins (``build._cut_eye_openings``) and the side rim onto the face's outline
-(``build._smooth_outer_rim``). Where the curve runs along the grid, three neighbouring rim vertices
-land on it almost in a line, and the triangle they span is a sliver: on the default face 68 triangles
-of 93,614 with a height under a tenth of their longest edge, 28 of them folded over at rest. Such a
-triangle has no texture to show, but the smallest move of its corners turns or stretches it without
-bound (a lower lid's outer corner measured "stretched 6.5x" by the 2.8 mm lid drop that moved the
-skin around it evenly), and it shades as a crease.
+lid margins (``build._cut_eye_openings``). Where a margin runs along the grid, three neighbouring rim
+vertices land on it almost in a line, and the triangle they span is a sliver: on the default face 34
+of the eye rims' triangles have a height under a tenth of their longest edge, 20 of them folded over
+at rest. Such a triangle has no texture to show, but the smallest move of its corners turns or
+stretches it without bound (a lower lid's outer corner measured "stretched 6.5x" by a 2.8 mm lid drop
+that moved the skin around it evenly), and it shades as a crease. (The outer rim's slivers, left by
+``build._smooth_outer_rim``, are not touched: the head's seam places those vertices again in 3-D.)
 
 :func:`remove_rim_slivers` takes each such triangle out in the plane of the grid, where the snapped
 positions are final: its middle vertex (opposite the longest edge) is merged into the nearer end of
