@@ -21,7 +21,8 @@ hand-marked landmarks) is not public; this module makes an equivalent one with g
   ``cache_dir`` or ``~/.cache/mimica/synthetic/<VERSION>/``. Vertices are stored as float32
   (1e-5 mm steps); a freshly generated scan goes through the same rounding, so cached and fresh
   results are identical. ``VERSION`` changes whenever the recipe does; the file name also carries a
-  hash of the pose's FAP values, so a change of the expression presets makes new scans.
+  hash of the pose's FAP values, so a change of the expression presets makes new scans, and one of
+  the person's face (the committed default face, or the generator's source), so does a changed face.
 - **Cost.** Building a person's rig (generate_face ~2 s + FAP deformer ~1-2 s) dominates; the rig
   of the last two people is kept in memory so the 7 poses of a person share it. A scan is ~1.2 s;
   loading a cached scan ~50 ms.
@@ -101,9 +102,31 @@ def _pose_recipe(pose: str) -> str:
     return hashlib.sha1(recipe).hexdigest()[:8]
 
 
+@functools.cache
+def _identity_recipe(person: int) -> str:
+    """A short hash of what makes ``person``'s face: the committed default face's file (person 0)
+    or the generator's source (core/default_face/*.py), so a scan cached from an older face (its
+    eyeballs, say) is not read as this person's."""
+    import hashlib
+
+    if person == 0:
+        from core.default_face import default_face_path
+
+        path = default_face_path()
+        data = path.read_bytes() if path.exists() else b"generated"
+    else:
+        data = b""
+    import core.default_face as package
+
+    if person != 0 or data == b"generated":
+        for source in sorted(Path(package.__file__).parent.glob("*.py")):
+            data += source.name.encode() + source.read_bytes()
+    return hashlib.sha1(data).hexdigest()[:8]
+
+
 def _cache_path(cache_dir, person: int, pose: str, seed: int) -> Path:
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    return root / f"p{person:03d}_{pose}_s{seed}_{_pose_recipe(pose)}.npz"
+    return root / f"p{person:03d}_{pose}_s{seed}_{_pose_recipe(pose)}_{_identity_recipe(person)}.npz"
 
 
 @dataclass(frozen=True)

@@ -135,6 +135,33 @@ def test_eye_openings_are_holes_with_eyeballs_behind(face):
     assert face.landmark_position("3.1")[2] > face.landmark_position("3.5")[2] - 3.0
 
 
+def test_eyeball_rims_are_tucked_behind_the_skin_at_the_outer_corners(face, layout, shape):
+    """Known answers: inside the palpebral opening (and up to the tuck's start) each ball is exactly
+    its ellipsoid; its open rim lies at least RIM_CLEARANCE_MM behind the skin's height field along
+    the ball's normal (untucked, the default face's outer-corner rim was 0.01 mm behind the skin's
+    triangles); only the outer side moves."""
+    from core.default_face.build import EYE_SEGMENTS, RIM_CLEARANCE_MM, _skin_along
+
+    radii = shape.eyeball_radii()
+    corner = np.degrees(np.arcsin((layout.eye_outer_x - layout.eye_inner_x) / 2 / radii[0]))
+    for k, name in enumerate(("eyeball_l", "eyeball_r")):
+        centre = shape.eyeball_centres()[k]
+        ball = face.vertices[face.parts[name]]
+        u = (ball - centre) / radii
+        q = np.linalg.norm(u, axis=1)
+        theta = np.degrees(np.arccos(np.clip(u[:, 2] / q, -1.0, 1.0)))
+        assert np.abs(q[theta < corner + 5.0] - 1.0).max() < 1e-9      # the visible ball is untouched
+        tucked = q < 1.0 - 1e-9
+        assert tucked.any() and (q > 0.9).all()
+        lateral = np.sign(ball[:, 0] - centre[0]) == np.sign(centre[0])
+        assert lateral[tucked].all()                                   # the outer side only
+        rim = face.parts[name][-EYE_SEGMENTS:]
+        normal = u[-EYE_SEGMENTS:] / radii
+        normal /= np.linalg.norm(normal, axis=1)[:, None]
+        depth = _skin_along(shape, face.vertices[rim], normal)
+        assert depth.min() > RIM_CLEARANCE_MM - 0.02
+
+
 def test_parameters_out_of_range_are_refused():
     with pytest.raises(ValueError, match="nose_length = 90"):
         FaceParameters(nose_length=90)

@@ -171,3 +171,20 @@ def test_a_cached_expression_scan_is_keyed_by_the_code_that_posed_it(monkeypatch
     synthetic._pose_recipe.cache_clear()
     assert before[0] != after[0]
     assert before[1] == after[1]
+
+
+def test_a_cached_scan_is_keyed_by_the_face_it_scanned(monkeypatch, tmp_path):
+    """A scan cached before the face changed (the committed default face, or the generator that
+    makes the other people) is not read back as that person's scan."""
+    from core.registration import synthetic
+
+    synthetic._identity_recipe.cache_clear()
+    before = synthetic._cache_path("/cache", 0, "neutral", 0), synthetic._cache_path("/cache", 1, "neutral", 0)
+    changed = tmp_path / "default_face.npz"
+    changed.write_bytes(b"another default face")
+    monkeypatch.setattr("core.default_face.default_face_path", lambda: changed)
+    synthetic._identity_recipe.cache_clear()
+    after = synthetic._cache_path("/cache", 0, "neutral", 0), synthetic._cache_path("/cache", 1, "neutral", 0)
+    synthetic._identity_recipe.cache_clear()
+    assert before[0] != after[0]
+    assert before[1] == after[1]          # the generated people do not read the committed file
