@@ -2,7 +2,7 @@
 
     python benchmarks/evaluate_landmarks_sfm.py [--people 4] [--seed 0] [--templates mpeg4_80 a48]
                                                 [--textured | --untextured] [--head-pose-deg 5] [--quick]
-                                                [--sfm DIR]
+                                                [--sfm DIR] [--dump FILE]
 
 A second protocol next to ``evaluate_landmarks.py`` (issue 14, item 2). The database:
 
@@ -43,11 +43,13 @@ protocol. Time per scan: wall and CPU seconds of ``detect_landmarks`` (the model
 preparation done before timing).
 
 Prints, per template, accuracy per pose (per variant and pooled), mm error (median, mean, p90), time
-per scan, the worst points and the scans that failed (accuracy < 0.5, with what the detector said
+per scan, the worst points, a per-point table (each ibug point, textured and untextured apart:
+accuracy, median mm, mean signed offset detected - truth and its spread in x/y/z; bias vs scatter)
+and the scans that failed (accuracy < 0.5, with what the detector said
 about them); the last line is
 ``sfm_min_expression_accuracy=<x> sfm_neutral_accuracy=<y> sfm_median_mm=<z>`` for the first template
 of ``--templates`` (default ``mpeg4_80``, the ``mimica landmarks`` default), pooled over the variants run.
-``--quick``: 1 person, neutral/joy/surprise.
+``--quick``: 1 person, neutral/joy/surprise. ``--dump FILE``: pickle the per-scan results.
 """
 
 from __future__ import annotations
@@ -353,6 +355,29 @@ def summary(results) -> tuple[float, float, float]:
             mm_stats(results)[0])
 
 
+def point_table(rs) -> list[str]:
+    """Per ibug point and texture variant: accuracy, median mm, mean signed offset detected - truth
+    (x face-left, y up, z out; mm) and its spread; where the error is bias and where scatter."""
+    lines = [f"per point (all poses): {'point':>5} ibug | variant  acc   med mm   mean offset x/y/z mm   std x/y/z mm   n"]
+    groups = [("tex", [r for r in rs if r.textured]), ("geo", [r for r in rs if not r.textured])]
+    for i, n in enumerate(rs[0].names):
+        ibug = [k for k, fp in IBUG_TO_FP.items() if fp == n][0]
+        for label, sel in groups:
+            if not sel:
+                continue
+            e = np.array([r.errors[i] for r in sel])
+            t = np.array([r.tolerance_mm for r in sel])
+            o = np.array([r.offsets[i] for r in sel])
+            have = np.isfinite(e)
+            if not have.any():
+                continue
+            m, sd = o[have].mean(axis=0), o[have].std(axis=0)
+            lines.append(f"  {n:>5} {ibug:4d} | {label:<6} {(e[have] <= t[have]).mean():5.3f} {np.median(e[have]):6.2f}   "
+                         f"{m[0]:+5.1f} {m[1]:+5.1f} {m[2]:+5.1f}        {sd[0]:4.1f} {sd[1]:4.1f} {sd[2]:4.1f}   "
+                         f"{int(have.sum())}")
+    return lines
+
+
 def report(results, template: str, worst: int = 8) -> list[str]:
     rs = [r for r in results if r.template == template]
     if not rs:
@@ -398,6 +423,8 @@ def report(results, template: str, worst: int = 8) -> list[str]:
     for acc, n, ibug, med, mean, p90, cnt, off in rows[:worst]:
         lines.append(f"  {n:>5} (ibug {ibug:2d})  {acc:6.3f}  {med:6.2f} / {mean:6.2f} / {p90:6.2f} mm  n={cnt:<4d} "
                      f"offset ({off[0]:+5.1f}, {off[1]:+5.1f}, {off[2]:+5.1f})")
+    lines.append("")
+    lines.extend(point_table(rs))
     e = np.concatenate([r.errors for r in rs])
     c = np.concatenate([r.confidence for r in rs])
     wrong = np.concatenate([r.errors > r.tolerance_mm for r in rs])
@@ -438,6 +465,7 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", nargs="+", default=None, choices=list(all_poses()))
     ap.add_argument("--quick", action="store_true", help="1 person, neutral/joy/surprise")
     ap.add_argument("--quiet", action="store_true", help="no per-scan lines")
+    ap.add_argument("--dump", type=Path, default=None, help="pickle the per-scan Results here (for analysis)")
     args = ap.parse_args(argv)
 
     try:
@@ -474,6 +502,9 @@ def main(argv=None) -> int:
                               f"median {np.nanmedian(r.errors):5.1f} mm  {r.wall_s:5.2f} s  "
                               f"{len(r.low_confidence)} low-confidence", flush=True)
     print(f"\n{len(results)} detections in {time.perf_counter() - t_start:.0f} s\n")
+    if args.dump is not None:
+        import pickle
+        args.dump.write_bytes(pickle.dumps(results))
     for template in args.templates:
         print("\n".join(report(results, template)))
         print()

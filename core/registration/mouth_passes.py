@@ -1,7 +1,8 @@
 """Mouth passes of the matcher, in the scan's frontal raster (after the patch search, in this
 order): the lower lip searched below the upper lip where the jaw went (``lower_lip_pass``), the
 inner lip points of an open mouth put on the opening's depth steps (``mouth_opening_pass``), a
-lower inner-lip point collapsed onto the outer lip brought back to the seam (``lip_order_pass``).
+closed mouth's lip order restored (``lip_order_pass``: an upper outer-lip point below the seam searched
+again above it, a lower inner-lip point collapsed onto the outer lip brought back to the seam).
 
 Each reads a ``PixelContext`` and the current ``PixelEstimates`` and returns ``PixelMoves``; pixels
 are (col, row), rows grow downwards. A pass works on a copy of the estimates because its later
@@ -19,7 +20,10 @@ if TYPE_CHECKING:
 
 
 def lip_order_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
-    """A lower inner-lip point found on (or below) the lower outer lip goes back above it.
+    """Closed-mouth lip order: an upper outer-lip point found below the seam (the upper inner-lip
+    point nearest its column) is searched again above it, at the model's lip height (its patch
+    within half that height; where none fits above the seam, the covered pixel at that height with
+    evidence 0); a lower inner-lip point found on (or below) the lower outer lip goes back above it.
 
     On a pressed, closed mouth there is no opening and the lower-lip patch fits the lower outer
     lip's edge as well; the inner point then collapses onto the outer one. The inner point is kept
@@ -41,6 +45,23 @@ def lip_order_pass(ctx: PixelContext, est: PixelEstimates) -> PixelMoves:
     lower_out = [i for i in lower if i not in loop and np.all(np.isfinite(out[i]))]
     if not upper_out or not lower_out:
         return PixelMoves.take(out, peak, moved)
+    upper_in = [i for i in loop if i not in corners and i in upper and np.all(np.isfinite(out[i]))]
+    for u in upper_out if upper_in else []:
+        # An upper outer-lip point below the seam is on the lower lip (whose rounded edge fits the
+        # upper lip's patch in shape alone): searched again at the model's height above the seam.
+        if skip[u]:
+            continue
+        k = min(upper_in, key=lambda i: abs(model_px[i, 0] - model_px[u, 0]))
+        height = model_px[k, 1] - model_px[u, 1]       # rows grow downwards
+        if height <= 1 or out[u, 1] <= out[k, 1]:
+            continue
+        centre = (out[u, 0], out[k, 1] - height)
+        best, val = search.search(u, centre, 2, max(1, int(height // 2)), pull_px=centre)
+        if best is None or best[1] >= out[k, 1]:
+            best, val = search.nearest_covered(centre), 0.0
+        if np.all(np.isfinite(best)):
+            out[u], peak[u] = best, val
+            moved.append(u)
     for k in lower_in:
         if skip[k] or not np.all(np.isfinite(out[k])):
             continue

@@ -283,6 +283,50 @@ def test_lower_inner_lip_collapsed_on_the_outer_lip_goes_back_to_the_seam(model)
     np.testing.assert_array_equal(out[i29], model_px[i29])
 
 
+def test_upper_outer_lip_found_below_the_seam_goes_back_above_it(model):
+    """Closed mouth, no texture: the upper lip midpoint 8.1 found on the lower lip (below the seam
+    point 2.2) is searched again at the model's lip height above the seam; where no patch fits
+    there it takes that height with no evidence. 8.1 above the seam is left alone."""
+    from core.registration.mouth_passes import lip_order_pass
+    from core.registration.pass_results import PixelEstimates
+
+    tpl = get_template("a48")
+    pos = template_positions(model, "a48")
+    model_px = np.array([[pos[n][0], -pos[n][1]] for n in tpl.detected]) / 0.75   # (col, row), rows grow down
+    i81, i22, i82 = (tpl.index(n) for n in ("8.1", "2.2", "8.2"))
+    height = model_px[i22, 1] - model_px[i81, 1]
+    assert height > 2
+    calls = []
+
+    class Search:
+        def __init__(self, fits):
+            self.fits = fits
+
+        def nearest_covered(self, px):
+            return tuple(px)
+
+        def search(self, k, centre, rx, ry, pull_px=None):
+            calls.append((k, tuple(centre), rx, ry))
+            return ((centre[0] + 1.0, centre[1] - 1.0), 0.7) if self.fits else (None, 0.0)
+
+    for fits, want_row, want_peak in ((True, model_px[i22, 1] - height - 1.0, 0.7),
+                                      (False, model_px[i22, 1] - height, 0.0)):
+        out = model_px.copy()
+        out[i81] = (model_px[i81, 0], model_px[i82, 1])   # on the lower lip
+        peak = np.ones(len(out))
+        calls.clear()
+        moves = lip_order_pass(pixel_context_for(tpl, None, model_px, search=Search(fits)), PixelEstimates(out, peak))
+        est = PixelEstimates(out, peak).apply(moves)
+        assert list(moves.index) == [i81]
+        assert calls and calls[0][0] == i81 and calls[0][1][1] == pytest.approx(model_px[i22, 1] - height)
+        assert est.pixel[i81, 1] == pytest.approx(want_row) and est.pixel[i81, 1] < est.pixel[i22, 1]
+        assert est.peak[i81] == want_peak
+    out = model_px.copy()                                  # in order: nothing moves
+    moves = lip_order_pass(pixel_context_for(tpl, None, model_px, search=Search(True)),
+                           PixelEstimates(out, np.ones(len(out))))
+    assert len(moves.index) == 0
+
+
 def test_moves_are_applied_to_a_copy_and_results_are_read_only():
     from core.registration.pass_results import MatchState, PixelEstimates, PixelMoves, SurfaceMoves
 
