@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.sparse
 
 import resources
 from core.layers.fap import tables
@@ -675,6 +676,102 @@ def test_relaxation_keeps_fixed_weights_and_straightens_a_ramp():
     assert relaxed[0] == 1.0 and relaxed[-1] == 0.0
     assert np.allclose(relaxed, np.linspace(1, 0, n), atol=1e-6)
     assert np.abs(np.diff(_relax(step, graph, fixed, 30))).max() < np.abs(np.diff(step)).max()
+
+
+def _seamed_grid(nx=9, ny=7, seam=4):
+    """A flat grid (1 mm spacing) cut along column ``seam``: the cut's vertices are duplicated (an unwelded
+    seam, as the default face's face / head-shell seam). Returns (face, left ids, right ids, seam pairs)."""
+    from core.face import Face
+
+    def patch(x0, x1, offset):
+        x, y = np.meshgrid(np.arange(x0, x1 + 1.0), np.arange(ny, dtype=float))
+        v = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+        idx = np.arange(x.size).reshape(ny, -1) + offset
+        a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+        return v, np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])]), idx
+
+    vl, tl, il = patch(0, seam, 0)
+    vr, tr, ir = patch(seam, nx - 1, len(vl))
+    face = Face(np.concatenate([vl, vr]), np.concatenate([tl, tr]))
+    return face, il.ravel(), ir.ravel(), np.column_stack([il[:, -1], ir[:, 0]])
+
+
+def test_smoothed_binding_shares_rows_across_an_unwelded_seam_and_keeps_the_skins_border():
+    """Known answer on a grid bound half to dense vertex 0, half to 1: after smoothing the seam's two
+    copies have one row, weight crossed the seam, rows still sum to 1 and the border keeps its rows."""
+    from core.layers.fap.fat import smooth_binding
+
+    face, left, right, pairs = _seamed_grid()
+    n = face.n_vertices
+    cols = np.where(np.isin(np.arange(n), right), 1, 0)
+    binding = scipy.sparse.csr_matrix((np.ones(n), (np.arange(n), cols)), shape=(n, 4))
+    out = smooth_binding(face, binding, np.arange(n), np.zeros(n, np.int64), 3).toarray()
+    assert np.array_equal(out[pairs[:, 0]], out[pairs[:, 1]])
+    assert np.allclose(out.sum(axis=1), 1.0)
+    x, y = face.vertices[:, 0], face.vertices[:, 1]
+    border = (x == 0) | (x == 8) | (y == 0) | (y == 6)
+    assert np.array_equal(out[border & ~np.isin(np.arange(n), pairs)], binding.toarray()[border & ~np.isin(np.arange(n), pairs)])
+    inner = (~border) & (x == 3)
+    assert (out[inner, 1] > 0.05).all() and (out[inner, 1] < 0.5).all()   # the step spread, less than half
+
+
+def test_a_binding_smoothed_only_at_its_jumps_keeps_every_row_away_from_them():
+    """The grid's halves bound to dense points 100 mm apart jump at the seam: with ``jump`` only the seam
+    and the rows within ``rings`` of it move (here 1: columns 2-6); columns 0, 1, 7, 8 keep their rows."""
+    from core.layers.fap.fat import smooth_binding
+
+    face, left, right, pairs = _seamed_grid()
+    n = face.n_vertices
+    cols = np.where(np.isin(np.arange(n), right), 1, 0)
+    binding = scipy.sparse.csr_matrix((np.ones(n), (np.arange(n), cols)), shape=(n, 4))
+    anchors = np.array([[0.0, 0, 0], [100.0, 0, 0], [0, 50, 0], [0, -50, 0]])
+    out = smooth_binding(face, binding, np.arange(n), np.zeros(n, np.int64), 5, anchors, 2.0, 1).toarray()
+    x, y = face.vertices[:, 0], face.vertices[:, 1]
+    far = (x <= 1) | (x >= 7)
+    assert np.array_equal(out[far], binding.toarray()[far])
+    assert np.array_equal(out[pairs[:, 0]], out[pairs[:, 1]])
+    assert ((out[(x == 3) & (y > 0) & (y < 6), 1] > 0.05)).all()
+
+
+def test_smoothed_binding_never_mixes_the_two_lip_sides():
+    """Upper-lip-side rows (+1) never take a column only lower-side rows (-1) had, and the reverse;
+    side-0 skin takes both."""
+    from core.layers.fap.fat import smooth_binding
+
+    face, left, right, pairs = _seamed_grid()
+    n = face.n_vertices
+    y = face.vertices[:, 1]
+    side = np.where(y >= 4, 1, np.where(y <= 2, -1, 0))
+    cols = np.where(side == 1, 2, np.where(side == -1, 3, 0))
+    binding = scipy.sparse.csr_matrix((np.ones(n), (np.arange(n), cols)), shape=(n, 4))
+    out = smooth_binding(face, binding, np.arange(n), side, 5).toarray()
+    assert (out[side == 1, 3] == 0).all() and (out[side == -1, 2] == 0).all()
+    assert (out[side == 0][:, [2, 3]] > 0).any(axis=0).all()
+    assert np.array_equal(out[pairs[:, 0]], out[pairs[:, 1]])
+
+
+def test_the_default_faces_binding_is_smoothed_one_row_per_welded_point_and_per_lip(rig):
+    """On the default face: skin vertices at one place on one lip side share their binding row; the
+    upper lip takes no lower-lip FAP (5 raise_b_midlip) and the lower lip no upper-lip one (4); each FAP
+    keeps its weight at its own feature point."""
+    from scipy.spatial import cKDTree
+
+    from core.layers.fap.template import mouth_side
+
+    d, f = rig.deformer, rig.face
+    skin = np.nonzero(~d._in_any_part())[0]
+    side = mouth_side(f, skin)
+    pairs = cKDTree(f.vertices[skin]).query_pairs(0.02, output_type="ndarray")
+    pairs = pairs[side[pairs[:, 0]] == side[pairs[:, 1]]]
+    assert len(pairs) > 500
+    a, b = d.binding[skin[pairs[:, 0]]], d.binding[skin[pairs[:, 1]]]
+    assert abs(a - b).max() == 0
+    assert np.abs(d.influence(5)[skin[side == 1]]).max() == 0
+    assert np.abs(d.influence(4)[skin[side == -1]]).max() == 0
+    for number, fp in ((3, "2.1"), (4, "2.2"), (5, "2.3"), (12, "2.4"), (31, "4.1"), (51, "8.1"), (39, "5.1")):
+        point = f.landmarks[fp]
+        weight = np.asarray(point.barycentric) @ d.influence(number)[f.triangles[point.triangle]]
+        assert weight > 0.9, (number, weight)
 
 
 def test_lid_fap_first_tick_moves_the_skin_by_its_own_size_not_a_jump(default_rig):

@@ -23,8 +23,8 @@ Built once per face (about a second for the 50k-vertex default face):
    lid along the whole margin instead of bulging at the centre; lids also move slightly forward
    (``forward_tilt``) so they slide over the eyeball rather than through it;
 3. the face's skin vertices are bound to the dense template (closest point, barycentric; lip
-   vertices only to their own lip so the jaw never drags the upper lip) and the lower teeth to the
-   jaw; the mouth cavity's lining follows the skin it lies behind (its closest skin point's rows,
+   vertices only to their own lip so the jaw never drags the upper lip), relaxed over the face mesh
+   where that binding jumps (``smooth_binding``), and the lower teeth to the jaw; the mouth cavity's lining follows the skin it lies behind (its closest skin point's rows,
    in full within ``CAVITY_FOLLOW_NEAR_MM`` of the skin, fading to none at ``CAVITY_FOLLOW_FAR_MM``:
    the back of the mouth stays with the skull); eyeballs and upper teeth have no rows (rigid).
 
@@ -80,6 +80,24 @@ OUTSIDE_FADE_MM = 20.0
 # the default face: folded triangles over all FAP extremes and presets 21,813 -> 5,367, lip
 # intersections 8,708 -> 5,012, teeth 5,865 -> 3,741, lid 5,040 -> 3,826 (30 steps).
 SMOOTHING_STEPS = 30
+# The skin's closest-point binding jumps between dense triangles where the skin folds (the inner lower
+# lip), around the nostrils and under the chin: neighbouring vertices bound to template points more than
+# BINDING_JUMP x their own distance apart. Within BINDING_JUMP_RINGS rings of such an edge the binding is
+# relaxed by BINDING_SMOOTHING_STEPS Jacobi steps over the face mesh (smooth_binding); elsewhere it is
+# kept, so every FAP keeps its weight at its feature point. face_quality (FAP extremes, expressions,
+# visemes, blends; failing poses default / generated face): none 50 / 51; everywhere 5 steps 40 / 33 but
+# FAPs lost up to 23 % of their weight at their feature points (8.1: 0.93 -> 0.71) and 14 poses failed
+# anew (corner stretch 2.99, visemes CH, RR 2.5); jumps > 3x, 5 rings 39 / 48; > 2x, 5 rings 37 / 48;
+# > 2x, 3 rings (faded-out scalp skin not counted, the one kept) 36 / 49: 17 poses pass anew, one fails anew
+# (fap 5 raise_b_midlip at -800, 24 lip crossings: its texture-smear limit moved from -255 to -598,
+# and that far down the lower lip tucks into the chin skin).
+BINDING_SMOOTHING_STEPS = 5
+BINDING_JUMP = 2.0
+BINDING_JUMP_RINGS = 3
+# Skin vertices of one lip side this close (mm) are one point (an unwelded seam: the default face's
+# face/head-shell seam has ~1000 such pairs) and take one binding row: rows that differ tear the sliver
+# between them (38x stretch at open_jaw on the default face).
+DUPLICATE_MM = 0.02
 # A round-top region's Gaussian at or above this is its top, held through the relaxation (0.9 -> 0.95 on the
 # default face: expression + viseme folds 547 -> 476, lip crossings 30 -> 20).
 ROUND_TOP = 0.95
@@ -499,8 +517,10 @@ class FapDeformer:
             rows.append(np.repeat(sel, 3))
             cols.append(corners.ravel())
             vals.append((bary * fade[:, None]).ravel())
-        return scipy.sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                                       shape=(n, N)).tocsr()
+        closest = scipy.sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                          shape=(n, N)).tocsr()
+        return smooth_binding(face, closest, skin, side, BINDING_SMOOTHING_STEPS, d.vertices, BINDING_JUMP,
+                              BINDING_JUMP_RINGS)
 
     def _dense_triangle_base_points(self) -> list[set[int]]:
         """For each dense triangle, the base points of the base triangle it lies in."""
@@ -1090,6 +1110,94 @@ def _relax(w: np.ndarray, graph: scipy.sparse.csr_matrix, fixed: np.ndarray, ste
     for _ in range(steps):
         out[free] = (inv @ out)[free] / degree[free]
     return out
+
+
+def smooth_binding(face: Face, binding: scipy.sparse.csr_matrix, skin: np.ndarray, side: np.ndarray, steps: int,
+                   anchors: np.ndarray | None = None, jump: float | None = None,
+                   rings: int | None = None) -> scipy.sparse.csr_matrix:
+    """(n, N) ``binding`` with its skin rows after ``steps`` Jacobi steps of Laplacian smoothing over the
+    face's skin triangles (neighbours weighted by 1 / edge length), once at build time.
+
+    ``skin`` (k,) vertex ids, ``side`` (k,) their lip / cut-lid side labels (0 none, +-1 upper / lower
+    lip, +-2 upper / lower lid of a closed eye, as ``_bind`` uses them). Skin vertices of one side
+    closer than ``DUPLICATE_MM`` are merged into one node first (an unwelded seam smooths across and
+    both copies keep one row). A vertex of a side averages only neighbours of the same side (so the
+    upper lip never takes a lower-lip row, and a cut lid stays on its own lid); side-0 skin averages all
+    of its neighbours. Nodes on the skin's border after merging (the mouth and eye openings' rims, a
+    cut, where skin meets a part) keep their rows: a lid margin must stay bound to the margin to close.
+    With ``jump``, only nodes within ``rings`` (default ``steps``) edges of an edge whose ends are bound
+    to points (``anchors`` (N, 3) mm, the dense vertices) over ``jump`` x the edge's length apart move.
+    Other rows (parts) are returned unchanged.
+    """
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    n = face.n_vertices
+    skin = np.asarray(skin, np.int64)
+    side = np.asarray(side, np.int64)
+    k = len(skin)
+    if steps <= 0 or k == 0:
+        return binding
+    local = np.full(n, -1, np.int64)
+    local[skin] = np.arange(k)
+    tris = local[face.triangles]
+    tris = tris[(tris >= 0).all(axis=1)]
+    # Near-duplicate skin vertices of one side -> one node.
+    pairs = cKDTree(face.vertices[skin]).query_pairs(DUPLICATE_MM, output_type="ndarray")
+    pairs = pairs[side[pairs[:, 0]] == side[pairs[:, 1]]] if len(pairs) else np.zeros((0, 2), np.int64)
+    link = scipy.sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(k, k))
+    n_nodes, node = connected_components(link, directed=False)
+    node = node.astype(np.int64)
+    members = scipy.sparse.coo_matrix((np.ones(k), (node, np.arange(k))), shape=(n_nodes, k)).tocsr()
+    count = np.asarray(members.sum(axis=1)).ravel()
+    node_side = np.zeros(n_nodes, np.int64)
+    node_side[node] = side
+    # Edges between nodes; an edge of one triangle only is the skin's border.
+    e = node[np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])]
+    e = e[e[:, 0] != e[:, 1]]
+    key = np.minimum(e[:, 0], e[:, 1]) * n_nodes + np.maximum(e[:, 0], e[:, 1])
+    uniq, uses = np.unique(key, return_counts=True)
+    a, b = uniq // n_nodes, uniq % n_nodes
+    fixed = np.zeros(n_nodes, bool)
+    fixed[a[uses == 1]] = fixed[b[uses == 1]] = True
+    rep = np.zeros(n_nodes, np.int64)
+    rep[node] = skin
+    length = np.linalg.norm(face.vertices[rep[a]] - face.vertices[rep[b]], axis=1)
+    rows = scipy.sparse.diags(1.0 / count) @ members @ binding[skin]
+    if jump is not None:
+        total = np.asarray(rows.sum(axis=1)).ravel()
+        bound = (rows @ anchors) / np.maximum(total, 1e-12)[:, None]
+        # Skin faded out beyond the template (the scalp: rows of total weight ~0) may jump unseen.
+        jumps = ((np.linalg.norm(bound[a] - bound[b], axis=1) > jump * np.maximum(length, 1e-6))
+                 & (np.minimum(total[a], total[b]) > 0.5))
+        near = np.zeros(n_nodes, bool)
+        near[a[jumps]] = near[b[jumps]] = True
+        ring = scipy.sparse.coo_matrix((np.ones(len(a)), (a, b)), shape=(n_nodes, n_nodes)).tocsr()
+        ring = ring + ring.T
+        for _ in range(steps if rings is None else rings):
+            near |= (ring @ near.astype(float)) > 0
+        fixed |= ~near
+    inv = 1.0 / np.maximum(length, 1e-6)
+    # i takes j's row when i has no side or both have the same one.
+    ij = np.concatenate([np.stack([a, b], 1), np.stack([b, a], 1)])
+    wij = np.concatenate([inv, inv])
+    keep = (node_side[ij[:, 0]] == 0) | (node_side[ij[:, 0]] == node_side[ij[:, 1]])
+    W = scipy.sparse.coo_matrix((wij[keep], (ij[keep, 0], ij[keep, 1])), shape=(n_nodes, n_nodes)).tocsr()
+    degree = np.asarray(W.sum(axis=1)).ravel()
+    free = ~fixed & (degree > 0)
+    take = scipy.sparse.diags(np.where(free, 1.0 / np.maximum(degree, 1e-12), 0.0)) @ W
+    hold = scipy.sparse.diags((~free).astype(float))
+    for _ in range(steps):
+        rows = (take @ rows + hold @ rows).tocsr()
+    rows.eliminate_zeros()
+    # Back to vertices: every member of a node gets the node's row.
+    smoothed = (members.T @ rows).tocoo()
+    rest = binding.tocoo()
+    outside = local[rest.row] < 0
+    out = scipy.sparse.coo_matrix((np.concatenate([rest.data[outside], smoothed.data]),
+                                   (np.concatenate([rest.row[outside], skin[smoothed.row]]),
+                                    np.concatenate([rest.col[outside], smoothed.col]))), shape=binding.shape)
+    return out.tocsr()
 
 
 def _guard_clearance(slid_by: np.ndarray, rest_clearance: np.ndarray, full_clearance: np.ndarray, ramp: float,
