@@ -210,3 +210,40 @@ def test_finished_limits_catch_what_a_finish_step_breaks_beyond_the_linear_field
     untouched = np.array([[-np.inf, np.inf]] * 68)
     finished_limits(deform, rest, triangles, untouched, reasons, specs, [3], preset_reach(presets))
     assert np.isposinf(untouched[2, 1])
+
+
+def test_finished_limits_stop_where_the_crossing_check_says_the_surfaces_cross():
+    """Two sheets, one tilted above the other; the FAP lowers the upper sheet rigidly (never a fold
+    nor a smear), and its lowest corner reaches the lower sheet at 500: with the lips' crossing
+    check the slider's end stops there with the crossing as reason; without it, it is not limited."""
+    from core.layers.fap.limits import CROSSING_REASON, finished_limits, preset_reach
+    from core.mesh_quality import count_intersections
+
+    u, v = np.meshgrid(np.arange(4.0), np.arange(4.0))
+    lower = np.column_stack([u.ravel(), v.ravel(), np.zeros(16)])
+    upper = np.column_stack([u.ravel() + 0.01, v.ravel() + 0.01, 1.0 + u.ravel()])
+    rest = np.vstack([lower, upper])
+    quads = [(r * 4 + c, r * 4 + c + 1, r * 4 + c + 4, r * 4 + c + 5) for r in range(3) for c in range(3)]
+    sheet = np.array([t for a, b, c, d in quads for t in ((a, b, c), (b, d, c))])
+    triangles = np.vstack([sheet, sheet + 16])
+    specs = tables.fap_specs()
+
+    def deform(values):
+        x = rest.copy()
+        x[16:, 2] -= values[2] / 500.0              # open_jaw lowers the upper sheet: 1 mm per 500
+        return x
+
+    def crossing(x):
+        return count_intersections(x, triangles) > 0
+
+    no_presets = preset_reach(np.zeros((1, 68)))
+    limits = np.array([[-np.inf, np.inf]] * 68)
+    reasons = np.full((68, 2), "", dtype=object)
+    finished_limits(deform, rest, triangles, limits, reasons, specs, [3], no_presets, crossing=crossing)
+    step = 1400 / 2 ** 7
+    assert 500 - step <= limits[2, 1] <= 500 and reasons[2, 1] == CROSSING_REASON
+    fap3 = np.eye(68)[2]
+    assert crossing(deform(fap3 * (limits[2, 1] + step))) and not crossing(deform(fap3 * limits[2, 1]))
+    unchecked = np.array([[-np.inf, np.inf]] * 68)
+    finished_limits(deform, rest, triangles, unchecked, reasons, specs, [3], no_presets)
+    assert np.isposinf(unchecked[2, 1])

@@ -150,6 +150,9 @@ BROW_FAPS = ((31, 33, 35, 37), (32, 34, 36, 38))
 # common part (the smaller weight x the smaller value) is taken out (:meth:`FapDeformer._paired_lip_overlaps`):
 # there the skin moves as the larger of the two, and a FAP alone moves as before.
 PAIRED_LIP_FAPS = tuple((n, n + 47) for n in range(4, 14))
+LIP_FAPS = frozenset(n for pair in PAIRED_LIP_FAPS for n in pair)
+# A lip triangle moved less than this (mm) by a FAP alone is not tested for crossing at its slider ends.
+LIP_CROSSING_MOVE_MM = 0.05
 _PAIR_INNER = np.array([i - 1 for i, _o in PAIRED_LIP_FAPS])
 _PAIR_OUTER = np.array([o - 1 for _i, o in PAIRED_LIP_FAPS])
 # FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
@@ -306,7 +309,7 @@ class FapDeformer:
         # The upper lids' opening ends also stop where a lid folds through its own crease (a linear
         # fold check does not see it: the lid skin rises under the crease and crosses it).
         self.ease_start = np.full((N_FAPS, 2), EASE_START)
-        from core.mesh_quality import FaceQualityProbe
+        from core.mesh_quality import FaceQualityProbe, count_intersections
 
         probe = FaceQualityProbe(face)
         for number, side in ((19, "left"), (20, "right")):
@@ -320,15 +323,29 @@ class FapDeformer:
             if crease > limits[number - 1, 0]:      # both negative: the crease comes first
                 limits[number - 1, 0], self.limit_reasons[number - 1, 0] = crease, CREASE_REASON
                 self.ease_start[number - 1, 0] = LID_OPENING_EASE_START
-        # Then every limit on the finished pose; of the lids only the upper lids' opening ends (closing
-        # must reach 1024), and not those of an eye closed at rest: opening it must stretch the closed
-        # lid's skin over the eyeball. The lower lids' opening ends are left alone: on the default face a
-        # sliver (altitude 0.3 % of the median edge, no texture to smear) would stop them at -61 of -300.
+        # Then every limit on the finished pose; of the lids only the opening ends (closing must reach
+        # 1024), and not those of an eye closed at rest: opening it must stretch the closed lid's skin
+        # over the eyeball. (The default face's eye rims once left slivers that stopped the lower lids
+        # at -61 of -300; rim_slivers removes them, and the lids open to -300 unbroken.) The lip FAPs
+        # also stop where the lips cross (the lower midlip, FAP 5, rolls under the chin's skin from -463
+        # MNS on the default face, before its texture smears at -598): a crossing test costs ~40 ms per
+        # pose (+3 s of build), so the lip FAPs only.
         self.preset_reach = preset_reach(presets)
+        lip_faps = [n for n in limited_faps if n in LIP_FAPS]
         finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
-                        limited_faps, self.preset_reach)
+                        [n for n in limited_faps if n not in LIP_FAPS], self.preset_reach)
+
+        def lips_cross(x: np.ndarray) -> bool:
+            # Only triangles the pose moved can newly cross (the FAT's tails move far skin by microns).
+            shift = np.linalg.norm(x - face.vertices, axis=1) > LIP_CROSSING_MOVE_MM
+            moved = probe.lip_tris[shift[probe.lip_tris].any(axis=1)]
+            return count_intersections(x, moved, probe.lip_tris, probe.welded) > 0
+
         finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
-                        sorted({19, 20} - self.closed_lid_faps), self.preset_reach, sides=(0,))
+                        lip_faps, self.preset_reach,
+                        crossing=None if probe.lip_tris is None else lips_cross)
+        finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
+                        sorted({19, 20, 21, 22} - self.closed_lid_faps), self.preset_reach, sides=(0,))
         # Where the surface breaks (each FAP alone), for the tooltips; the sliders ease toward
         # ease_limits, which let every preset pass as authored.
         self.clean_limits = limits

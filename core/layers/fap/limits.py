@@ -22,6 +22,8 @@ never reaching it, never a hard clamp), applied per FAP to the effective values 
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from core.mesh_quality import _EPS, MAX_STRETCH, MIN_STRETCH, _local_frames, principal_stretches
@@ -39,6 +41,7 @@ FINISHED_BISECTION_STEPS = 7
 SMEAR_SAMPLES = (0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0)
 FOLD_REASON = "the skin would fold"
 SMEAR_REASON = f"the skin's texture would smear (stretch over {MAX_STRETCH:g}x or shrink under {MIN_STRETCH:g}x)"
+CROSSING_REASON = "the lips would pass through each other or the skin below them"
 
 
 def _normals(corners: np.ndarray) -> np.ndarray:
@@ -168,14 +171,15 @@ def bisect(breaks, steps: int = BISECTION_STEPS) -> tuple[float, float]:
 
 def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits: np.ndarray, reasons: np.ndarray,
                     specs, numbers, reach: np.ndarray, steps: int = FINISHED_BISECTION_STEPS,
-                    sides=(0, 1)) -> None:
+                    sides=(0, 1), crossing: Callable[[np.ndarray], bool] | None = None) -> None:
     """Tighten ``limits`` / ``reasons`` (68, 2, from :func:`clean_limits`) in place where a FAP alone,
     posed by ``deform(values (68,)) -> (n, 3)`` with every finish step (lid guard, lip contact,
     teeth), folds or smears the skin before its linear limit (or its slider's end): those steps move
     skin the FAT column does not. Ends a preset (``reach``, :func:`preset_reach`) takes past their
     limit are left to the preset (the slider eases just past it, see :func:`keeping`).
     ``sides``: the slider ends checked (0 the lower, 1 the upper). Only triangles the pose moved
-    are measured."""
+    are measured. ``crossing(x (n, 3)) -> bool``, if given, also breaks a pose (the lips' surfaces
+    crossing: a fold check does not see a lip rolling under the skin next to it)."""
     rest_normals, rest_frames, measurable = _rest_measures(rest, skin_triangles)
     for number in numbers:
         spec = specs[number - 1]
@@ -192,7 +196,9 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
             if (np.einsum("ij,ij->i", _normals(posed), rest_normals[tris]) < 0).any():
                 return FOLD_REASON
             big, small = principal_stretches(rest_frames[tris], posed)
-            return SMEAR_REASON if (big > MAX_STRETCH).any() or (small < MIN_STRETCH).any() else ""
+            if (big > MAX_STRETCH).any() or (small < MIN_STRETCH).any():
+                return SMEAR_REASON
+            return CROSSING_REASON if crossing is not None and crossing(x) else ""
 
         for side in sides:
             end = (spec.minimum, spec.maximum)[side]
