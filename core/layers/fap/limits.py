@@ -186,29 +186,42 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
         if spec.is_rotation or not np.isfinite(spec.minimum) or not np.isfinite(spec.maximum):
             continue
 
-        def breaks(value: float) -> str:
+        def posed(value: float) -> np.ndarray:
             values = np.zeros(len(specs))
             values[number - 1] = value
-            x = deform(values)
+            return deform(values)
+
+        def breaks(value: float) -> str:
+            x = posed(value)
             moved = (x != rest).any(axis=1)
             tris = np.flatnonzero(moved[skin_triangles].any(axis=1) & measurable)
-            posed = x[skin_triangles[tris]]
-            if (np.einsum("ij,ij->i", _normals(posed), rest_normals[tris]) < 0).any():
+            corners = x[skin_triangles[tris]]
+            if (np.einsum("ij,ij->i", _normals(corners), rest_normals[tris]) < 0).any():
                 return FOLD_REASON
-            big, small = principal_stretches(rest_frames[tris], posed)
-            if (big > MAX_STRETCH).any() or (small < MIN_STRETCH).any():
-                return SMEAR_REASON
-            return CROSSING_REASON if crossing is not None and crossing(x) else ""
+            big, small = principal_stretches(rest_frames[tris], corners)
+            return SMEAR_REASON if (big > MAX_STRETCH).any() or (small < MIN_STRETCH).any() else ""
+
+        def crosses(value: float) -> bool:
+            return crossing(posed(value))
 
         for side in sides:
             end = (spec.minimum, spec.maximum)[side]
             limit = limits[number - 1, side]
             far = limit if np.isfinite(limit) else end
-            if far == 0 or abs(reach[number - 1, side]) >= abs(far) or not breaks(far):
+            if far == 0 or abs(reach[number - 1, side]) >= abs(far):
                 continue
-            good, bad = bisect(lambda share: bool(breaks(far * share)), steps)
+            if breaks(far):
+                good, bad = bisect(lambda share: bool(breaks(far * share)), steps)
+                reasons[number - 1, side] = breaks(far * bad) or FOLD_REASON
+                far *= good
+                limits[number - 1, side] = far
+            # The crossing test is the dear one (~40 ms): once, where the surface holds, and bisected
+            # only when the lips cross there.
+            if crossing is None or far == 0 or abs(reach[number - 1, side]) >= abs(far) or not crosses(far):
+                continue
+            good, _ = bisect(lambda share: crosses(far * share), steps)
             limits[number - 1, side] = far * good
-            reasons[number - 1, side] = breaks(far * bad) or FOLD_REASON
+            reasons[number - 1, side] = CROSSING_REASON
 
 
 def preset_reach(values: np.ndarray) -> np.ndarray:
