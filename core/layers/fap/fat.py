@@ -329,7 +329,7 @@ class FapDeformer:
         # at -61 of -300; rim_slivers removes them, and the lids open to -300 unbroken.) The lip FAPs
         # also stop where the lips cross (the lower midlip, FAP 5, rolls under the chin's skin from -463
         # MNS on the default face, before its texture smears at -598): a crossing test costs ~40 ms per
-        # pose (+3 s of build), so the lip FAPs only.
+        # pose (+1.7 s of build), so the lip FAPs only.
         self.preset_reach = preset_reach(presets)
         lip_faps = [n for n in limited_faps if n in LIP_FAPS]
         finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
