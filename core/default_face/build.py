@@ -347,8 +347,8 @@ def _eyeballs(shape: FaceShape, offset: int):
     by what the skin's distance along the ball's normal falls short of ``RIM_CLEARANCE_MM``), so the
     open rim sits about that deep behind the skin. Only the outer corners' steep side moves (the
     socket skin above, below and at the inner corner is 3-7 mm in front of it; the default face's
-    ball's 82 outer vertices move up to 0.23 mm, a generated identity's (seed 7) 0.03 mm); inside the opening the ball
-    is the ellipsoid, so the pivots fitted to it barely move."""
+    ball's 82 outer vertices move up to 0.23 mm, a generated identity's (seed 7) 0.03 mm); inside the
+    opening the ball is the ellipsoid, so the pivots fitted to it barely move."""
     theta = np.radians(np.linspace(0, EYE_CAP_DEG, EYE_RINGS + 1)[1:])
     phi = np.linspace(0, 2 * np.pi, EYE_SEGMENTS, endpoint=False)
     T, P = np.meshgrid(theta, phi, indexing="ij")

@@ -34,9 +34,10 @@ was 1.6 mm, with torn lower lids, before).
    Rebuilt after the FAP presets were corrected, the rim of the eyeball's cap (0.01 mm behind the
    skin at the outer corners) cut the skin there (joy 7, anger 9, sadness 4, disgust 14 crossing
    pairs); with the rim tucked behind the skin (``core.default_face.build.RIM_CLEARANCE_MM``) no
-   lid/eyeball pair but disgust's 8, on the left eye (joy keeps 3 pairs of lower-lid skin): the skin's steep triangles (4.5-4.9 mm long over a 0.65 mm
-   grid cell) where the lid's drape falls off the ball beside the outer corner come down onto the
-   ball's last bands, 70-78 degrees off its axis.
+   lid/eyeball pair but disgust's (12 after the FAT binding's smoothing, on the left eye; joy keeps
+   3 pairs of lower-lid skin): the skin's steep triangles (4.5-4.9 mm long over a 0.65 mm grid
+   cell) where the lid's drape falls off the ball beside the outer corner come down onto the ball's
+   last bands, 70-78 degrees off its axis.
 
 The neutral is the default face itself registered with its own landmarks, so the library's rest
 (4560 vertices, template mpeg4_80) is in the default face's frame. The default face (53k vertices)

@@ -24,9 +24,10 @@ Built once per face (about a second for the 50k-vertex default face):
    (``forward_tilt``) so they slide over the eyeball rather than through it;
 3. the face's skin vertices are bound to the dense template (closest point, barycentric; lip
    vertices only to their own lip so the jaw never drags the upper lip), relaxed over the face mesh
-   where that binding jumps (``smooth_binding``), and the lower teeth to the jaw; the mouth cavity's lining follows the skin it lies behind (its closest skin point's rows,
-   in full within ``CAVITY_FOLLOW_NEAR_MM`` of the skin, fading to none at ``CAVITY_FOLLOW_FAR_MM``:
-   the back of the mouth stays with the skull); eyeballs and upper teeth have no rows (rigid).
+   where that binding jumps (``smooth_binding``), and the lower teeth to the jaw; the mouth cavity's
+   lining follows the skin it lies behind (its closest skin point's rows, in full within
+   ``CAVITY_FOLLOW_NEAR_MM`` of the skin, fading to none at ``CAVITY_FOLLOW_FAR_MM``: the back of
+   the mouth stays with the skull); eyeballs and upper teeth have no rows (rigid).
 
 Then ``x = rest + F · (fap_values ∘ fapu)`` with F of shape (3n, 68), mm per FAP unit.
 
@@ -90,7 +91,7 @@ SMOOTHING_STEPS = 30
 # anew (corner stretch 2.99, visemes CH, RR 2.5); jumps > 3x, 5 rings 39 / 48; > 2x, 5 rings 37 / 48;
 # > 2x, 3 rings (faded-out scalp skin not counted, the one kept) 36 / 49: 17 poses pass anew, one fails anew
 # (fap 5 raise_b_midlip at -800, 24 lip crossings: its texture-smear limit moved from -255 to -598,
-# and that far down the lower lip tucks into the chin skin).
+# and that far down the lower lip tucks into the chin skin; the lips' crossing limit now stops it at -463).
 BINDING_SMOOTHING_STEPS = 5
 BINDING_JUMP = 2.0
 BINDING_JUMP_RINGS = 3
