@@ -68,6 +68,8 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks.default_face_proportions import IBUG_TO_FP  # noqa: E402  (the ibug <-> MPEG-4 table)
 
+FP_TO_IBUG = {fp: k for k, fp in IBUG_TO_FP.items()}
+
 DEFAULT_SFM = ROOT.parent / "shared" / "data" / "sfm"
 SFM_POSE = {"joy": "happiness"}          # Mimica pose name -> SFM blend shape name (others are equal)
 SUBDIVISIONS = 2
@@ -361,7 +363,7 @@ def point_table(rs) -> list[str]:
     lines = [f"per point (all poses): {'point':>5} ibug | variant  acc   med mm   mean offset x/y/z mm   std x/y/z mm   n"]
     groups = [("tex", [r for r in rs if r.textured]), ("geo", [r for r in rs if not r.textured])]
     for i, n in enumerate(rs[0].names):
-        ibug = [k for k, fp in IBUG_TO_FP.items() if fp == n][0]
+        ibug = FP_TO_IBUG[n]
         for label, sel in groups:
             if not sel:
                 continue
@@ -415,7 +417,7 @@ def report(results, template: str, worst: int = 8) -> list[str]:
         t = np.array([r.tolerance_mm for r in rs])
         have = np.isfinite(e)
         if have.any():
-            ibug = [k for k, fp in IBUG_TO_FP.items() if fp == n][0]
+            ibug = FP_TO_IBUG[n]
             off = np.array([r.offsets[i] for r in rs])[have].mean(axis=0)
             rows.append((float((e[have] <= t[have]).mean()), n, ibug, np.median(e[have]), e[have].mean(),
                          np.percentile(e[have], 90), int(have.sum()), off))

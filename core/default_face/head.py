@@ -41,7 +41,7 @@ import numpy as np
 from scipy.spatial import Delaunay, cKDTree
 
 from core.default_face.params import FaceLayout
-from core.default_face.shape import _smooth_max, _smoothstep, polar_cap_triangles
+from core.default_face.shape import _smooth_max, _smoothstep, plane_signed_area2, polar_cap_triangles
 
 SHELL_SPACING = 5.6        # mm, target edge length of the shell away from the face
 SEAM_RINGS = ((1.3, 2), (3.2, 4), (6.0, 8))   # (offset from the seam in mm, every k-th seam vertex) of graded rings
@@ -281,11 +281,7 @@ def flip_to_delaunay(points: np.ndarray, plane: np.ndarray, triangles: np.ndarra
     came out as slivers across rows of vertices."""
     tri = np.array(triangles, dtype=np.int64)
 
-    def orient(t):
-        a, b, c = plane[t[:, 0]], plane[t[:, 1]], plane[t[:, 2]]
-        return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-
-    flip = orient(tri) < 0
+    flip = plane_signed_area2(plane, tri) < 0
     tri[flip] = tri[flip][:, [0, 2, 1]]
 
     def angle(at, u, v):
@@ -313,7 +309,7 @@ def flip_to_delaunay(points: np.ndarray, plane: np.ndarray, triangles: np.ndarra
         excess = angle(c[e], a[e], b[e]) + angle(d, a[e], b[e]) - np.pi
         new1 = np.column_stack([a[e], d, c[e]])
         new2 = np.column_stack([d, b[e], c[e]])
-        ok = (excess > 1e-6) & (orient(new1) > 0) & (orient(new2) > 0)
+        ok = (excess > 1e-6) & (plane_signed_area2(plane, new1) > 0) & (plane_signed_area2(plane, new2) > 0)
         e, t, d, excess, new1, new2 = e[ok], t[ok], d[ok], excess[ok], new1[ok], new2[ok]
         if not len(e):
             break

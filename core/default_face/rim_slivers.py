@@ -18,16 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from core.default_face.shape import plane_signed_area2
+
 # A triangle whose height is below this share of its longest edge is a sliver. The regular grid's
 # triangles have 0.71 (half-squares); the snapped rims' slivers 0.000-0.06; the snapped but sound
 # triangles beside them 0.2 and up.
 SLIVER_HEIGHT_RATIO = 0.1
-
-
-def _signed_area2(xy: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """(m,) twice the signed area of each triangle in the plane (positive: counter-clockwise)."""
-    a, b, c = xy[tris[:, 0]], xy[tris[:, 1]], xy[tris[:, 2]]
-    return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
 
 
 def sliver_triangles(xy: np.ndarray, tris: np.ndarray, candidates: np.ndarray | None = None) -> np.ndarray:
@@ -36,7 +32,7 @@ def sliver_triangles(xy: np.ndarray, tris: np.ndarray, candidates: np.ndarray | 
     with all three corners in ``candidates`` ((n,) bool) when given."""
     corners = xy[tris]
     longest = np.linalg.norm(corners[:, [1, 2, 0]] - corners, axis=2).max(axis=1)
-    area2 = _signed_area2(xy, tris)
+    area2 = plane_signed_area2(xy, tris)
     thin = area2 < SLIVER_HEIGHT_RATIO * np.maximum(longest, 1e-12) ** 2
     if candidates is not None:
         thin &= candidates[tris].all(axis=1)
@@ -72,7 +68,7 @@ def remove_rim_slivers(xy: np.ndarray, tris: np.ndarray, rim: np.ndarray, pinned
                 merged[merged == apex] = target
                 degenerate = (merged == target).sum(axis=1) > 1
                 kept = merged[~degenerate]
-                if not (_signed_area2(xy, kept) > 0).all() or len(sliver_triangles(xy, kept)):
+                if not (plane_signed_area2(xy, kept) > 0).all() or len(sliver_triangles(xy, kept)):
                     continue                # the merge would turn a triangle over or make another sliver
                 tris[users] = merged
                 alive[users[degenerate]] = False

@@ -246,3 +246,10 @@ def polar_cap_triangles(rings: int, segments: int) -> np.ndarray:
         cap.append(np.column_stack([ring(r, k), ring(r + 1, k), ring(r + 1, k + 1)]))
         cap.append(np.column_stack([ring(r, k), ring(r + 1, k + 1), ring(r, k + 1)]))
     return np.concatenate(cap)
+
+
+def plane_signed_area2(xy: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(m,) twice the signed area of each triangle ``tris`` (m, 3) in the plane ``xy`` (n, 2)
+    (positive: counter-clockwise)."""
+    a, b, c = xy[tris[:, 0]], xy[tris[:, 1]], xy[tris[:, 2]]
+    return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])

@@ -177,17 +177,6 @@ ORIENTATION_FINALISTS = 3
 ORIENTATION_TILT_DEG = 15.0
 
 
-def _tilts(degrees: float) -> np.ndarray:
-    """(4, 3, 3) rotations by ``degrees`` about +x, -x, +y and -y."""
-    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
-    out = []
-    for sign in (1.0, -1.0):
-        out.append([[1, 0, 0], [0, c, -sign * s], [0, sign * s, c]])
-    for sign in (1.0, -1.0):
-        out.append([[c, 0, sign * s], [0, 1, 0], [-sign * s, 0, c]])
-    return np.array(out)
-
-
 def find_orientation(scan: Face, model: Face, *, iterations: int = 20, rng=0) -> Orientation:
     """Which way ``scan`` faces: the model's front skin is placed on the scan's centre in each of the
     24 axis-aligned orientations (:func:`cube_rotations`), each refined by a 3-step ICP of 250 model
@@ -239,7 +228,8 @@ def find_orientation(scan: Face, model: Face, *, iterations: int = 20, rng=0) ->
         return Orientation(np.eye(3), unturned, unturned)
     if angle(T_id) < ORIENTATION_TURN_DEG and best < ORIENTATION_GAIN * unturned:
         # Clearly better than one fit as the scan lies: also than the best fit started near it?
-        near = [fit(R, sample, iterations, coarse_target) for R in _tilts(ORIENTATION_TILT_DEG)]
+        near = [fit(rotation_about_axis(axis, sign * ORIENTATION_TILT_DEG), sample, iterations, coarse_target)
+                for axis in ((1, 0, 0), (0, 1, 0)) for sign in (1, -1)]
         unturned = min([unturned] + [score for score, T in near if angle(T) < ORIENTATION_TURN_DEG])
     if not (best < ORIENTATION_GAIN * unturned or angle(T_id) >= ORIENTATION_TURN_DEG):
         return Orientation(np.eye(3), unturned, unturned)

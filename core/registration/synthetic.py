@@ -109,18 +109,14 @@ def _identity_recipe(person: int) -> str:
     eyeballs, say) is not read as this person's."""
     import hashlib
 
-    if person == 0:
-        from core.default_face import default_face_path
-
-        path = default_face_path()
-        data = path.read_bytes() if path.exists() else b"generated"
-    else:
-        data = b""
     import core.default_face as package
 
-    if person != 0 or data == b"generated":
-        for source in sorted(Path(package.__file__).parent.glob("*.py")):
-            data += source.name.encode() + source.read_bytes()
+    face_file = package.default_face_path() if person == 0 else None
+    if face_file is not None and face_file.exists():
+        data = face_file.read_bytes()
+    else:
+        sources = sorted(Path(package.__file__).parent.glob("*.py"))
+        data = (b"generated" if person == 0 else b"") + b"".join(s.name.encode() + s.read_bytes() for s in sources)
     return hashlib.sha1(data).hexdigest()[:8]
 
 

@@ -186,10 +186,15 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
         if spec.is_rotation or not np.isfinite(spec.minimum) or not np.isfinite(spec.maximum):
             continue
 
+        last: dict[float, np.ndarray] = {}     # the latest pose: breaks(far) then crosses(far) share it
+
         def posed(value: float) -> np.ndarray:
-            values = np.zeros(len(specs))
-            values[number - 1] = value
-            return deform(values)
+            if value not in last:
+                values = np.zeros(len(specs))
+                values[number - 1] = value
+                last.clear()
+                last[value] = deform(values)
+            return last[value]
 
         def breaks(value: float) -> str:
             x = posed(value)
