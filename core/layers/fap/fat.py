@@ -57,6 +57,7 @@ from core.layers.fap import kernels, tables
 from core.layers.fap.eyeball_surface import (PUSH_TURN_END_RAD, PUSH_TURN_START_RAD, RADIUS_MAP_REACH_RAD,
                                              RADIUS_MAP_STEP_RAD, map_radius, push_outside,
                                              radius_map)
+from core.layers.fap.column_relax import relax_columns
 from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
 from core.layers.fap.limits import (EASE_START, FOLD_REASON, bisect, clean_limits, finished_limits, keeping,
                                     preset_reach, soft_limit)
@@ -274,6 +275,15 @@ class FapDeformer:
         n = face.n_vertices
         B3 = scipy.sparse.kron(self.binding, scipy.sparse.identity(3, format="csr"), format="csr")
         F = (B3 @ self.template_matrix).tocsr()
+        # Where binding region by region left a ramp on the face steeper than the skin takes at a
+        # slider's end, spread it (column_relax). Not the columns the lid guard reshapes (lids, brows,
+        # cheeks): spread toward the eye, the lift of a cheek pushed its lower lid into the eyeball
+        # and the guard folded it (face_quality, lift_cheek at 400: 7 -> 18 folded triangles).
+        in_part = self._in_any_part()
+        presets = np.concatenate([tables.expression_table(), tables.viseme_table()])
+        F = relax_columns(F, face.vertices, face.triangles[~in_part[face.triangles].any(axis=1)],
+                          np.array([self.fapu.get(s.unit, 0.0) for s in self.specs]), self.specs,
+                          sorted(set(range(1, N_FAPS + 1)) - set(LID_GUARD_COLUMNS + 1)), preset_reach(presets))
         F = F + self._lower_teeth_rows()
         F = F + self._cavity_rows(F)
         self.matrix = F.tocsr()
@@ -300,7 +310,6 @@ class FapDeformer:
         self.animated_faps = tuple(sorted(animated))
         report(0.97, "Finding where each FAP would break the surface…")
         skin_triangles = face.triangles[skin[face.triangles].all(axis=1)]
-        presets = np.concatenate([tables.expression_table(), tables.viseme_table()])
         # The lids' closing ends are not limited: they must close completely at 1024 IRISD, and lid
         # contact and the lid guard shape them, which a linear fold check does not see.
         lids = {n for pair in LID_PAIRS for n in pair}
@@ -1075,6 +1084,7 @@ def deformer_key(face: Face) -> str:
 def deformer_code_version() -> str:
     """A hash of the code that decides how FAP values move a face (for caches of posed faces)."""
     import core.layers.fap.closed_eyes as closed_eyes_module
+    import core.layers.fap.column_relax as column_relax_module
     import core.layers.fap.eyeball_surface as eyeball_surface_module
     import core.layers.fap.template as template_module
     import core.layers.fap.limits as limits_module
@@ -1086,7 +1096,7 @@ def deformer_code_version() -> str:
 
     return source_version(sys.modules[__name__], template_module, teeth_guard_module, lip_contact_module,
                           limits_module, step_memo_module, tables, surface_query, subdivision, closed_eyes_module,
-                          eyeball_surface_module)
+                          eyeball_surface_module, column_relax_module)
 
 
 def _column_arrays(matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
