@@ -215,8 +215,9 @@ def test_finished_limits_catch_what_a_finish_step_breaks_beyond_the_linear_field
 def test_finished_limits_stop_where_the_crossing_check_says_the_surfaces_cross():
     """Two sheets, one tilted above the other; the FAP lowers the upper sheet rigidly (never a fold
     nor a smear), and its lowest corner reaches the lower sheet at 500: with the lips' crossing
-    check the slider's end stops there with the crossing as reason; without it, it is not limited."""
-    from core.layers.fap.limits import CROSSING_REASON, finished_limits, preset_reach
+    check the slider's end stops there with the crossing as reason (the nostrils' own, for the nose
+    FAPs); without it, it is not limited."""
+    from core.layers.fap.limits import CROSSING_REASON, NOSTRIL_REASON, finished_limits, preset_reach
     from core.mesh_quality import count_intersections
 
     u, v = np.meshgrid(np.arange(4.0), np.arange(4.0))
@@ -244,6 +245,38 @@ def test_finished_limits_stop_where_the_crossing_check_says_the_surfaces_cross()
     assert 500 - step <= limits[2, 1] <= 500 and reasons[2, 1] == CROSSING_REASON
     fap3 = np.eye(68)[2]
     assert crossing(deform(fap3 * (limits[2, 1] + step))) and not crossing(deform(fap3 * limits[2, 1]))
+    nose = np.array([[-np.inf, np.inf]] * 68)
+    finished_limits(deform, rest, triangles, nose, reasons, specs, [3], no_presets, crossing=crossing,
+                    crossing_reason=NOSTRIL_REASON)
+    assert nose[2, 1] == limits[2, 1] and reasons[2, 1] == NOSTRIL_REASON
     unchecked = np.array([[-np.inf, np.inf]] * 68)
     finished_limits(deform, rest, triangles, unchecked, reasons, specs, [3], no_presets)
     assert np.isposinf(unchecked[2, 1])
+
+
+def test_a_crossing_already_there_at_rest_does_not_stop_a_slider():
+    """A sheet crossing another at rest (a registered scan's zigzagging closed lips) is the scan's own:
+    only a pair the pose newly crosses counts. A third sheet lowered onto both crosses them only when it
+    reaches them."""
+    from core.layers.fap.limits import new_crossings
+    from core.mesh_quality import count_intersections, welded_vertices
+
+    u, v = np.meshgrid(np.arange(4.0), np.arange(4.0))
+    flat = np.column_stack([u.ravel(), v.ravel(), np.zeros(16)])
+    tilted = np.column_stack([u.ravel() + 0.01, v.ravel() + 0.01, -0.7 + 0.5 * u.ravel()])   # through `flat`
+    above = np.column_stack([u.ravel() + 0.02, v.ravel() + 0.02, 5.0 + 0.1 * u.ravel()])
+    rest = np.vstack([flat, tilted, above])
+    quads = [(r * 4 + c, r * 4 + c + 1, r * 4 + c + 4, r * 4 + c + 5) for r in range(3) for c in range(3)]
+    sheet = np.array([t for a, b, c, d in quads for t in ((a, b, c), (b, d, c))])
+    triangles = np.vstack([sheet, sheet + 16, sheet + 32])
+    assert count_intersections(rest, triangles) > 0
+
+    crosses = new_crossings(rest, triangles, welded_vertices(rest), 0.05)
+
+    def lowered(mm):
+        x = rest.copy()
+        x[32:, 2] -= mm
+        return x
+
+    assert not crosses(rest) and not crosses(lowered(3.0))
+    assert crosses(lowered(5.15))                       # 5.15 lower it cuts the flat sheet at u = 1.5

@@ -59,8 +59,8 @@ from core.layers.fap.eyeball_surface import (PUSH_TURN_END_RAD, PUSH_TURN_START_
                                              radius_map)
 from core.layers.fap.column_relax import relax_columns
 from core.layers.fap.closed_eyes import CLOSED_EYE_GAP, closed_eye_side, closed_lid_lines
-from core.layers.fap.limits import (EASE_START, FOLD_REASON, bisect, clean_limits, finished_limits, keeping,
-                                    preset_reach, soft_limit)
+from core.layers.fap.limits import (EASE_START, FOLD_REASON, NOSTRIL_REASON, bisect, clean_limits, finished_limits,
+                                    keeping, new_crossings, preset_reach, soft_limit)
 from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
 from core.layers.fap.teeth_guard import TeethGuard
@@ -153,6 +153,9 @@ BROW_FAPS = ((31, 33, 35, 37), (32, 34, 36, 38))
 # there the skin moves as the larger of the two, and a FAP alone moves as before.
 PAIRED_LIP_FAPS = tuple((n, n + 47) for n in range(4, 14))
 LIP_FAPS = frozenset(n for pair in PAIRED_LIP_FAPS for n in pair)
+# The nose FAPs move the nostrils' pocket walls, which pass through each other as lips do (the generated
+# identity's nostrils: 2-3 crossing pairs at stretch_nose's ends, +-200 ENS): their slider ends stop there too.
+NOSE_FAPS = frozenset({61, 62, 63, 64})
 # A lip triangle moved less than this (mm) by a FAP alone is not tested for crossing at its slider ends.
 LIP_CROSSING_MOVE_MM = 0.05
 _PAIR_INNER = np.array([i - 1 for i, _o in PAIRED_LIP_FAPS])
@@ -319,7 +322,7 @@ class FapDeformer:
         # The upper lids' opening ends also stop where a lid folds through its own crease (a linear
         # fold check does not see it: the lid skin rises under the crease and crosses it).
         self.ease_start = np.full((N_FAPS, 2), EASE_START)
-        from core.mesh_quality import FaceQualityProbe, count_intersections
+        from core.mesh_quality import FaceQualityProbe
 
         probe = FaceQualityProbe(face)
         for number, side in ((19, "left"), (20, "right")):
@@ -339,21 +342,25 @@ class FapDeformer:
         # at -61 of -300; rim_slivers removes them, and the lids open to -300 unbroken.) The lip FAPs
         # also stop where the lips cross (the lower midlip, FAP 5, rolls under the chin's skin from -463
         # MNS on the default face, before its texture smears at -598): a crossing test costs ~40 ms per
-        # pose (+1.7 s of build), so the lip FAPs only.
+        # pose (+1.7 s of build), so the lip and nose FAPs only (the nostrils' walls are lip triangles
+        # to the probe: within 0.9 mouth widths of the mouth).
         self.preset_reach = preset_reach(presets)
         lip_faps = [n for n in limited_faps if n in LIP_FAPS]
+        nose_faps = [n for n in limited_faps if n in NOSE_FAPS]
         finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
-                        [n for n in limited_faps if n not in LIP_FAPS], self.preset_reach)
+                        [n for n in limited_faps if n not in LIP_FAPS | NOSE_FAPS], self.preset_reach)
 
-        def lips_cross(x: np.ndarray) -> bool:
-            # Only triangles the pose moved can newly cross (the FAT's tails move far skin by microns).
-            shift = np.linalg.norm(x - face.vertices, axis=1) > LIP_CROSSING_MOVE_MM
-            moved = probe.lip_tris[shift[probe.lip_tris].any(axis=1)]
-            return count_intersections(x, moved, probe.lip_tris, probe.welded) > 0
-
+        # Only pairs a pose newly crosses count: a registered scan's closed lips may zigzag across each
+        # other at rest (79 pairs on a Surrey Face Model neutral), which stopped every lip and nose FAP
+        # of it within a few units.
+        lips_cross = None if probe.lip_tris is None else new_crossings(face.vertices, probe.lip_tris, probe.welded,
+                                                                        LIP_CROSSING_MOVE_MM)
         finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
                         lip_faps, self.preset_reach,
-                        crossing=None if probe.lip_tris is None else lips_cross)
+                        crossing=lips_cross)
+        finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
+                        nose_faps, self.preset_reach,
+                        crossing=lips_cross, crossing_reason=NOSTRIL_REASON)
         finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
                         sorted({19, 20, 21, 22} - self.closed_lid_faps), self.preset_reach, sides=(0,))
         # Where the surface breaks (each FAP alone), for the tooltips; the sliders ease toward

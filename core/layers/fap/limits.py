@@ -42,6 +42,7 @@ SMEAR_SAMPLES = (0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0)
 FOLD_REASON = "the skin would fold"
 SMEAR_REASON = f"the skin's texture would smear (stretch over {MAX_STRETCH:g}x or shrink under {MIN_STRETCH:g}x)"
 CROSSING_REASON = "the lips would pass through each other or the skin below them"
+NOSTRIL_REASON = "the nostril's walls would pass through each other"
 
 
 def _normals(corners: np.ndarray) -> np.ndarray:
@@ -171,7 +172,8 @@ def bisect(breaks, steps: int = BISECTION_STEPS) -> tuple[float, float]:
 
 def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits: np.ndarray, reasons: np.ndarray,
                     specs, numbers, reach: np.ndarray, steps: int = FINISHED_BISECTION_STEPS,
-                    sides=(0, 1), crossing: Callable[[np.ndarray], bool] | None = None) -> None:
+                    sides=(0, 1), crossing: Callable[[np.ndarray], bool] | None = None,
+                    crossing_reason: str = CROSSING_REASON) -> None:
     """Tighten ``limits`` / ``reasons`` (68, 2, from :func:`clean_limits`) in place where a FAP alone,
     posed by ``deform(values (68,)) -> (n, 3)`` with every finish step (lid guard, lip contact,
     teeth), folds or smears the skin before its linear limit (or its slider's end): those steps move
@@ -179,7 +181,8 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
     limit are left to the preset (the slider eases just past it, see :func:`keeping`).
     ``sides``: the slider ends checked (0 the lower, 1 the upper). Only triangles the pose moved
     are measured. ``crossing(x (n, 3)) -> bool``, if given, also breaks a pose (the lips' surfaces
-    crossing: a fold check does not see a lip rolling under the skin next to it)."""
+    crossing: a fold check does not see a lip rolling under the skin next to it), for
+    ``crossing_reason``."""
     rest_normals, rest_frames, measurable = _rest_measures(rest, skin_triangles)
     for number in numbers:
         spec = specs[number - 1]
@@ -226,7 +229,30 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
                 continue
             good, _ = bisect(lambda share: crosses(far * share), steps)
             limits[number - 1, side] = far * good
-            reasons[number - 1, side] = CROSSING_REASON
+            reasons[number - 1, side] = crossing_reason
+
+
+def new_crossings(rest: np.ndarray, triangles: np.ndarray, welded: np.ndarray,
+                  moved_mm: float) -> Callable[[np.ndarray], bool]:
+    """``crosses(x (n, 3)) -> bool`` for :func:`finished_limits`: whether the pose ``x`` makes a pair of
+    ``triangles`` (k, 3) cross that did not cross at ``rest`` (n, 3) (a scan's own crossings are not
+    the slider's), testing only triangles with a corner moved more than ``moved_mm`` (the FAT's tails
+    move far skin by microns). ``welded``: ``core.mesh_quality.welded_vertices(rest)``."""
+    from core.mesh_quality import intersecting_pairs
+
+    k = len(triangles)
+
+    def keys(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.minimum(a, b).astype(np.int64) * k + np.maximum(a, b)
+
+    at_rest = keys(*intersecting_pairs(rest, triangles, None, welded))
+
+    def crosses(x: np.ndarray) -> bool:
+        moved = np.flatnonzero((np.linalg.norm(x - rest, axis=1) > moved_mm)[triangles].any(axis=1))
+        ia, ib = intersecting_pairs(x, triangles[moved], triangles, welded)
+        return bool(np.setdiff1d(keys(moved[ia], ib), at_rest).size)
+
+    return crosses
 
 
 def preset_reach(values: np.ndarray) -> np.ndarray:
