@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.layers.fap.column_relax import TARGET_STRETCH, ColumnRelaxer, border_vertices
+from core.layers.fap.column_relax import TARGET_STRETCH, ColumnRelaxer
 from core.mesh_quality import _local_frames, principal_stretches
+from core.registration.icp import boundary_vertex_mask
 
 
 def _grid(n: int = 31) -> tuple[np.ndarray, np.ndarray]:
@@ -35,7 +36,7 @@ def test_a_shear_ramp_spreads_and_its_core_and_border_stay():
     across = np.clip((15.0 - np.abs(vertices[:, 0] - 15.0) - 2.0) / 6.0, 0.0, 1.0)
     field[:, 2] = (np.clip((y - 12.0) / 2.0, 0.0, 0.8) + np.clip((y - 22.0) / 2.0, 0.0, 0.2)) * across
     end = 4.0
-    inner = ~border_vertices(len(vertices), tris)[tris].any(axis=1)
+    inner = ~boundary_vertex_mask(tris, len(vertices))[tris].any(axis=1)
     before = _worst(vertices, tris, field, end, inner)
     assert before > TARGET_STRETCH
 
@@ -43,7 +44,7 @@ def test_a_shear_ramp_spreads_and_its_core_and_border_stay():
 
     assert relaxed is not None
     assert _worst(vertices, tris, relaxed, end, inner) < before
-    border = border_vertices(len(vertices), tris)
+    border = boundary_vertex_mask(tris, len(vertices))
     assert np.array_equal(relaxed[border], field[border])
     core = field[:, 2] >= 0.9 * field[:, 2].max()
     assert np.array_equal(relaxed[core], field[core])

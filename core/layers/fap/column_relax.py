@@ -20,8 +20,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse
 
-from core.layers.fap.limits import PRESET_MARGIN
-from core.mesh_quality import _local_frames, principal_stretches
+from core.layers.fap.limits import PRESET_MARGIN, _normals, _rest_measures
+from core.mesh_quality import principal_stretches
+from core.subdivision import boundary_edges, unique_edges
 
 # Below core.mesh_quality's MAX_STRETCH (2.0) / MIN_STRETCH (0.25): presets add several FAPs' fields.
 TARGET_STRETCH = 1.8
@@ -33,16 +34,6 @@ STEPS = 40              # Jacobi steps per round
 ROUNDS = 3              # rounds, each on a neighbourhood RINGS wider
 
 
-def border_vertices(n: int, triangles: np.ndarray) -> np.ndarray:
-    """(n,) bool: vertices on an edge used by one of ``triangles`` (m, 3) only."""
-    edges = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
-    key = edges[:, 0].astype(np.int64) * n + edges[:, 1]
-    uniq, uses = np.unique(key, return_counts=True)
-    out = np.zeros(n, bool)
-    out[uniq[uses == 1] // n] = out[uniq[uses == 1] % n] = True
-    return out
-
-
 class ColumnRelaxer:
     """Relaxes FAP fields (n, 3) on one face's skin; see the module docstring.
 
@@ -52,15 +43,9 @@ class ColumnRelaxer:
         n = len(vertices)
         self.rest = vertices
         self.triangles = skin_triangles
-        corners = vertices[skin_triangles]
-        self.frames = _local_frames(corners)
-        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        area = np.linalg.norm(normals, axis=1)
-        self.normals = normals
-        # Slivers have no direction to turn and no stretch to speak of (as core.mesh_quality).
-        self.measurable = area > 1e-6 * max(float(np.median(area)), 1e-12)
-        e = np.concatenate([skin_triangles[:, [0, 1]], skin_triangles[:, [1, 2]], skin_triangles[:, [2, 0]]])
-        e = np.unique(np.sort(e, axis=1), axis=0)
+        # Rest normals, frames and which triangles are no slivers, as the limits measure them.
+        self.normals, self.frames, self.measurable = _rest_measures(vertices, skin_triangles)
+        e = unique_edges(skin_triangles)[0]
         inv = 1.0 / np.maximum(np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1), 1e-6)
         w = scipy.sparse.coo_matrix((np.concatenate([inv, inv]), (np.concatenate([e[:, 0], e[:, 1]]),
                                                                    np.concatenate([e[:, 1], e[:, 0]]))),
@@ -68,7 +53,8 @@ class ColumnRelaxer:
         self.weights = w
         self.degree = np.asarray(w.sum(axis=1)).ravel()
         self.ring = (w > 0).astype(np.float32).tocsr()
-        self.fixed = border_vertices(n, skin_triangles) | (self.degree == 0)
+        self.fixed = self.degree == 0
+        self.fixed[boundary_edges(skin_triangles).ravel()] = True
 
     def worst(self, field: np.ndarray, ends, tris: np.ndarray) -> tuple[np.ndarray, tuple[int, float]]:
         """(offending (k,) triangle ids among ``tris``, score): triangles that stretch past the targets
@@ -79,8 +65,7 @@ class ColumnRelaxer:
         for end in ends:
             corners = self.rest[self.triangles[tris]] + end * field[self.triangles[tris]]
             big, small = principal_stretches(self.frames[tris], corners)
-            turned = np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
-                               self.normals[tris]) < 0
+            turned = np.einsum("ij,ij->i", _normals(corners), self.normals[tris]) < 0
             ok = self.measurable[tris]
             bad |= ok & ((big > TARGET_STRETCH) | (small < TARGET_SQUEEZE) | turned)
             folds += int((turned & ok).sum())

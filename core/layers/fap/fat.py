@@ -282,9 +282,10 @@ class FapDeformer:
         # slider's end, spread it (column_relax). Not the columns the lid guard reshapes (lids, brows,
         # cheeks): spread toward the eye, the lift of a cheek pushed its lower lid into the eyeball
         # and the guard folded it (face_quality, lift_cheek at 400: 7 -> 18 folded triangles).
-        in_part = self._in_any_part()
+        skin = ~self._in_any_part()
+        skin_triangles = face.triangles[skin[face.triangles].all(axis=1)]
         presets = np.concatenate([tables.expression_table(), tables.viseme_table()])
-        F = relax_columns(F, face.vertices, face.triangles[~in_part[face.triangles].any(axis=1)],
+        F = relax_columns(F, face.vertices, skin_triangles,
                           np.array([self.fapu.get(s.unit, 0.0) for s in self.specs]), self.specs,
                           sorted(set(range(1, N_FAPS + 1)) - set(LID_GUARD_COLUMNS + 1)), preset_reach(presets))
         F = F + self._lower_teeth_rows()
@@ -301,7 +302,6 @@ class FapDeformer:
         self._pitch_centres = self._eyeball_pitch_centres()
         self._lid_guards = self._lid_guards_over_eyeballs()
         self._eye_rims = self._eye_rims_of_skin()
-        skin = ~self._in_any_part()
         self._teeth_guard = TeethGuard(face, np.nonzero(skin)[0])
         self._lip_contact = LipContact(face, np.nonzero(skin)[0])
         self._memos = self._step_memos()
@@ -312,7 +312,6 @@ class FapDeformer:
         animated += [48, 49, 50]
         self.animated_faps = tuple(sorted(animated))
         report(0.97, "Finding where each FAP would break the surface…")
-        skin_triangles = face.triangles[skin[face.triangles].all(axis=1)]
         # The lids' closing ends are not limited: they must close completely at 1024 IRISD, and lid
         # contact and the lid guard shape them, which a linear fold check does not see.
         lids = {n for pair in LID_PAIRS for n in pair}
