@@ -36,6 +36,12 @@ from core.default_face.texture import atlas_map, eye_atlas_centre, mouth_atlas, 
 GRID_SPACING = 0.645  # mm: gives ~50k vertices over the face, like the thesis's scans
 TEXTURE_SIZE = (640, 480)  # (width, height) pixels, the Vivid 910 colour image
 EYE_RINGS, EYE_SEGMENTS, EYE_CAP_DEG = 20, 64, 78.0
+# The full head's front stops where the skin turns more than this from the view axis (z), as a
+# frontal scanner's would: under the chin and along the jaw the height field falls back 10-14 mm
+# within one grid row there, and those rows were needles (1 mm wide, 18 mm long) that any jaw motion
+# stretched over 2x (face_quality: the open jaw, visemes aa, oh, E). The head shell covers that skin.
+# The front-only face (the scan-like model of detection and registration) keeps its rim.
+MAX_VIEW_ANGLE_DEG = 80.0
 
 
 def generate_face(params: FaceParameters | None = None, *, grid_spacing: float = GRID_SPACING,
@@ -44,14 +50,16 @@ def generate_face(params: FaceParameters | None = None, *, grid_spacing: float =
 
     ``full_head=False``: the front of the face only, like a single-view range scan (the synthetic
     scan database and the registration protocol use it). ``True`` appends the rest of the head
-    (``head.py``): the front's vertices, triangles and feature points keep their indices, only its
-    outer rim is smoothed (the grid's staircase) where the head shell is stitched on.
+    (``head.py``) to a front that stops short of the steep rim a frontal scanner cannot see
+    (``MAX_VIEW_ANGLE_DEG``; so its skin has fewer vertices than the front-only face's), its outer rim
+    smoothed (the grid's staircase) where the head shell is stitched on; the feature points, eyeballs
+    and mouth are the same.
     """
     params = params or FaceParameters()
     layout = FaceLayout.from_parameters(params)
     shape = FaceShape(layout)
 
-    xy, tris, seam_upper, seam_lower = _skin_grid(layout, shape, grid_spacing)
+    xy, tris, seam_upper, seam_lower = _skin_grid(layout, shape, grid_spacing, cut_unseen_rim=full_head)
     xy = _smooth_outer_rim(shape, xy, tris, grid_spacing)
     xy, tris = _cut_eye_openings(layout, xy, tris)
     xy, tris, keep = _drop_unused(xy, tris)
@@ -220,8 +228,11 @@ def _sample(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- skin grid
-def _skin_grid(layout: FaceLayout, shape: FaceShape, h: float):
+def _skin_grid(layout: FaceLayout, shape: FaceShape, h: float, *, cut_unseen_rim: bool = False):
     """Grid vertices (x, y) inside the scan outline and their triangles.
+
+    ``cut_unseen_rim``: also leave out the steep rim a frontal scanner cannot see
+    (:func:`_unseen_rim`; the full head's shell covers it).
 
     The rows are warped near the mouth so that one grid row lies exactly on
     the mouth line; the columns are spaced so that two columns fall exactly on
@@ -241,6 +252,8 @@ def _skin_grid(layout: FaceLayout, shape: FaceShape, h: float):
     Y = V + shift
     ny, nxx = X.shape
     inside = shape.inside_scan(X, Y)
+    if cut_unseen_rim:
+        inside &= ~_unseen_rim(shape, X, Y, inside)
     index = np.arange(ny * nxx).reshape(ny, nxx)
 
     # Two triangles per cell; the diagonal mirrors across the midline so the
@@ -271,6 +284,21 @@ def _skin_grid(layout: FaceLayout, shape: FaceShape, h: float):
     xy = np.column_stack([X.ravel(), Y.ravel()])
     xy = np.concatenate([xy, xy[seam_upper]])
     return xy, tris, seam_upper, seam_lower
+
+
+def _unseen_rim(shape: FaceShape, X: np.ndarray, Y: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """(rows, cols) bool: grid points (X, Y) inside the outline where the skin turns more than
+    MAX_VIEW_ANGLE_DEG from the view axis and that connect through such points to the outline (steep
+    pits inside the face, the nostrils, stay: cutting them would hole the surface)."""
+    from scipy import ndimage
+
+    d = 0.25 * float(abs(X[0, 1] - X[0, 0]))     # mm, central differences well inside a cell
+    gx = (shape.skin_depth(X + d, Y) - shape.skin_depth(X - d, Y)) / (2 * d)
+    gy = (shape.skin_depth(X, Y + d) - shape.skin_depth(X, Y - d)) / (2 * d)
+    steep = inside & (np.hypot(gx, gy) > np.tan(np.radians(MAX_VIEW_ANGLE_DEG)))
+    labels, _ = ndimage.label(steep, structure=np.ones((3, 3)))
+    at_outline = np.unique(labels[steep & ndimage.binary_dilation(~inside, structure=np.ones((3, 3)))])
+    return np.isin(labels, at_outline[at_outline > 0])
 
 
 def _boundary_vertices(tris: np.ndarray) -> np.ndarray:
