@@ -77,7 +77,7 @@ def test_slider_ends_that_folded_the_skin_no_longer_do(rig, number, value):
     rig.reset()
 
 
-@pytest.mark.parametrize("number,value", [(63, -300), (14, 600), (61, 200), (39, 300), (52, -800)])
+@pytest.mark.parametrize("number,value", [(63, -300), (61, 200), (39, 300), (52, -800)])
 def test_slider_ends_that_smeared_the_texture_no_longer_do(rig, number, value):
     """On the default face these ends stretched a skin triangle's texture 2.7-5.1 times (face_quality);
     eased into the FAP's clean limit every principal stretch stays within [MIN_STRETCH, MAX_STRETCH],
