@@ -103,6 +103,10 @@ DUPLICATE_MM = 0.02
 # A round-top region's Gaussian at or above this is its top, held through the relaxation (0.9 -> 0.95 on the
 # default face: expression + viseme folds 547 -> 476, lip crossings 30 -> 20).
 ROUND_TOP = 0.95
+# A round-tip region's relaxed field is smoothed this far from its core (hops of the dense template's
+# median edge) by this many steps with the core free (see _rounded_tip).
+TIP_ROUNDING_HOPS = 6.0
+TIP_ROUNDING_STEPS = 10
 LID_CLEARANCE_MM = 0.4      # a closing lid slides this far outside the eyeball
 MIN_LID_CLEARANCE_MM = 0.1  # ... or at least this far (a 2 mm lid triangle sags 0.03 mm into a 15 mm ball)
 CHEEK_GUARD_REACH_MM = 4.0  # cheek-lift and brow skin that comes no nearer the eyeball than this is not guarded
@@ -407,7 +411,8 @@ class FapDeformer:
             # weight fell 28 % in the 2 mm beside a mouth corner, and the skin there folded under a
             # smile): the Gaussian's round top (weight >= ROUND_TOP) is held with it.
             top = (w >= ROUND_TOP) if _round_top(entry) else False
-            w = _relax(w, sub, core[ids] | top | (w == 0), SMOOTHING_STEPS)
+            relaxed = _relax(w, sub, core[ids] | top | (w == 0), SMOOTHING_STEPS)
+            w = _rounded_tip(w, relaxed, sub, dist, nearest) if entry.get("round_tip") else relaxed
             w *= entry.get("scale", 1.0)
             weight = weights.setdefault(fap, np.zeros(N))
             weight[ids] = np.maximum(weight[ids], w)
@@ -1128,6 +1133,31 @@ def _round_top(entry: dict) -> bool:
     template marks the regions that need it (``"round_top"``: the lip corners); elsewhere a region's
     border is too close to its core for a held top (the cheek lift would push the lower lid over)."""
     return bool(entry.get("round_top"))
+
+
+def _rounded_tip(gaussian: np.ndarray, relaxed: np.ndarray, graph: scipy.sparse.csr_matrix, dist: np.ndarray,
+                 nearest: np.ndarray) -> np.ndarray:
+    """A region's ``relaxed`` weights (k,) without the cusp at its core points.
+
+    Relaxed against a point held at its weight, the field is a cone there (harmonic about a point: FAP
+    17 fell from 1 to 0.83 within 0.58 mm of 8.1, and the upper lip's skin stretched 2.1x at
+    push_t_lip 600). The weights within TIP_ROUNDING_HOPS of the core (``dist`` (k,), hops) take
+    TIP_ROUNDING_STEPS Jacobi steps with the core free; what each core point lost comes back as the
+    region's own ``gaussian`` (k,) scaled to 1 there, round at its top; no weight exceeds its nearest
+    core point's (``nearest`` (k,), dijkstra's source index per vertex).
+
+    The template marks the regions that take it (``"round_tip"``: the mid-lip FAPs). face_quality on
+    the default and a generated face: 48 -> 44 failing poses; on every point-core region it was 26 ->
+    29 on the default face alone (the cheek lift's wider top pushed its lower lid into the eyeball,
+    the brows and the lip corners stretched), and on the jaw's chain 2.2 -> 3.9x at open_jaw.
+    """
+    reach = np.isfinite(dist)
+    near = reach & (dist <= TIP_ROUNDING_HOPS)
+    smoothed = _relax(relaxed, graph, ~near | (gaussian == 0), TIP_ROUNDING_STEPS)
+    source = np.where(reach, nearest, 0)
+    lost = np.where(reach, relaxed[source] - smoothed[source], 0.0)
+    bump = np.where(reach, gaussian / np.maximum(gaussian[source], 1e-12), 0.0)     # 1 at the core
+    return np.minimum(smoothed + lost * bump, relaxed[source])
 
 
 def _relax(w: np.ndarray, graph: scipy.sparse.csr_matrix, fixed: np.ndarray, steps: int) -> np.ndarray:
