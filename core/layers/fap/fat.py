@@ -164,6 +164,8 @@ NOSE_FAPS = frozenset({61, 62, 63, 64})
 LIP_CROSSING_MOVE_MM = 0.05
 _PAIR_INNER = np.array([i - 1 for i, _o in PAIRED_LIP_FAPS])
 _PAIR_OUTER = np.array([o - 1 for _i, o in PAIRED_LIP_FAPS])
+# The lids' and cheek lifts' FAPs (numbers).
+LIDS_AND_CHEEKS = (19, 20, 21, 22, 41, 42)
 # FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
 LID_GUARD_COLUMNS = np.array([18, 19, 20, 21, 40, 41, *range(30, 38)])
 # Eyeball vertices whose mean motion gives the lid guard the ball's shift (see _ball_anchors).
@@ -283,15 +285,16 @@ class FapDeformer:
         B3 = scipy.sparse.kron(self.binding, scipy.sparse.identity(3, format="csr"), format="csr")
         F = (B3 @ self.template_matrix).tocsr()
         # Where binding region by region left a ramp on the face steeper than the skin takes at a
-        # slider's end, spread it (column_relax). Not the columns the lid guard reshapes (lids, brows,
-        # cheeks): spread toward the eye, the lift of a cheek pushed its lower lid into the eyeball
-        # and the guard folded it (face_quality, lift_cheek at 400: 7 -> 18 folded triangles).
+        # slider's end, spread it (column_relax). Not the lids' and cheeks' columns: spread toward the
+        # eye, the lift of a cheek pushed its lower lid into the eyeball and the guard folded it
+        # (face_quality, lift_cheek at 400: 7 -> 18 folded triangles). The brows' are (raise_o_eyebrow
+        # 400 on the default face: stretch 2.16 -> 1.99 beside the temple; surprise 2.29 -> 2.09).
         skin = ~self._in_any_part()
         skin_triangles = face.triangles[skin[face.triangles].all(axis=1)]
         presets = np.concatenate([tables.expression_table(), tables.viseme_table()])
         F = relax_columns(F, face.vertices, skin_triangles,
                           np.array([self.fapu.get(s.unit, 0.0) for s in self.specs]), self.specs,
-                          sorted(set(range(1, N_FAPS + 1)) - set(LID_GUARD_COLUMNS + 1)), preset_reach(presets))
+                          sorted(set(range(1, N_FAPS + 1)) - set(LIDS_AND_CHEEKS)), preset_reach(presets))
         F = F + self._lower_teeth_rows()
         F = F + self._cavity_rows(F)
         self.matrix = F.tocsr()
