@@ -1145,12 +1145,14 @@ def _rounded_tip(gaussian: np.ndarray, relaxed: np.ndarray, graph: scipy.sparse.
     Relaxed against a point held at its weight, the field is a cone there (harmonic about a point: FAP
     17 fell from 1 to 0.83 within 0.58 mm of 8.1, and the upper lip's skin stretched 2.1x at
     push_t_lip 600). The weights within TIP_ROUNDING_HOPS of the core (``dist`` (k,), hops) take
-    TIP_ROUNDING_STEPS Jacobi steps with the core free; what each core point lost comes back as the
-    region's own ``gaussian`` (k,) scaled to 1 there, round at its top; no weight exceeds its nearest
-    core point's (``nearest`` (k,), dijkstra's source index per vertex).
+    TIP_ROUNDING_STEPS Jacobi steps with the core free; what each core point lost comes back as a
+    Gaussian bump as wide as that smoothing (1 at the core, round at its top; the region's own, narrower
+    Gaussian left a shoulder: push_t_lip 600 on the generated face 2.40x); no weight exceeds its
+    nearest core point's (``nearest`` (k,), dijkstra's source index per vertex). ``gaussian`` (k,): the
+    weights before relaxation (0 outside the region's support).
 
     The template marks the regions that take it (``"round_tip"``: the mid-lip FAPs). face_quality on
-    the default and a generated face: 48 -> 44 failing poses; on every point-core region it was 26 ->
+    the default and a generated face: 48 -> 42 failing poses; on every point-core region it was 26 ->
     29 on the default face alone (the cheek lift's wider top pushed its lower lid into the eyeball,
     the brows and the lip corners stretched), and on the jaw's chain 2.2 -> 3.9x at open_jaw.
     """
@@ -1159,7 +1161,7 @@ def _rounded_tip(gaussian: np.ndarray, relaxed: np.ndarray, graph: scipy.sparse.
     smoothed = _relax(relaxed, graph, ~near | (gaussian == 0), TIP_ROUNDING_STEPS)
     source = np.where(reach, nearest, 0)
     lost = np.where(reach, relaxed[source] - smoothed[source], 0.0)
-    bump = np.where(reach, gaussian / np.maximum(gaussian[source], 1e-12), 0.0)     # 1 at the core
+    bump = np.where(reach & (gaussian > 0), np.exp(-np.where(reach, dist, 0.0) ** 2 / (2 * TIP_ROUNDING_HOPS ** 2)), 0.0)
     return np.minimum(smoothed + lost * bump, relaxed[source])
 
 
