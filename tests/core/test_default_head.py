@@ -8,6 +8,7 @@ from scipy.spatial import cKDTree
 from core.default_face import FaceLayout, FaceParameters, generate_face, load_default_face
 from core.default_face.head import fair_radially, hair_mask, outer_boundary_loop
 from core.face import coincident_skin_vertices
+from tests.core.test_default_face import skin_mask
 
 MAX_EXTRA_TRIANGLES = 20_000   # the software renderer's cost follows the triangle count
 
@@ -34,12 +35,9 @@ def front_vertex_count(head) -> int:
     return int(head.parts["teeth_lower"].max()) + 1
 
 
-def skin_mask(face) -> np.ndarray:
-    """(n,) bool: vertices in no named part."""
-    skin = np.ones(face.n_vertices, bool)
-    for idx in face.parts.values():
-        skin[idx] = False
-    return skin
+def skin_rim(face) -> np.ndarray:
+    """The skin's outer boundary loop (vertex ids)."""
+    return outer_boundary_loop(face.triangles[skin_mask(face)[face.triangles].all(axis=1)])
 
 
 def origin_in_front(head, front) -> tuple[np.ndarray, np.ndarray]:
@@ -63,7 +61,7 @@ def nostril_rise(head, front) -> tuple[np.ndarray, np.ndarray]:
     rim and for vertices of no origin); origin_in_front's indices)."""
     origin, exact = origin_in_front(head, front)
     n = len(origin)
-    rim = outer_boundary_loop(head.triangles[skin_mask(head)[head.triangles].all(axis=1)])
+    rim = skin_rim(head)
     rise = np.where(origin >= 0, head.vertices[:n, 1] - front.vertices[np.maximum(origin, 0), 1], 0.0)
     rise[rim[rim < n]] = 0.0
     return rise, origin
@@ -107,7 +105,7 @@ def test_the_heads_front_is_the_scan_front_short_of_its_unseen_rim(front, head):
     # x and y) and the nostrils (opened straight up).
     origin, exact = origin_in_front(head, front)
     skin = skin_mask(head)[:n]
-    rim = outer_boundary_loop(head.triangles[skin_mask(head)[head.triangles].all(axis=1)])
+    rim = skin_rim(head)
     on_rim = np.zeros(len(head.vertices), bool)
     on_rim[rim] = True
     moved = np.nonzero(skin & ~exact)[0]
@@ -123,7 +121,7 @@ def test_the_heads_front_is_the_scan_front_short_of_its_unseen_rim(front, head):
     dropped = np.nonzero(~kept & skin_mask(front))[0]
     twin = cKDTree(front.vertices[kept]).query(front.vertices[dropped])[0] == 0.0   # the mouth seam's pairs
     dropped = dropped[~twin]
-    front_rim = outer_boundary_loop(front.triangles[skin_mask(front)[front.triangles].all(axis=1)])
+    front_rim = skin_rim(front)
     from_rim = cKDTree(front.vertices[front_rim, :2]).query(front.vertices[dropped, :2])[0]
     assert 300 < len(dropped) < 0.05 * front.n_vertices
     assert from_rim.max() < 8.0

@@ -167,7 +167,7 @@ _PAIR_OUTER = np.array([o - 1 for _i, o in PAIRED_LIP_FAPS])
 # The lids' and cheek lifts' FAPs (numbers).
 LIDS_AND_CHEEKS = (19, 20, 21, 22, 41, 42)
 # FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
-LID_GUARD_COLUMNS = np.array([18, 19, 20, 21, 40, 41, *range(30, 38)])
+LID_GUARD_COLUMNS = np.array([n - 1 for n in LIDS_AND_CHEEKS] + list(range(30, 38)))
 # Eyeball vertices whose mean motion gives the lid guard the ball's shift (see _ball_anchors).
 BALL_ANCHORS = 16
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
@@ -415,7 +415,7 @@ class FapDeformer:
             # smile): the Gaussian's round top (weight >= ROUND_TOP) is held with it.
             top = (w >= ROUND_TOP) if _round_top(entry) else False
             relaxed = _relax(w, sub, core[ids] | top | (w == 0), SMOOTHING_STEPS)
-            w = _rounded_tip(w, relaxed, sub, dist, nearest) if entry.get("round_tip") else relaxed
+            w = _rounded_tip(relaxed, w > 0, sub, dist, nearest) if entry.get("round_tip") else relaxed
             w *= entry.get("scale", 1.0)
             weight = weights.setdefault(fap, np.zeros(N))
             weight[ids] = np.maximum(weight[ids], w)
@@ -1138,7 +1138,7 @@ def _round_top(entry: dict) -> bool:
     return bool(entry.get("round_top"))
 
 
-def _rounded_tip(gaussian: np.ndarray, relaxed: np.ndarray, graph: scipy.sparse.csr_matrix, dist: np.ndarray,
+def _rounded_tip(relaxed: np.ndarray, support: np.ndarray, graph: scipy.sparse.csr_matrix, dist: np.ndarray,
                  nearest: np.ndarray) -> np.ndarray:
     """A region's ``relaxed`` weights (k,) without the cusp at its core points.
 
@@ -1148,20 +1148,20 @@ def _rounded_tip(gaussian: np.ndarray, relaxed: np.ndarray, graph: scipy.sparse.
     TIP_ROUNDING_STEPS Jacobi steps with the core free; what each core point lost comes back as a
     Gaussian bump as wide as that smoothing (1 at the core, round at its top; the region's own, narrower
     Gaussian left a shoulder: push_t_lip 600 on the generated face 2.40x); no weight exceeds its
-    nearest core point's (``nearest`` (k,), dijkstra's source index per vertex). ``gaussian`` (k,): the
-    weights before relaxation (0 outside the region's support).
+    nearest core point's (``nearest`` (k,), dijkstra's source index per vertex). ``support`` (k,) bool:
+    where the weights before relaxation are nonzero (the region's zero border stays zero).
 
     The template marks the regions that take it (``"round_tip"``: the mid-lip FAPs). face_quality on
-    the default and a generated face: 48 -> 42 failing poses; on every point-core region it was 26 ->
+    the default and a generated face: 48 -> 41 failing poses; on every point-core region it was 26 ->
     29 on the default face alone (the cheek lift's wider top pushed its lower lid into the eyeball,
     the brows and the lip corners stretched), and on the jaw's chain 2.2 -> 3.9x at open_jaw.
     """
     reach = np.isfinite(dist)
     near = reach & (dist <= TIP_ROUNDING_HOPS)
-    smoothed = _relax(relaxed, graph, ~near | (gaussian == 0), TIP_ROUNDING_STEPS)
+    smoothed = _relax(relaxed, graph, ~near | ~support, TIP_ROUNDING_STEPS)
     source = np.where(reach, nearest, 0)
     lost = np.where(reach, relaxed[source] - smoothed[source], 0.0)
-    bump = np.where(reach & (gaussian > 0), np.exp(-np.where(reach, dist, 0.0) ** 2 / (2 * TIP_ROUNDING_HOPS ** 2)), 0.0)
+    bump = np.where(reach & support, np.exp(-np.where(reach, dist, 0.0) ** 2 / (2 * TIP_ROUNDING_HOPS ** 2)), 0.0)
     return np.minimum(smoothed + lost * bump, relaxed[source])
 
 
