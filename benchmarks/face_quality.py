@@ -7,7 +7,11 @@ thesis C's muscle presets and the poses of the face's built-in expression librar
 lip / lid / teeth / mouth-cavity intersections, folded triangles, the largest texture stretch and smallest squeeze,
 and for lid-closing FAPs at their maximum whether the eye is closed. Prints per pose
 
-    <identity> <pose>: lip=<n> lid=<n> teeth=<n> cavity=<n> folds=<n> stretch=<x> squeeze=<x> [eye=<%>] OK|FAIL <why>
+    <identity> <pose>: lip=<n> lid=<n> teeth=<n> cavity=<n> [at_rest=lip:<k>,...] folds=<n> stretch=<x> squeeze=<x> [eye=<%>] OK|FAIL <why>
+
+(``at_rest``: how many of those crossing pairs the rest face has already — a registered scan's own
+closed lips and nose creases; 0 on Mimica's faces. They fail the neutral pose; any other pose fails
+on the pairs it makes cross, as the sliders' crossing limits count them: ``limits.new_crossings``.)
 
 then per identity the totals over its poses (which failures dominate)
 
@@ -191,7 +195,9 @@ def run_identity(name: str, args) -> tuple[int, int]:
         apply(rig)
         vertices = rig.vertices()
         q = probe.measure(vertices, eyes=bool(closes))
-        why = q.failures(eyes_closed=closes)
+        # A registered scan may cross itself at rest: that fails its neutral pose, once; every other
+        # pose fails on the crossings it makes.
+        why = q.failures(eyes_closed=closes, count_rest=label == "neutral")
         failures += bool(why)
         for key, value in (("lip", q.lip_intersections), ("lid", q.lid_intersections),
                            ("teeth", q.teeth_intersections), ("cavity", q.cavity_intersections),
@@ -204,6 +210,8 @@ def run_identity(name: str, args) -> tuple[int, int]:
         counts = " ".join(f"{k}={'-' if v is None else v}" for k, v in (
             ("lip", q.lip_intersections), ("lid", q.lid_intersections), ("teeth", q.teeth_intersections),
             ("cavity", q.cavity_intersections)))
+        if q.at_rest:
+            counts += " at_rest=" + ",".join(f"{k.replace(' ', '_')}:{v}" for k, v in q.at_rest.items())
         print(f"{name} {label}: {counts} folds={q.folded_triangles} stretch={q.max_stretch:.2f} "
               f"squeeze={q.min_stretch:.2f}{eye} {'FAIL ' + '; '.join(why) if why else 'OK'}", flush=True)
         if args.sheets:

@@ -14,6 +14,12 @@ Does a deformed face still hold up? Counts, for one pose of a face, what a viewe
 * **eye openness**: the share of the eyeball's front (seen from the front) not hidden by the skin,
   per eye; a pose that closes a lid completely should leave 0.
 
+A registered scan can cross itself at rest (its closed lips' seam, flaps in the creases by its nose
+wings: ~100 pairs on every scan tried). Those pairs are the face's, not a pose's: each pose reports
+how many of its crossings the rest face has too (``PoseQuality.at_rest``), and
+:meth:`PoseQuality.failures` counts them only for the rest pose (``count_rest``), as the sliders'
+crossing limits do (``core.layers.fap.limits.new_crossings``).
+
 :class:`FaceQualityProbe` precomputes per face what does not change with the pose (regions, rest
 frames, candidate radii) so a pose costs a few tens of ms at 54k vertices. Intersections are exact
 segment/triangle tests on candidate pairs whose bounding spheres overlap; triangles that share a
@@ -56,16 +62,23 @@ class PoseQuality:
     # Mouth skin crossing the mouth cavity's lining (a region pulled in through the lips); None
     # when the face has no cavity.
     cavity_intersections: int | None = None
+    # Of each kind's crossing pairs ("lip", "lid", "teeth", "mouth cavity"), how many cross in the rest
+    # face too (a registered scan's own; 0 on Mimica's faces): not the pose's doing.
+    at_rest: dict[str, int] = field(default_factory=dict)
 
-    def failures(self, *, eyes_closed: tuple[str, ...] = ()) -> list[str]:
+    def failures(self, *, eyes_closed: tuple[str, ...] = (), count_rest: bool = False) -> list[str]:
         """Human-readable reasons this pose breaks the surface ([] when it holds up).
 
-        ``eyes_closed``: the eyes ("left", "right") this pose must close completely."""
+        ``eyes_closed``: the eyes ("left", "right") this pose must close completely. Crossings that the
+        rest face already has are the face's, not the pose's: counted only with ``count_rest`` (the
+        rest pose itself)."""
         out = []
         for what, n in (("lip", self.lip_intersections), ("lid", self.lid_intersections),
                         ("teeth", self.teeth_intersections), ("mouth cavity", self.cavity_intersections)):
-            if n:
-                out.append(f"{n} {what} intersections")
+            rest = self.at_rest.get(what, 0)
+            new = (n or 0) - (0 if count_rest else rest)
+            if new:
+                out.append(f"{new} {what} intersections" + (f" ({rest} already at rest)" if count_rest and rest else ""))
         if self.folded_triangles:
             out.append(f"{self.folded_triangles} folded triangles")
         if self.max_stretch > MAX_STRETCH:
@@ -288,6 +301,8 @@ class FaceQualityProbe:
         self.mouth_skin_tris = region("8.3", "8.4", 1.5)
         # Lids: within 0.85 eye widths of each eye's centre (both lids and their folds).
         self.lid_tris = {"left": region("3.7", "3.11", 0.85), "right": region("3.8", "3.12", 0.85)}
+        self._n_tris = max(len(tris), 1)
+        self._rest_pairs: dict[str, np.ndarray | None] | None = None   # the rest face's, at the first measure
 
     def measure(self, vertices: np.ndarray, *, eyes: bool = False) -> PoseQuality:
         """Quality of the pose ``vertices`` ((n, 3) mm, the face's topology).
@@ -295,22 +310,39 @@ class FaceQualityProbe:
         ``eyes``: also measure eye openness (ray casts; ~50 ms per eye)."""
         folded, max_stretch, min_stretch = self.surface(vertices)
 
-        lip = teeth = cavity = None
-        if self.lip_tris is not None:
-            lip = count_intersections(vertices, self.lip_tris, welded=self.welded)
-            if self.teeth_tris is not None:
-                teeth = count_intersections(vertices, self.lip_tris, self.teeth_tris, self.welded)
-        if self.mouth_skin_tris is not None and self.cavity_tris is not None:
-            cavity = count_intersections(vertices, self.mouth_skin_tris, self.cavity_tris, self.welded)
-        lid = None
-        if all(t is not None for t in self.lid_tris.values()):
-            lid = 0
-            for side, lid_tris in self.lid_tris.items():
-                lid += count_intersections(vertices, lid_tris, welded=self.welded)
-                if self.eyeball_tris[side] is not None:
-                    lid += count_intersections(vertices, lid_tris, self.eyeball_tris[side], self.welded)
+        pairs = self._crossing_pairs(vertices)
+        if self._rest_pairs is None:
+            self._rest_pairs = self._crossing_pairs(self.face.vertices)
+        count = {what: None if keys is None else len(keys) for what, keys in pairs.items()}
+        at_rest = {what: int(np.isin(keys, self._rest_pairs[what]).sum())
+                   for what, keys in pairs.items() if keys is not None and len(keys)}
         openness = self.eye_openness(vertices) if eyes else {}
-        return PoseQuality(lip, lid, teeth, folded, max_stretch, min_stretch, openness, cavity)
+        return PoseQuality(count["lip"], count["lid"], count["teeth"], folded, max_stretch, min_stretch, openness,
+                           count["mouth cavity"], {what: n for what, n in at_rest.items() if n})
+
+    def _crossing_pairs(self, vertices: np.ndarray) -> dict[str, np.ndarray | None]:
+        """Per kind ("lip", "lid", "teeth", "mouth cavity") the crossing triangle pairs of a pose as
+        integer keys (a pair of the same triangles has the same key in every pose), None where the
+        face has no such region."""
+        def keys(tag: int, tris_a, tris_b=None) -> np.ndarray:
+            ia, ib = intersecting_pairs(vertices, tris_a, tris_b, self.welded)
+            return (tag * self._n_tris + ia.astype(np.int64)) * self._n_tris + ib
+
+        out: dict[str, np.ndarray | None] = {"lip": None, "lid": None, "teeth": None, "mouth cavity": None}
+        if self.lip_tris is not None:
+            out["lip"] = keys(0, self.lip_tris)
+            if self.teeth_tris is not None:
+                out["teeth"] = keys(1, self.lip_tris, self.teeth_tris)
+        if self.mouth_skin_tris is not None and self.cavity_tris is not None:
+            out["mouth cavity"] = keys(2, self.mouth_skin_tris, self.cavity_tris)
+        if all(t is not None for t in self.lid_tris.values()):
+            found = []
+            for k, (side, lid_tris) in enumerate(self.lid_tris.items()):
+                found.append(keys(3 + 2 * k, lid_tris))
+                if self.eyeball_tris[side] is not None:
+                    found.append(keys(4 + 2 * k, lid_tris, self.eyeball_tris[side]))
+            out["lid"] = np.concatenate(found)
+        return out
 
     def surface(self, vertices: np.ndarray) -> tuple[int, float, float]:
         """(folded skin triangles, largest stretch, smallest stretch) of a pose: the cheap part of

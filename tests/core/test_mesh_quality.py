@@ -131,3 +131,34 @@ def test_skin_pulled_into_the_mouth_cavity_is_counted():
     quality = probe.measure(pushed)
     assert quality.cavity_intersections > 0
     assert any("mouth cavity" in why for why in quality.failures())
+
+
+def test_crossings_the_rest_face_already_has_fail_only_the_rest_pose():
+    """A registered scan can cross itself at rest (its closed lips, the creases by its nose wings):
+    those pairs are the face's, reported with each pose (``at_rest``), failing the rest pose when
+    asked (``count_rest``); a pose fails on the pairs it makes cross."""
+    from core.face import SurfacePoint
+
+    plate, plate_tris = _grid()
+    upright = np.array([[5.3, 5.3, -1.0], [5.3, 5.3, 1.0], [6.3, 5.8, 0.0]])
+    vertices = np.vstack([plate, upright])
+    tris = np.vstack([plate_tris, [[144, 145, 146]]])
+    face = Face(vertices, tris)
+    for name, x in {"8.3": 2.0, "8.4": 9.0}.items():
+        vertex = 5 * 12 + int(x)
+        t = int(np.nonzero((plate_tris == vertex).any(axis=1))[0][0])
+        face.set_landmark(name, SurfacePoint(t, tuple((plate_tris[t] == vertex).astype(float))))
+    probe = FaceQualityProbe(face)
+    rest = probe.measure(vertices)
+    assert rest.lip_intersections >= 1 and rest.at_rest == {"lip": rest.lip_intersections}
+    assert rest.failures() == []
+    assert rest.failures(count_rest=True) == [f"{rest.lip_intersections} lip intersections "
+                                              f"({rest.lip_intersections} already at rest)"]
+    moved = vertices.copy()
+    moved[144:] += [-3.0, 0.0, 0.0]           # the same triangle through other plate triangles
+    pose = probe.measure(moved)
+    assert pose.lip_intersections >= 1 and pose.at_rest == {}
+    assert pose.failures() == [f"{pose.lip_intersections} lip intersections"]
+    apart = vertices.copy()
+    apart[144:, 2] += 5.0
+    assert probe.measure(apart).lip_intersections == 0 and probe.measure(apart).failures() == []
