@@ -283,6 +283,36 @@ def test_lower_inner_lip_collapsed_on_the_outer_lip_goes_back_to_the_seam(model)
     np.testing.assert_array_equal(out[i29], model_px[i29])
 
 
+def test_a_closed_mouths_inner_lip_points_keep_the_models_spacing_on_the_seam(model):
+    """Closed mouth: a lower inner-lip point found elsewhere along the seam (2.9 slid 8 px toward the
+    corner, where the patch fitted as well) goes back to the model's fraction between the inner
+    corners, on the seam; an inner corner found far from its outer corner (2.5 12 px below 8.4:
+    the mouth's width is ~70 px) goes back beside it at the model's offset. Points in place stay."""
+    from core.registration.mouth_passes import lip_order_pass
+    from core.registration.pass_results import PixelEstimates
+
+    tpl = get_template("a48")
+    pos = template_positions(model, "a48")
+    model_px = np.array([[pos[n][0], -pos[n][1]] for n in tpl.detected]) / 0.75   # (col, row), rows grow down
+    i29, i25, i27 = (tpl.index(n) for n in ("2.9", "2.5", "2.7"))
+
+    class Search:
+        def nearest_covered(self, px):
+            return tuple(px)
+
+    out = model_px.copy()
+    out[i29] += (8.0, 0.0)
+    out[i25] += (0.0, 12.0)
+    moves = lip_order_pass(pixel_context_for(tpl, None, model_px, search=Search()),
+                           PixelEstimates(out, np.ones(len(out))))
+    assert set(moves.index) == {i29, i25}
+    est = PixelEstimates(out, np.ones(len(out))).apply(moves)
+    np.testing.assert_allclose(est.pixel[i25], model_px[i25], atol=1e-9)
+    assert est.pixel[i29, 0] == pytest.approx(model_px[i29, 0], abs=1e-9)
+    assert abs(est.pixel[i29, 1] - model_px[i29, 1]) < 1.0
+    np.testing.assert_array_equal(est.pixel[i27], model_px[i27])
+
+
 def test_upper_outer_lip_found_below_the_seam_goes_back_above_it(model):
     """Closed mouth, no texture: the upper lip midpoint 8.1 found on the lower lip (below the seam
     point 2.2) is searched again at the model's lip height above the seam; where no patch fits
