@@ -98,8 +98,9 @@ def _on_the_seam(template, out, peak, moved, skip, model_px, loop, corners, uppe
     outer = [template.index(n) for n in OUTER_CORNERS if n in names]
     for c in (c0, c1) if outer else ():
         # Closed, the inner corner is at the commissure, next to the outer one (the model's offset):
-        # found farther from there than CORNER_SLACK x the mouth's width it is somewhere else (Surrey
-        # Face Model neutral: 2.5 10 mm below 8.4, 2.4 2.7 mm outside 8.3).
+        # found farther from there than CORNER_SLACK x the mouth's width it is somewhere else. (A
+        # safeguard, as _place_corners is for open mouths: it moved no corner on the synthetic or SFM
+        # scans measured; SFM's 2.5 that ends 10 mm below 8.4 gets there in a later pass.)
         o = min(outer, key=lambda i: abs(model_px[i, 0] - model_px[c, 0]))
         expected = out[o] + (model_px[c] - model_px[o])
         if skip[c] or not np.all(np.isfinite(expected)):
