@@ -367,8 +367,11 @@ def test_a_persons_scans_become_a_library_with_a_summary(default_rig):
     assert "joy: landmarks detected" in reports[1].line()
     moved = np.linalg.norm(lib.displacements[0], axis=1)
     assert 5.0 < moved.max() < 40.0 and np.percentile(moved, 10) < 1.0, np.percentile(moved, [10, 50])   # mouth moves, forehead not
+    assert lib.base == "default face; poses smoothed over 6 mm"      # the registration's wobble taken out
     with pytest.raises(LibraryError, match="pose names"):
         library_from_scans(neutral, {"Joy!": joy}, landmarks=given)
+    with pytest.raises(LibraryError, match="smoothing width"):
+        library_from_scans(neutral, {"joy": joy}, landmarks=given, smoothing_mm=-2)
 
 
 def test_fap_unit_transfer_scales_each_region_by_its_own_unit():

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.layers.blend.denoise import eye_cover_vertices, smooth_displacements
+from core.layers.blend.denoise import cleaned, eye_cover_vertices, smooth_displacements
 from core.layers.blend.layer import BlendLayer
 from core.layers.blend.library import ExpressionLibrary, LibraryError
 from core.mesh_quality import FaceQualityProbe, count_intersections
@@ -70,6 +70,28 @@ def test_a_filled_patch_takes_the_membrane_and_keeps_its_two_sides_apart():
     assert (1.0 < band[:, :, 1]).all() and (band[:, :, 1] < 3.0).all() and (np.diff(band[:, :, 1], axis=1) < 0).all()
     with pytest.raises(LibraryError, match="entries"):
         smooth_displacements(_library(v, [pose]), 8.0, tris, filled=strip[:-1])
+
+
+def test_cleaned_smooths_a_template_librarys_poses_and_refuses_what_it_cannot():
+    """A canonical mpeg4_80 library: a uniform pose stays exactly (away from the eye covers, whose
+    membrane meets it too), noise goes, the base says so; a custom library or a bad width is refused."""
+    from core.layers.blend.builtin import builtin_library
+
+    rest = builtin_library().rest                    # the default face on the canonical mpeg4_80 mesh
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0.0, 0.5, rest.shape)
+    lib = ExpressionLibrary(rest, ("lift", "wobble"), np.stack([np.broadcast_to([0.0, 2.0, 0.0], rest.shape), noise]),
+                            template="mpeg4_80", base="someone")
+    out = cleaned(lib, 6.0)
+    np.testing.assert_allclose(out.displacements[0], lib.displacements[0], atol=1e-9)
+    assert np.std(out.displacements[1]) < np.std(noise) / 4
+    assert out.base == "someone; poses smoothed over 6 mm" and out.names == lib.names
+    assert cleaned(lib, 0) is lib
+    for width in (-1.0, float("nan"), "wide"):
+        with pytest.raises(LibraryError, match="smoothing width"):
+            cleaned(lib, width)
+    with pytest.raises(LibraryError, match="template 'custom'"):
+        cleaned(lib.replace(template="custom"), 6.0)
 
 
 def test_eye_covers_are_the_rigs_eye_openings(default_rig):

@@ -26,7 +26,8 @@ landmark lands about 2.4 mm off on the visible lip), and on landmarks the detect
 Not fixed: joy tears the outer eye corners of the default face (eye-region error rms 1.9 mm; it
 was 1.6 mm, with torn lower lids, before).
 
-5. the poses are smoothed over ``SMOOTHING_MM`` (:func:`cleaned`, ``core.layers.blend.denoise``):
+5. the poses are smoothed over ``SMOOTHING_MM`` (``core.layers.blend.denoise.cleaned``, as a user's imported
+   scans are):
    as registered, their half-millimetre wobble crossed lids and lips and folded the nostrils at
    100 % (every pose failed ``benchmarks/face_quality.py``), and the covers of the eye openings,
    registered on the eyeballs, fed noise through deformation transfer into another face's lid margins.
@@ -54,10 +55,10 @@ import time
 
 import numpy as np
 
-from core.layers.blend.denoise import SMOOTHING_MM
+from core.layers.blend.denoise import SMOOTHING_MM, cleaned
 from core.layers.blend.library import ExpressionLibrary, build_library
 
-__all__ = ["RESOURCE", "builtin_library", "builtin_library_for", "build_builtin_library", "cleaned", "main"]
+__all__ = ["RESOURCE", "builtin_library", "builtin_library_for", "build_builtin_library", "main"]
 
 RESOURCE = "blend/default_face.json"
 TEMPLATE = "mpeg4_80"
@@ -270,18 +271,6 @@ def build_builtin_library(*, detect: bool = True, mean_people: int = 8, smoothin
     library = build_library(neutral, poses, template=TEMPLATE, mean=mean,
                             base="default face (virtual scans, registered with mpeg4_80)")
     return cleaned(library, smoothing_mm)
-
-
-def cleaned(library: ExpressionLibrary, smoothing_mm: float = SMOOTHING_MM) -> ExpressionLibrary:
-    """``library`` (registered poses of ``TEMPLATE``) with the scans' registration noise smoothed out
-    of its poses (``core.layers.blend.denoise``); its ``base`` says by how much."""
-    from core.layers.blend.denoise import eye_cover_vertices, smooth_displacements
-    from core.registration.correspondence import canonical_triangles
-
-    if smoothing_mm <= 0:
-        return library
-    smooth = smooth_displacements(library, smoothing_mm, canonical_triangles(TEMPLATE), eye_cover_vertices(TEMPLATE))
-    return smooth.replace(base=f"{library.base}; poses smoothed over {smoothing_mm:g} mm")
 
 
 def main(argv=None) -> int:

@@ -27,7 +27,7 @@ import scipy.sparse
 
 from core.layers.blend.library import ExpressionLibrary, LibraryError
 
-__all__ = ["eye_cover_vertices", "smooth_displacements", "SMOOTHING_MM"]
+__all__ = ["check_smoothing_width", "cleaned", "eye_cover_vertices", "smooth_displacements", "SMOOTHING_MM"]
 
 #: Width (mm) of the smoothing of the built-in library's poses (``builtin.build_builtin_library``).
 #: Measured against the FAP presets the default face's poses were scanned from (their FAT offsets on
@@ -36,6 +36,17 @@ __all__ = ["eye_cover_vertices", "smooth_displacements", "SMOOTHING_MM"]
 #: Failing poses at 100 % (face_quality, default / generated face): raw 20 / 20, 4 mm 14 / 11,
 #: 6 mm 12 / 9, 8 mm 10 / 7. 6 mm: as close to the scanned truth as any width, fewer failures.
 SMOOTHING_MM = 6.0
+
+
+def check_smoothing_width(length_mm) -> float:
+    """``length_mm`` as a float; LibraryError unless it is a length in mm >= 0."""
+    try:
+        length_mm = float(length_mm)
+    except (TypeError, ValueError):
+        raise LibraryError(f"the smoothing width must be a length in mm >= 0, got {length_mm!r}") from None
+    if not np.isfinite(length_mm) or length_mm < 0:
+        raise LibraryError(f"the smoothing width must be a length in mm >= 0, got {length_mm}")
+    return length_mm
 
 
 @functools.lru_cache(maxsize=4)
@@ -69,9 +80,7 @@ def smooth_displacements(library: ExpressionLibrary, length_mm: float, triangles
     face are kept."""
     import scipy.sparse.linalg
 
-    length_mm = float(length_mm)
-    if not np.isfinite(length_mm) or length_mm < 0:
-        raise LibraryError(f"the smoothing width must be a length in mm >= 0, got {length_mm}")
+    length_mm = check_smoothing_width(length_mm)
     n = library.n_vertices
     triangles = np.asarray(triangles, dtype=np.int64)
     if triangles.ndim != 2 or triangles.shape[1] != 3 or (len(triangles) and triangles.max() >= n):
@@ -106,3 +115,21 @@ def _laplacian(rest: np.ndarray, triangles: np.ndarray, n: int) -> scipy.sparse.
                                      shape=(n, n)).tocsr()
     weight = weight.maximum(weight.T)          # each interior edge was seen from both of its triangles
     return (scipy.sparse.diags(np.asarray(weight.sum(axis=1)).ravel()) - weight).tocsr()
+
+
+def cleaned(library: ExpressionLibrary, smoothing_mm: float = SMOOTHING_MM) -> ExpressionLibrary:
+    """``library`` (registered poses on a known canonical template) with the scans' registration noise
+    smoothed out of its poses over ``smoothing_mm`` (0: as registered), the eye openings' covers
+    filled as a membrane; its ``base`` says by how much. LibraryError for a ``"custom"`` library
+    (no canonical mesh to smooth on) or a width that is not a length >= 0."""
+    from core.registration.correspondence import canonical_triangles
+    from core.registration.templates import TEMPLATE_NAMES
+
+    if check_smoothing_width(smoothing_mm) == 0 or not library.names:
+        return library
+    if library.template not in TEMPLATE_NAMES:
+        raise LibraryError(f"a library of template {library.template!r} has no canonical mesh to smooth its poses "
+                           "on: build it from scans registered with one of " + ", ".join(TEMPLATE_NAMES))
+    smooth = smooth_displacements(library, smoothing_mm, canonical_triangles(library.template),
+                                  eye_cover_vertices(library.template))
+    return smooth.replace(base=f"{library.base}; poses smoothed over {float(smoothing_mm):g} mm")
