@@ -113,8 +113,11 @@ def test_blend_layer_maps_through_a_correspondence(person, library):
     np.testing.assert_array_equal(off[n:], off[:n])
 
 
-def test_blend_key_through_the_rig_snapshot_restore_and_copy(default_rig):
+def test_blend_key_through_the_rig_snapshot_restore_and_copy(default_rig, monkeypatch):
     rig = default_rig
+    # Random millimetre offsets break the skin everywhere: the surface guard would smooth them (not
+    # additive); this checks how the layers compose, so it is left out.
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x: False)
     rig.reset()
     rest = rig.face.vertices
     rng = np.random.default_rng(3)

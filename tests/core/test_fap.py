@@ -275,11 +275,13 @@ def test_the_teeth_never_pass_through_the_mouth_skin(rig, values):
     rig.reset_faps()
 
 
-def test_the_teeth_guard_leaves_the_neutral_face_and_small_motions_alone(rig):
+def test_the_teeth_guard_leaves_the_neutral_face_and_small_motions_alone(rig, monkeypatch):
     """Skin keeps at most its own rest gap to the teeth as clearance, so nothing moves at rest, and a
-    pose that stays clear of the teeth is exactly the FAT's."""
+    pose that stays clear of the teeth is exactly the FAT's (the surface guard, which smooths this
+    pose's mouth corner a little, left out: test_surface_guard)."""
     rig.reset_faps()
     assert np.array_equal(rig.vertices(), rig.face.vertices)
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x: False)
     rig.set_faps({3: 300, 6: 100})
     plain = rig.face.vertices + rig.deformer.displacement(rig.effective_fap_values())
     # Equal up to the rounding of the in-place FAT product (each term added to the vertex in turn).
@@ -469,7 +471,9 @@ def test_lid_contact_scales_only_when_lids_overlap():
     assert out[18] + out[20] == pytest.approx(1024) and out[18] == out[20]
 
 
-def test_expression_intensity_scales_the_displacement(rig):
+def test_expression_intensity_scales_the_displacement(rig, monkeypatch):
+    # The surface guard smooths joy's strained mouth corners (not linear): left out (test_surface_guard).
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x: False)
     rig.reset_faps()
     rig.set_expression("joy", 1.0)
     full = rig.vertices() - rig.face.vertices
@@ -519,10 +523,11 @@ def test_lips_pressed_into_each_other_meet_instead_of_crossing(rig):
 
 
 @pytest.mark.parametrize("number", [4, 8, 10, 57])
-def test_lips_pressed_at_a_sliders_end_do_not_pass_through_each_other(rig, number):
+def test_lips_pressed_at_a_sliders_end_do_not_pass_through_each_other(rig, number, monkeypatch):
     """Every lip FAP at the end that presses a closed mouth's lips together: the rims meet, and the
     lips' surfaces beside the rims do not cross either (FAP 4 at 800 left 176 crossing triangle pairs
-    at the lips' front with the rims alone); the sheets give way by fractions of a millimetre."""
+    at the lips' front with the rims alone); the sheets give way by fractions of a millimetre (the
+    surface guard's smoothing of the strained corners, up to 1.5 mm at FAP 57, is checked apart)."""
     from core.layers.fap import tables
     from core.mesh_quality import FaceQualityProbe
 
@@ -530,6 +535,9 @@ def test_lips_pressed_at_a_sliders_end_do_not_pass_through_each_other(rig, numbe
     end = tables.fap_spec(number).maximum
     rig.reset()
     rig.set_fap(number, end)
+    assert FaceQualityProbe(rig.face).measure(rig.vertices()).lip_intersections == 0    # guarded too
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x: False)
+    rig.touch()
     posed = rig.vertices()
     values = rig.deformer.limited(rig.effective_fap_values())
     rig.reset()

@@ -280,3 +280,159 @@ def put_rows(x, rows, values):  # pragma: no cover - compiled
     for i in range(rows.shape[0]):
         r = rows[i]
         x[r, 0], x[r, 1], x[r, 2] = values[i, 0], values[i, 1], values[i, 2]
+
+
+@_JIT
+def _ramp(value, start, full):  # pragma: no cover - compiled
+    r = (value - start) / (full - start)
+    return 0.0 if r < 0.0 else (1.0 if r > 1.0 else r)
+
+
+@_JIT
+def strain_severity(x, rest, tris, inv, rest_normals, measurable, big0, big1, small0, small1, turn0, turn1,
+                    subset, out):  # pragma: no cover - compiled
+    """out[t] = the surface guard's severity of skin triangle t in the pose x (n, 3) for each t of
+    ``subset`` (``surface_guard.SurfaceGuard.severity``; 0 where no corner moved from ``rest``): its
+    largest and smallest principal stretch against its rest frame (inverse (a, b, d) per row of
+    ``inv``) and the cosine of its turn from its rest normal, each ramped to 0..1, the largest."""
+    for s in range(subset.shape[0]):
+        t = subset[s]
+        out[t] = 0.0
+        if not measurable[t]:
+            continue
+        i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
+        moved = False
+        for c in range(3):
+            if x[i0, c] != rest[i0, c] or x[i1, c] != rest[i1, c] or x[i2, c] != rest[i2, c]:
+                moved = True
+        if not moved:
+            continue
+        e1x, e1y, e1z = x[i1, 0] - x[i0, 0], x[i1, 1] - x[i0, 1], x[i1, 2] - x[i0, 2]
+        e2x, e2y, e2z = x[i2, 0] - x[i0, 0], x[i2, 1] - x[i0, 1], x[i2, 2] - x[i0, 2]
+        l1 = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        if l1 < 1e-12:
+            l1 = 1e-12
+        along = (e2x * e1x + e2y * e1y + e2z * e1z) / l1
+        across = np.sqrt(max(e2x * e2x + e2y * e2y + e2z * e2z - along * along, 0.0))
+        # F = [[l1, along], [0, across]] @ [[a, b], [0, d]]; its singular values in closed form.
+        a, b, d = inv[t, 0], inv[t, 1], inv[t, 2]
+        f00, f01, f11 = l1 * a, l1 * b + along * d, across * d
+        s1 = f00 * f00 + f01 * f01 + f11 * f11
+        s2 = np.sqrt(max((f00 * f00 + f01 * f01 - f11 * f11) ** 2 + 4.0 * (f01 * f11) ** 2, 0.0))
+        big = np.sqrt(max((s1 + s2) / 2.0, 0.0))
+        small = np.sqrt(max((s1 - s2) / 2.0, 0.0))
+        if a == 0.0 and d == 0.0:
+            big, small = 1.0, 1.0
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if nn < 1e-12:
+            nn = 1e-12
+        turn = (nx * rest_normals[t, 0] + ny * rest_normals[t, 1] + nz * rest_normals[t, 2]) / nn
+        out[t] = max(_ramp(big, big0, big1), _ramp(small, small0, small1), _ramp(turn, turn0, turn1))
+
+
+@_JIT
+def guard_smooth(x, rest, indptr, indices, weights, held, taper, strength, rings, steps):  # pragma: no cover - compiled
+    """The surface guard's smoothing (``surface_guard.SurfaceGuard.apply`` after the severity), in
+    place: ``strength`` (n,) the per-vertex severity (0 where no breaking triangle touches), spread
+    over ``rings`` rings falling off by 1 / (rings + 1) a ring, times ``taper``; then x_v += a_v ·
+    ((P^steps u)_v − u_v), u = x − rest, P the neighbours' mean weighted by ``weights`` (CSR rows
+    ``indptr``/``indices``; held rows keep their value). Returns how many vertices moved."""
+    n = x.shape[0]
+    where = np.full(n, -1, np.int64)          # position in ``order`` or -1
+    order = np.empty(n, np.int64)
+    count = 0
+    for v in range(n):
+        if strength[v] > 0.0:
+            where[v] = count
+            order[count] = v
+            count += 1
+    # Grow the region ring by ring, spreading the strength (a Jacobi max: each ring reads the last).
+    step = 1.0 / (rings + 1)
+    start = 0
+    for _ in range(rings):
+        end = count
+        for i in range(start, end):
+            v = order[i]
+            for k in range(indptr[v], indptr[v + 1]):
+                w = indices[k]
+                if where[w] < 0:
+                    where[w] = count
+                    order[count] = w
+                    count += 1
+        start = end
+        spread = np.empty(count)
+        for i in range(count):
+            v = order[i]
+            best = strength[v]
+            for k in range(indptr[v], indptr[v + 1]):
+                s = strength[indices[k]] - step
+                if s > best:
+                    best = s
+            spread[i] = best
+        for i in range(count):
+            strength[order[i]] = spread[i]
+    # Only the region's vertices with a strength left after the taper move: they seed the support.
+    region = 0
+    for i in range(count):
+        v = order[i]
+        strength[v] *= taper[v]
+        if strength[v] > 0.0:
+            order[region] = v
+            where[v] = region
+            region += 1
+        else:
+            where[v] = -1
+    count = region
+    # The support of P^steps at the region: ``steps`` more rings.
+    start = 0
+    for _ in range(steps):
+        end = count
+        for i in range(start, end):
+            v = order[i]
+            for k in range(indptr[v], indptr[v + 1]):
+                w = indices[k]
+                if where[w] < 0:
+                    where[w] = count
+                    order[count] = w
+                    count += 1
+        start = end
+    u = np.empty((count, 3))
+    for i in range(count):
+        v = order[i]
+        for c in range(3):
+            u[i, c] = x[v, c] - rest[v, c]
+    smooth = u.copy()
+    nxt = np.empty((count, 3))
+    for _ in range(steps):
+        for i in range(count):
+            v = order[i]
+            if held[v]:
+                nxt[i, 0], nxt[i, 1], nxt[i, 2] = smooth[i, 0], smooth[i, 1], smooth[i, 2]
+                continue
+            total = 0.0
+            a0 = a1 = a2 = 0.0
+            for k in range(indptr[v], indptr[v + 1]):
+                w = indices[k]
+                j = where[w]
+                wt = weights[k]
+                total += wt
+                if j >= 0:
+                    a0 += wt * smooth[j, 0]
+                    a1 += wt * smooth[j, 1]
+                    a2 += wt * smooth[j, 2]
+                else:               # beyond the support: its own displacement (never reaches the region)
+                    a0 += wt * (x[w, 0] - rest[w, 0])
+                    a1 += wt * (x[w, 1] - rest[w, 1])
+                    a2 += wt * (x[w, 2] - rest[w, 2])
+            nxt[i, 0], nxt[i, 1], nxt[i, 2] = a0 / total, a1 / total, a2 / total
+        smooth, nxt = nxt, smooth
+    moved = 0
+    for i in range(region):
+        v = order[i]
+        a = strength[v]
+        if a > 0.0:
+            moved += 1
+            for c in range(3):
+                x[v, c] += a * (smooth[i, c] - u[i, c])
+    return moved

@@ -63,6 +63,7 @@ from core.layers.fap.limits import (EASE_START, FOLD_REASON, NOSTRIL_REASON, bis
                                     keeping, new_crossings, preset_reach, soft_limit)
 from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
+from core.layers.fap.surface_guard import SurfaceGuard
 from core.layers.fap.teeth_guard import TeethGuard
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
@@ -312,6 +313,7 @@ class FapDeformer:
         self._teeth_guard = TeethGuard(face, np.nonzero(skin)[0])
         self._lip_contact = LipContact(face, np.nonzero(skin)[0])
         self._memos = self._step_memos()
+        self._surface_guard = SurfaceGuard(face.vertices, skin_triangles, self.lid_zone())
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
         if self._eyes:
@@ -1039,7 +1041,8 @@ class FapDeformer:
 
     def finish(self, x: np.ndarray, values: np.ndarray, *, in_place: bool = False) -> np.ndarray:
         """(n, 3) ``x`` (all offsets added) after the FAPs' non-additive steps: upper lids stop on the
-        lower ones and slide over the eyeballs, mouth skin stays outside the teeth, eyeballs rotate
+        lower ones and slide over the eyeballs, lips press on each other, skin that would fold or smear
+        is smoothed there (``surface_guard``), mouth skin stays outside the teeth, eyeballs rotate
         (gaze 23-26), the head rotates (48-50). ``in_place``: ``x`` is a float array the caller owns
         and it is edited rather than copied (the rig's working array: one copy less per tick)."""
         values = self.lid_values(values)
@@ -1053,6 +1056,11 @@ class FapDeformer:
         # Lips that were moved into each other press on each other instead (both give way).
         if "lips" in memos:
             memos["lips"].run(x, self._lip_contact.apply)
+        # Where the skin would still fold or smear, it is smoothed (before the teeth guard, which
+        # pushes back out what the smoothing drew into the teeth: push_b_lip -600 had 125 crossing
+        # pairs the other way round; before the eyes and head turn, as the check compares each
+        # triangle with its rest shape and normal).
+        self._surface_guard.apply(x)
         # Teeth move rigidly, the skin around them only partly (and some lip FAPs drive it straight
         # at them): skin that ended inside a row of teeth goes back out over it.
         if "teeth" in memos:
@@ -1104,13 +1112,14 @@ def deformer_code_version() -> str:
     import core.layers.fap.limits as limits_module
     import core.layers.fap.lip_contact as lip_contact_module
     import core.layers.fap.step_memo as step_memo_module
+    import core.layers.fap.surface_guard as surface_guard_module
     import core.layers.fap.teeth_guard as teeth_guard_module
     import core.surface_query as surface_query
     import core.subdivision as subdivision
 
     return source_version(sys.modules[__name__], template_module, teeth_guard_module, lip_contact_module,
                           limits_module, step_memo_module, tables, surface_query, subdivision, closed_eyes_module,
-                          eyeball_surface_module, column_relax_module)
+                          eyeball_surface_module, column_relax_module, surface_guard_module)
 
 
 def _column_arrays(matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

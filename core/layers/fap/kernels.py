@@ -12,6 +12,8 @@ arithmetic). These loops (in :mod:`core.layers.fap.compiled_steps`) do the same 
 - :func:`close_lids_over_eyeball`: the lid guard (``FapDeformer._close_lids``) of one eye;
 - :func:`push_out_of_row` and :func:`spread_pushes`: the teeth guard (``teeth_guard.TeethGuard``);
 - :func:`rotate_rows`: an eyeball's gaze rotation;
+- :func:`strain_severity`, :func:`guard_smooth`: the surface guard's check of every skin triangle and
+  its smoothing where they would break (``surface_guard``);
 - :func:`rows_equal`, :func:`put_rows`: the step memos' compare and replay.
 
 Built lazily (:mod:`core.lazy_numba`; ``cache=True`` keeps the machine code under ``__pycache__``,
@@ -58,6 +60,11 @@ def _warm(k: SimpleNamespace) -> None:
     k.push_out_of_row(x, rows, x.copy(), np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3), True, np.zeros(3),
                       -1.0, 2.0, 180, 4, 1.0, 1.0, np.zeros(720), 1.0, True, np.zeros(3, np.int64), np.zeros((3, 3)))
     k.spread_pushes(x, rows, rows, np.zeros((3, 3)), np.arange(4, dtype=np.int64), rows, np.ones(3))
+    k.strain_severity(x, rest, rows.reshape(1, 3), np.ones((1, 3)), np.ones((1, 3)), np.ones(1, bool),
+                      1.7, 1.95, 0.32, 0.26, 0.3, 0.05, np.zeros(1, np.int64), np.empty(1))
+    ring = np.array([0, 2, 4, 6], np.int64)                   # a triangle's CSR neighbours
+    k.guard_smooth(x, rest, ring, np.array([1, 2, 0, 2, 0, 1], np.int64), np.ones(6), np.zeros(3, bool), np.ones(3),
+                   np.array([1.0, 0.0, 0.0]), 1, 1)
     eyeball = rows.copy()
     eyeball.setflags(write=False)      # as a face's parts are: a type of its own to numba
     k.rotate_rows(x, eyeball, np.zeros(3), np.eye(3), np.zeros(3))
@@ -67,7 +74,7 @@ def _warm(k: SimpleNamespace) -> None:
 
 _NAMES = ("add_active_columns", "lip_overlap", "lip_sheet_overlap", "lip_sheet_spread", "close_lids_over_eyeball",
           "push_out_of_row", "spread_pushes",
-          "rotate_rows", "rows_equal", "put_rows")
+          "rotate_rows", "rows_equal", "put_rows", "strain_severity", "guard_smooth")
 _KERNELS = LazyKernels(_build, Path(__file__).with_name("compiled_steps.py"))
 
 

@@ -1,0 +1,206 @@
+"""Skin that would fold or smear is smoothed where it would: the FAP layer's last shaping step.
+
+Every layer's offsets add up (FAPs, the expression library's poses) and the finish steps shape the
+lids, lips and teeth; where the result still turns a skin triangle over or stretches its texture
+past ``core.mesh_quality``'s bounds, nothing upstream could see it coming: a FAP's field is steep
+at its feature point (stretch_cornerlip 400 turned three triangles at the default face's mouth
+corner: the corner moved 7.9 mm, the skin 0.9 mm beyond it 7.2 mm), two fields meet, a preset asks
+more than the face's slider limits allow. This step smooths the displacement there, blended in by
+how close each triangle is to breaking:
+
+    s_t = max(ramp(largest stretch, STRETCH_RAMP), ramp(smallest stretch, SQUEEZE_RAMP),
+              ramp(cos(normal, rest normal), TURN_RAMP))                       triangle t, 0..1
+    a_v = max over t within RINGS rings of v of s_t · (1 − ring / (RINGS + 1)),  × the hold taper
+    x_v += a_v · ((Pᵏ u)_v − u_v)        u = x − rest,  P the 1/length-weighted neighbour average,
+                                         k = SMOOTHING_STEPS
+
+Each term is continuous in the pose (no threshold, no iteration), so the face never jumps as a slider
+passes the point where the guard begins to act, and a pose that holds up everywhere (every s_t = 0,
+the common case) is left as it was, bit for bit. The ramps reach 1 just inside the bounds, so a pose
+that would break gets the whole smoothing.
+
+Held (never moved, and the guard fades out over ``HOLD_TAPER_RINGS`` rings around them): the lids'
+zone, which the lid steps own (smoothed, a closed lid opened 58 % and its skin went into the eyeball).
+Seam copies (one position at rest) that coincide in the pose end at one position.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse
+
+from core.layers.fap import kernels
+from core.mesh_quality import _EPS, MAX_STRETCH, MIN_STRETCH, _local_frames, _normals, principal_stretches, \
+    welded_vertices
+
+__all__ = ["SurfaceGuard"]
+
+# (where the guard starts, where it is at full strength): full just inside core.mesh_quality's bounds,
+# starting far enough before them that the face's motion stays monotone as a pose grows (starting at
+# 0.85 x the stretch bound, 1.3 x the squeeze bound and a 72.5° turn, the default face's mouth corner
+# at stretch_cornerlip 120 -> 140 -> 160 went 5.62 -> 5.34 -> 6.11 mm: the guard caught up with it).
+STRETCH_RAMP = (0.75 * MAX_STRETCH, 0.975 * MAX_STRETCH)
+SQUEEZE_RAMP = (1.8 * MIN_STRETCH, 1.05 * MIN_STRETCH)
+TURN_RAMP = (0.6, 0.05)            # cosine of a triangle's turn from its rest normal (53° .. 87°)
+RINGS = 4                          # how far around a breaking triangle the smoothing reaches
+SMOOTHING_STEPS = 8                # 12 took twice the time (3.2 vs 1.6 ms on joy) for no pose more held
+HOLD_TAPER_RINGS = 3
+
+
+def _ramp(value: np.ndarray, ramp: tuple[float, float]) -> np.ndarray:
+    """0 at ramp[0], 1 at ramp[1] (either direction), clipped, C0."""
+    start, full = ramp
+    return np.clip((value - start) / (full - start), 0.0, 1.0)
+
+
+class SurfaceGuard:
+    """The guard of one face (see the module docstring).
+
+    rest : (n, 3) mm; skin_triangles : (T, 3) the triangles measured and smoothed over (no parts);
+    held : (n,) bool vertices other steps own.
+    """
+
+    def __init__(self, rest: np.ndarray, skin_triangles: np.ndarray, held: np.ndarray):
+        rest = np.array(rest, dtype=float)
+        rest.setflags(write=False)         # as the compiled kernel was warmed with (a type of its own)
+        tris = np.ascontiguousarray(skin_triangles, dtype=np.int64)
+        n = len(rest)
+        self.rest = rest
+        self.triangles = tris
+        frames = _local_frames(rest[tris])
+        self._rest_frames = frames
+        det = frames[:, 0, 0] * frames[:, 1, 1]
+        area = 0.5 * np.abs(det)
+        # Checked: not slivers, which have no direction (as core.mesh_quality counts them), and (below)
+        # within reach of a vertex the guard may move.
+        self._checked = area > 1e-6 * max(float(np.median(area)) if len(area) else 0.0, _EPS)
+        safe = np.abs(det) > _EPS
+        # The rest frames' inverses (upper triangular: a, b; 0, d), for the compiled strain kernel.
+        self._inv = np.zeros((len(tris), 3))
+        self._inv[safe, 0] = 1.0 / frames[safe, 0, 0]
+        self._inv[safe, 1] = -frames[safe, 0, 1] / det[safe]
+        self._inv[safe, 2] = 1.0 / frames[safe, 1, 1]
+        self._rest_normals = np.ascontiguousarray(_normals(rest[tris]))
+        edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+        length = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+        weight = scipy.sparse.coo_matrix((1.0 / np.maximum(length, 1e-6), (edges[:, 0], edges[:, 1])),
+                                         shape=(n, n)).tocsr()
+        weight = weight.maximum(weight.T).tocsr()
+        weight.sort_indices()
+        degree = np.asarray(weight.sum(axis=1)).ravel()
+        held = np.asarray(held, bool) | (degree == 0)
+        self._held = held
+        self._weights = np.ascontiguousarray(weight.data, dtype=float)
+        # P: each free vertex takes its neighbours' weighted mean; held ones keep their own value.
+        average = scipy.sparse.diags(np.where(held, 0.0, 1.0 / np.maximum(degree, _EPS))) @ weight
+        self._average = (average + scipy.sparse.diags(held.astype(float))).tocsr()
+        self._indptr, self._indices = weight.indptr.astype(np.int64), weight.indices.astype(np.int64)
+        # 0 on held vertices, rising by 1 / (HOLD_TAPER_RINGS + 1) a ring to 1.
+        self._taper = np.where(held, 0.0, 1.0)
+        for k, ring in enumerate(self._rings(np.flatnonzero(held), HOLD_TAPER_RINGS), start=1):
+            self._taper[ring] = k / (HOLD_TAPER_RINGS + 1)
+        # Triangles farther than RINGS rings inside the held vertices cannot reach a vertex the guard
+        # moves: not checked (the lids' zone is ~4,500 of the default face's 61k vertices).
+        reach = np.zeros(n, bool)
+        reach[self._ring(np.flatnonzero(self._taper > 0), RINGS)] = True
+        self._checked &= reach[tris].any(axis=1)
+        welded = welded_vertices(rest)
+        copies = np.flatnonzero(welded != np.arange(n))
+        self._copies, self._originals = copies, welded[copies]
+        self._all = np.arange(len(tris), dtype=np.int64)
+
+    def _rows(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(neighbours of the vertices ``idx``, concatenated; where each one's list starts in it)."""
+        starts, ends = self._indptr[idx], self._indptr[idx + 1]
+        lengths = ends - starts
+        offsets = np.cumsum(lengths) - lengths
+        flat = np.repeat(starts - offsets, lengths) + np.arange(int(lengths.sum()))
+        return self._indices[flat], offsets
+
+    def _rings(self, idx: np.ndarray, rings: int):
+        """Yield the vertices 1, 2, ... ``rings`` rings from ``idx`` (n,) int, ring by ring (breadth first)."""
+        inside = np.zeros(len(self.rest), bool)
+        inside[idx] = True
+        frontier = idx
+        for _ in range(rings):
+            neighbours = self._rows(frontier)[0]
+            frontier = np.unique(neighbours[~inside[neighbours]])
+            inside[frontier] = True
+            yield frontier
+
+    def _ring(self, idx: np.ndarray, rings: int) -> np.ndarray:
+        """Sorted vertex indices within ``rings`` rings of ``idx``."""
+        return np.unique(np.concatenate([np.asarray(idx, np.int64), *self._rings(idx, rings)]))
+
+    # ------------------------------------------------------------------ per tick
+    def severity(self, x: np.ndarray) -> np.ndarray:
+        """(T,) 0..1 how close each skin triangle of the pose ``x`` (n, 3) is to breaking (0 where
+        none of its corners moved)."""
+        out = np.zeros(len(self.triangles))
+        self._measure(x, self._all, out)
+        return out
+
+    def _measure(self, x: np.ndarray, subset: np.ndarray, out: np.ndarray) -> None:
+        """out[subset] = the severities of those triangles in the pose ``x``."""
+        compiled = kernels.get()
+        if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
+            compiled.strain_severity(x, self.rest, self.triangles, self._inv, self._rest_normals, self._checked,
+                                     STRETCH_RAMP[0], STRETCH_RAMP[1], SQUEEZE_RAMP[0], SQUEEZE_RAMP[1],
+                                     TURN_RAMP[0], TURN_RAMP[1], subset, out)
+            return
+        out[subset] = 0.0
+        moved = (x != self.rest).any(axis=1)
+        tris = subset[moved[self.triangles[subset]].any(axis=1) & self._checked[subset]]
+        if not len(tris):
+            return
+        corners = x[self.triangles[tris]]
+        big, small = principal_stretches(self._rest_frames[tris], corners)
+        turn = np.einsum("ij,ij->i", _normals(corners), self._rest_normals[tris])
+        out[tris] = np.maximum.reduce([_ramp(big, STRETCH_RAMP), _ramp(small, SQUEEZE_RAMP), _ramp(turn, TURN_RAMP)])
+
+    def apply(self, x: np.ndarray) -> bool:
+        """Smooth the pose ``x`` (n, 3) in place where it would break; False (and ``x`` untouched)
+        where every triangle holds."""
+        severity = self.severity(x)
+        breaking = np.flatnonzero(severity > 0)
+        if not len(breaking):
+            return False
+        strength = np.zeros(len(x))
+        np.maximum.at(strength, self.triangles[breaking].ravel(), np.repeat(severity[breaking], 3))
+        before = x[self._copies] == x[self._originals]
+        compiled = kernels.get()
+        if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
+            if not compiled.guard_smooth(x, self.rest, self._indptr, self._indices, self._weights, self._held,
+                                         self._taper, strength, RINGS, SMOOTHING_STEPS):
+                return False
+        elif not self._smooth(x, strength):
+            return False
+        together = before.all(axis=1)
+        if together.any():
+            a, b = self._copies[together], self._originals[together]
+            mean = 0.5 * (x[a] + x[b])
+            x[a], x[b] = mean, mean
+        return True
+
+    def _smooth(self, x: np.ndarray, strength: np.ndarray) -> bool:
+        """The numpy path of the smoothing (``compiled_steps.guard_smooth``): ``strength`` (n,) the
+        per-vertex severity; False where nothing moved."""
+        # Spread over RINGS rings, falling off linearly: a_v = max(a_v, max of its neighbours - step).
+        idx = self._ring(np.flatnonzero(strength), RINGS)
+        neighbours, starts = self._rows(idx)      # every skin vertex has neighbours: no empty row
+        step = 1.0 / (RINGS + 1)
+        for _ in range(RINGS):
+            strength[idx] = np.maximum(strength[idx], np.maximum.reduceat(strength[neighbours], starts) - step)
+        strength *= self._taper
+        idx = idx[strength[idx] > 0]
+        if not len(idx):
+            return False
+        # (P^k u) at idx needs u up to k rings out: iterate on that support, from u (exact at idx).
+        support = self._ring(idx, SMOOTHING_STEPS)
+        u = x - self.rest
+        smooth = u.copy()
+        average = self._average[support]
+        for _ in range(SMOOTHING_STEPS):
+            smooth[support] = average @ smooth
+        x[idx] += strength[idx, None] * (smooth[idx] - u[idx])
+        return True

@@ -1,0 +1,131 @@
+"""The surface guard (``core.layers.fap.surface_guard``): skin that would fold or smear is smoothed
+there, continuously, and nowhere else.
+
+Known answers on a flat grid: a vertex pushed past its neighbours folds the grid and the guard
+unfolds it; a gentle pose is left bit for bit; held vertices never move; sweeping a pose through the
+point where the guard starts acting moves the result continuously (no pop); the compiled check is
+the numpy one. On the default face, stretch_cornerlip at 400 no longer folds the mouth corner."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.layers.fap.surface_guard import SurfaceGuard
+from core.mesh_quality import FaceQualityProbe, _local_frames, _normals, principal_stretches
+
+
+def _grid(nx: int = 25, ny: int = 25, step_mm: float = 1.0):
+    x, y = np.meshgrid(np.arange(nx) * step_mm, np.arange(ny) * step_mm)
+    v = np.column_stack([x.ravel(), y.ravel(), np.zeros(nx * ny)])
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1))
+    a = (j * nx + i).ravel()
+    tris = np.concatenate([np.column_stack([a, a + 1, a + nx + 1]), np.column_stack([a, a + nx + 1, a + nx])])
+    return v, tris
+
+
+def _bump(v: np.ndarray, amplitude_mm: float, width_mm: float = 1.2) -> np.ndarray:
+    """A pose: the grid's middle pushed along +x by a narrow Gaussian (steep enough to fold)."""
+    centre = v.mean(axis=0)
+    g = np.exp(-np.sum((v - centre) ** 2, axis=1) / (2 * width_mm ** 2))
+    return v + amplitude_mm * g[:, None] * np.array([1.0, 0.0, 0.0])
+
+
+def _breaks(rest, tris, x) -> tuple[int, float, float]:
+    turned = int((np.einsum("ij,ij->i", _normals(x[tris]), _normals(rest[tris])) < 0).sum())
+    big, small = principal_stretches(_local_frames(rest[tris]), x[tris])
+    return turned, float(big.max()), float(small.min())
+
+
+def test_a_folding_pose_is_unfolded_and_a_gentle_one_left_alone():
+    v, tris = _grid()
+    guard = SurfaceGuard(v, tris, np.zeros(len(v), bool))
+    folded = _bump(v, 3.0)
+    assert _breaks(v, tris, folded)[0] > 0                      # the pose folds the grid
+    x = folded.copy()
+    assert guard.apply(x)
+    turned, big, small = _breaks(v, tris, x)
+    assert turned == 0 and big <= 2.0 and small >= 0.25, (turned, big, small)
+    assert 0.3 < np.abs(x - v).max() < 3.0                       # still pushed, much less at its narrow peak
+    gentle = _bump(v, 0.3)
+    x = gentle.copy()
+    assert not guard.apply(x)
+    np.testing.assert_array_equal(x, gentle)
+
+
+def test_held_vertices_never_move_and_the_guard_fades_in_beside_them():
+    v, tris = _grid()
+    centre = np.argmin(np.linalg.norm(v - v.mean(axis=0), axis=1))
+    held = np.zeros(len(v), bool)
+    held[centre] = True
+    guard = SurfaceGuard(v, tris, held)
+    x = _bump(v, 3.0)
+    before = x.copy()
+    guard.apply(x)
+    np.testing.assert_array_equal(x[centre], before[centre])
+    beside = np.flatnonzero(np.abs(np.linalg.norm(v - v[centre], axis=1) - 1.0) < 1e-9)   # its 4 grid neighbours
+    far = np.linalg.norm(v - v[centre], axis=1) > 2.5
+    moved = np.linalg.norm(x - before, axis=1)
+    assert moved[beside].max() < moved[far].max()
+
+
+def test_the_guard_acts_continuously_as_a_pose_grows():
+    """Sweeping the bump's amplitude in fine steps through where the guard starts acting, up to
+    twice where it folds: no vertex of the guarded pose moves more than 2.5 times what the bump's
+    peak moves per step (a threshold would jump by millimetres), and the end does not fold."""
+    v, tris = _grid(31, 31)
+    guard = SurfaceGuard(v, tris, np.zeros(len(v), bool))
+    amplitudes = np.linspace(0.2, 4.4, 211)
+    previous, acted = None, []
+    worst = 0.0
+    for a in amplitudes:
+        x = _bump(v, a, width_mm=2.0)
+        acted.append(guard.apply(x))
+        if previous is not None:
+            worst = max(worst, np.abs(x - previous).max())
+        previous = x
+    per_step = amplitudes[1] - amplitudes[0]
+    assert not acted[0] and acted[-1]                            # the sweep crosses the onset
+    assert _breaks(v, tris, _bump(v, amplitudes[-1], width_mm=2.0))[0] > 0 and _breaks(v, tris, previous)[0] == 0
+    assert worst < 2.5 * per_step, (worst, per_step)
+
+
+def test_the_compiled_guard_is_the_numpy_one(monkeypatch):
+    """The severity check and the smoothing as numba kernels give the numpy path's numbers (a held
+    strip across the bump, so the taper and the held rows are compared too)."""
+    from core.layers.fap import kernels
+
+    built = kernels.get()
+    if built is None:
+        pytest.skip("numba is not installed: only the numpy path exists")
+    v, tris = _grid()
+    held = np.abs(v[:, 1] - 14.0) < 0.5
+    guard = SurfaceGuard(v, tris, held)
+    rng = np.random.default_rng(4)
+    x = _bump(v, 3.0) + rng.normal(0.0, 0.05, v.shape) * (rng.random(len(v)) < 0.5)[:, None]
+    compiled, compiled_pose = guard.severity(x), x.copy()
+    assert guard.apply(compiled_pose)
+    monkeypatch.setattr(kernels, "get", lambda: None)
+    reference, reference_pose = guard.severity(x), x.copy()
+    assert guard.apply(reference_pose)
+    assert (reference > 0).sum() > 10 and (reference == 0).sum() > 10
+    np.testing.assert_allclose(compiled, reference, atol=1e-9)
+    np.testing.assert_allclose(compiled_pose, reference_pose, atol=1e-9)
+    assert np.abs(reference_pose - x).max() > 0.1
+
+
+def test_the_mouth_corner_no_longer_folds_at_a_corner_stretch(default_rig):
+    """stretch_cornerlip 400 turned three triangles at the default face's mouth corner (the corner
+    moved 7.9 mm, the skin 0.9 mm beyond it 7.2 mm); guarded, none turns and the corner still moves."""
+    rig = default_rig
+    probe = FaceQualityProbe(rig.face)
+    rig.reset()
+    rig.set_fap(6, 400)
+    x = rig.vertices()
+    rig.reset()
+    quality = probe.measure(x)
+    assert quality.folded_triangles == 0 and quality.max_stretch <= 2.0 and quality.min_stretch >= 0.25
+    corner = rig.face.landmark_position("8.3")
+    moved = np.linalg.norm(x - rig.face.vertices, axis=1)
+    near = np.linalg.norm(rig.face.vertices - corner, axis=1) < 2.0
+    assert 5.0 < moved[near].max() < 9.0
