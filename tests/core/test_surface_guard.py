@@ -112,6 +112,13 @@ def test_the_compiled_guard_is_the_numpy_one(monkeypatch):
     np.testing.assert_allclose(compiled, reference, atol=1e-9)
     np.testing.assert_allclose(compiled_pose, reference_pose, atol=1e-9)
     assert np.abs(reference_pose - x).max() > 0.1
+    # The compiled check measures again only around what changed since its last pose: a second bump
+    # elsewhere, then the first one gone, give what a fresh guard measures.
+    monkeypatch.setattr(kernels, "get", lambda: built)
+    for pose in (x + _bump(v - [8.0, 8.0, 0.0], 2.5) - v, v + 0.0):
+        remembered = guard.severity(pose)
+        np.testing.assert_array_equal(remembered, SurfaceGuard(v, tris, held).severity(pose))
+    assert not remembered.any()
 
 
 def test_the_mouth_corner_no_longer_folds_at_a_corner_stretch(default_rig):

@@ -290,22 +290,28 @@ def _ramp(value, start, full):  # pragma: no cover - compiled
 
 @_JIT
 def strain_severity(x, rest, tris, inv, rest_normals, measurable, big0, big1, small0, small1, turn0, turn1,
-                    subset, out):  # pragma: no cover - compiled
-    """out[t] = the surface guard's severity of skin triangle t in the pose x (n, 3) for each t of
-    ``subset`` (``surface_guard.SurfaceGuard.severity``; 0 where no corner moved from ``rest``): its
-    largest and smallest principal stretch against its rest frame (inverse (a, b, d) per row of
-    ``inv``) and the cosine of its turn from its rest normal, each ramped to 0..1, the largest."""
-    for s in range(subset.shape[0]):
-        t = subset[s]
-        out[t] = 0.0
-        if not measurable[t]:
-            continue
+                    last_x, last_out, out):  # pragma: no cover - compiled
+    """out[t] (T,) = the surface guard's severity of skin triangle t in the pose x (n, 3)
+    (``surface_guard.SurfaceGuard.severity``; 0 where no corner moved from ``rest``): its largest and
+    smallest principal stretch against its rest frame (inverse (a, b, d) per row of ``inv``) and the
+    cosine of its turn from its rest normal, each ramped to 0..1, the largest of the three. Triangles
+    none of whose corners differ from ``last_x`` keep ``last_out`` (the last call's pose and result;
+    a slider moves one region): pass an empty ``last_x`` to measure every triangle."""
+    n = x.shape[0]
+    moved = np.zeros(n, np.bool_)
+    changed = np.ones(n, np.bool_)
+    remember = last_x.shape[0] == n
+    for v in range(n):
+        moved[v] = x[v, 0] != rest[v, 0] or x[v, 1] != rest[v, 1] or x[v, 2] != rest[v, 2]
+        if remember:
+            changed[v] = x[v, 0] != last_x[v, 0] or x[v, 1] != last_x[v, 1] or x[v, 2] != last_x[v, 2]
+    for t in range(tris.shape[0]):
         i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
-        moved = False
-        for c in range(3):
-            if x[i0, c] != rest[i0, c] or x[i1, c] != rest[i1, c] or x[i2, c] != rest[i2, c]:
-                moved = True
-        if not moved:
+        if remember and not (changed[i0] or changed[i1] or changed[i2]):
+            out[t] = last_out[t]
+            continue
+        out[t] = 0.0
+        if not measurable[t] or not (moved[i0] or moved[i1] or moved[i2]):
             continue
         e1x, e1y, e1z = x[i1, 0] - x[i0, 0], x[i1, 1] - x[i0, 1], x[i1, 2] - x[i0, 2]
         e2x, e2y, e2z = x[i2, 0] - x[i0, 0], x[i2, 1] - x[i0, 1], x[i2, 2] - x[i0, 2]
