@@ -192,6 +192,12 @@ def run_identity(name: str, args) -> tuple[int, int]:
     sheets: dict[str, list] = {}
     for family, label, apply, closes in poses:
         rig.reset()
+        muscles = rig.layer("muscles")
+        if muscles is not None:
+            # Zero forces leave the tissue where the last preset pulled it until it settles again
+            # (the window's timer relaxes it): back at rest, or every later pose carries it (after the
+            # muscle presets, the library's poses stretched 2.0-2.2x and joy crossed its lips).
+            muscles.reset()
         apply(rig)
         vertices = rig.vertices()
         q = probe.measure(vertices, eyes=bool(closes))
