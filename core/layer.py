@@ -12,7 +12,10 @@ SABiom muscles, and the ones to come (blend shapes, RBF control points, vector m
 - signals ``parameters_changed(ParameterChange)`` after its values changed and ``pose_changed()``
   when its offset changed without a parameter change (a dynamic layer settling); a layer whose
   offset follows its parameters only through a simulation sets ``dynamic = True``;
-- optionally ``finish(x) -> x``: a non-additive step applied after every layer's offset;
+- optionally ``finish(x, pinned) -> x``: a non-additive step applied after every layer's offset;
+  ``pinned`` ((k,) int) are the vertices the layers place exactly, which it must leave where they are;
+- optionally ``pinned_vertices() -> (k,) int``: the vertices this layer places exactly (a dragged
+  control point): no other layer's finish step moves them;
 - optionally ``add_offset(x)``: adds its offset into ``x`` in place (what ``offset`` gives, without
   an (n, 3) temporary; the rig prefers it).
 

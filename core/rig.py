@@ -6,11 +6,15 @@ Composition order (``FaceRig.vertices``; each layer's offset adds to the result 
     for layer in layers:   x = x + layer.offset(x)       FAPs first (the Facial Animation Table),
                                                           then muscles, then later layers in the
                                                           order they were added
-    for layer in layers:   x = layer.finish(x)           non-additive steps (in place), FAP layer only today:
+    for layer in layers:   x = layer.finish(x, pinned)   non-additive steps (in place), FAP layer only today:
                                                           lids stop on each other and slide over the
                                                           eyeballs, lips pressed into each other give
-                                                          way, skin stays outside the teeth, eyeballs
-                                                          (FAPs 23-26) and the head (48-50) rotate
+                                                          way, skin that would fold or smear is
+                                                          smoothed (not the ``pinned`` vertices other
+                                                          layers place exactly: dragged control
+                                                          points), skin stays outside the teeth,
+                                                          eyeballs (FAPs 23-26) and the head (48-50)
+                                                          rotate
 
 The FAP values that drive the FAT are the *effective* values: the user's low-level values plus
 the active expression (FAP 2) and viseme (FAP 1) presets scaled by their intensities. Several
@@ -356,10 +360,12 @@ class FaceRig:
                 offset = layer.offset(x)
                 if offset is not None:
                     x += offset
+            pins = [layer.pinned_vertices() for layer in layers if hasattr(layer, "pinned_vertices")]
+            pinned = np.concatenate([np.zeros(0, np.int64)] + [np.asarray(p, np.int64) for p in pins])
             for layer in layers:
                 finish: Callable | None = getattr(layer, "finish", None)
                 if finish is not None:
-                    x = finish(x)
+                    x = finish(x, pinned)
             x = np.asarray(x, dtype=float)
             x.setflags(write=False)
             self._cache = x

@@ -76,7 +76,10 @@ def test_a_drag_moves_the_point_and_its_region_and_undoes_in_one_step(qtbot, win
     assert moved[corner] == pytest.approx(dy, rel=0.02)
     region = layer.deformer.active[layer.deformer.omega[:, _index(win, "mouth_corner_l")] > 0]
     outside = np.setdiff1d(np.arange(len(moved)), region)
-    assert moved[outside].max() < 1e-9                           # only its region moved
+    assert not layer.offset(None)[outside].any()                 # the layer moves only its region
+    # where the 14 mm drag strains the skin at the region's border, the surface guard smooths it
+    # across (under a millimetre); the dragged point itself stays on the pointer (pinned)
+    assert moved[outside].max() < 1.0
     assert win.control_point_dock.point_combo.currentData() == "8.3"
     assert stack.count() == count + 1 and stack.undoText() == "Move control point mouth_corner_l"
     stack.undo()

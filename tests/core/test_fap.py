@@ -281,7 +281,7 @@ def test_the_teeth_guard_leaves_the_neutral_face_and_small_motions_alone(rig, mo
     pose's mouth corner a little, left out: test_surface_guard)."""
     rig.reset_faps()
     assert np.array_equal(rig.vertices(), rig.face.vertices)
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x: False)
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None: False)
     rig.set_faps({3: 300, 6: 100})
     plain = rig.face.vertices + rig.deformer.displacement(rig.effective_fap_values())
     # Equal up to the rounding of the in-place FAT product (each term added to the vertex in turn).
@@ -473,7 +473,7 @@ def test_lid_contact_scales_only_when_lids_overlap():
 
 def test_expression_intensity_scales_the_displacement(rig, monkeypatch):
     # The surface guard smooths joy's strained mouth corners (not linear): left out (test_surface_guard).
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x: False)
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None: False)
     rig.reset_faps()
     rig.set_expression("joy", 1.0)
     full = rig.vertices() - rig.face.vertices
@@ -536,7 +536,7 @@ def test_lips_pressed_at_a_sliders_end_do_not_pass_through_each_other(rig, numbe
     rig.reset()
     rig.set_fap(number, end)
     assert FaceQualityProbe(rig.face).measure(rig.vertices()).lip_intersections == 0    # guarded too
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x: False)
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None: False)
     rig.touch()
     posed = rig.vertices()
     values = rig.deformer.limited(rig.effective_fap_values())

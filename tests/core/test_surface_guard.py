@@ -69,6 +69,21 @@ def test_held_vertices_never_move_and_the_guard_fades_in_beside_them():
     assert moved[beside].max() < moved[far].max()
 
 
+def test_pinned_vertices_stay_exactly_where_their_layer_put_them():
+    """A dragged control point is pinned for the pose: the guard smooths around it, not it."""
+    v, tris = _grid()
+    guard = SurfaceGuard(v, tris, np.zeros(len(v), bool))
+    peak = int(np.argmin(np.linalg.norm(v - v.mean(axis=0), axis=1)))
+    folded = _bump(v, 3.0)
+    for compiled in (True, False):
+        x = folded.copy()
+        if not compiled:
+            x = np.asfortranarray(x)                       # not C-contiguous: the numpy path
+        assert guard.apply(x, np.array([peak]))
+        np.testing.assert_array_equal(x[peak], folded[peak])
+        assert np.abs(x - folded).max() > 0.1              # the rest was smoothed
+
+
 def test_the_guard_acts_continuously_as_a_pose_grows():
     """Sweeping the bump's amplitude in fine steps through where the guard starts acting, up to
     twice where it folds: no vertex of the guarded pose moves more than 2.5 times what the bump's

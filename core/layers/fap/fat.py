@@ -1039,12 +1039,15 @@ class FapDeformer:
                     clearance = _guard_clearance(x[lid] - rest - shift, rest_clearance, full_clearance, ramp, bulge)
                     push_outside(x, lid, centre, clearance, radii)
 
-    def finish(self, x: np.ndarray, values: np.ndarray, *, in_place: bool = False) -> np.ndarray:
+    def finish(self, x: np.ndarray, values: np.ndarray, *, in_place: bool = False,
+               pinned: np.ndarray | None = None) -> np.ndarray:
         """(n, 3) ``x`` (all offsets added) after the FAPs' non-additive steps: upper lids stop on the
         lower ones and slide over the eyeballs, lips press on each other, skin that would fold or smear
         is smoothed there (``surface_guard``), mouth skin stays outside the teeth, eyeballs rotate
         (gaze 23-26), the head rotates (48-50). ``in_place``: ``x`` is a float array the caller owns
-        and it is edited rather than copied (the rig's working array: one copy less per tick)."""
+        and it is edited rather than copied (the rig's working array: one copy less per tick).
+        ``pinned``: vertices another layer places exactly (dragged control points), which the surface
+        guard leaves where they are."""
         values = self.lid_values(values)
         if not in_place:
             x = np.array(x, dtype=float)
@@ -1060,7 +1063,7 @@ class FapDeformer:
         # pushes back out what the smoothing drew into the teeth: push_b_lip -600 had 125 crossing
         # pairs the other way round; before the eyes and head turn, as the check compares each
         # triangle with its rest shape and normal).
-        self._surface_guard.apply(x)
+        self._surface_guard.apply(x, pinned)
         # Teeth move rigidly, the skin around them only partly (and some lip FAPs drive it straight
         # at them): skin that ended inside a row of teeth goes back out over it.
         if "teeth" in memos:

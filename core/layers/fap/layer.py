@@ -84,10 +84,10 @@ class FapLayer:
         """``x`` (n, 3) += :meth:`offset`, in place (the rig's working array)."""
         self.deformer.add_displacement(x, self.limited_values())
 
-    def finish(self, x: np.ndarray) -> np.ndarray:
+    def finish(self, x: np.ndarray, pinned: np.ndarray | None = None) -> np.ndarray:
         """``x`` after the FAPs' non-additive steps, edited in place (the rig passes its own working
-        array; see ``core.rig.FaceRig.vertices``)."""
-        return self.deformer.finish(x, self.limited_values(), in_place=True)
+        array; see ``core.rig.FaceRig.vertices``); the surface guard leaves ``pinned`` vertices alone."""
+        return self.deformer.finish(x, self.limited_values(), in_place=True, pinned=pinned)
 
     def snapshot(self) -> tuple:
         return (tuple(self._values.tolist()), self._expressions, self._visemes)

@@ -21,6 +21,8 @@ that would break gets the whole smoothing.
 
 Held (never moved, and the guard fades out over ``HOLD_TAPER_RINGS`` rings around them): the lids'
 zone, which the lid steps own (smoothed, a closed lid opened 58 % and its skin went into the eyeball).
+Held for one pose: the vertices other layers place exactly (``pinned``: dragged control points; a
+14 mm drag of the mouth corner ended 1.7 mm short of the pointer).
 Seam copies (one position at rest) that coincide in the pose end at one position.
 """
 
@@ -167,22 +169,27 @@ class SurfaceGuard:
         out[tris] = np.maximum.reduce([_ramp(big, STRETCH_RAMP), _ramp(small, SQUEEZE_RAMP), _ramp(turn, TURN_RAMP)])
         return out
 
-    def apply(self, x: np.ndarray) -> bool:
+    def apply(self, x: np.ndarray, pinned: np.ndarray | None = None) -> bool:
         """Smooth the pose ``x`` (n, 3) in place where it would break; False (and ``x`` untouched)
-        where every triangle holds."""
+        where every triangle holds. ``pinned`` ((k,) int): vertices another layer places exactly (a
+        dragged control point), held for this pose (the smoothing around them takes their motion in)."""
         severity = self.severity(x)
         breaking = np.flatnonzero(severity > 0)
         if not len(breaking):
             return False
         strength = np.zeros(len(x))
         np.maximum.at(strength, self.triangles[breaking].ravel(), np.repeat(severity[breaking], 3))
+        held, taper = self._held, self._taper
+        if pinned is not None and len(pinned):
+            held, taper = held.copy(), taper.copy()
+            held[pinned], taper[pinned] = True, 0.0
         before = x[self._copies] == x[self._originals]
         compiled = kernels.get()
         if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
-            if not compiled.guard_smooth(x, self.rest, self._indptr, self._indices, self._weights, self._held,
-                                         self._taper, strength, RINGS, SMOOTHING_STEPS):
+            if not compiled.guard_smooth(x, self.rest, self._indptr, self._indices, self._weights, held,
+                                         taper, strength, RINGS, SMOOTHING_STEPS):
                 return False
-        elif not self._smooth(x, strength):
+        elif not self._smooth(x, strength, held, taper):
             return False
         together = before.all(axis=1)
         if together.any():
@@ -191,16 +198,16 @@ class SurfaceGuard:
             x[a], x[b] = mean, mean
         return True
 
-    def _smooth(self, x: np.ndarray, strength: np.ndarray) -> bool:
+    def _smooth(self, x: np.ndarray, strength: np.ndarray, held: np.ndarray, taper: np.ndarray) -> bool:
         """The numpy path of the smoothing (``compiled_steps.guard_smooth``): ``strength`` (n,) the
-        per-vertex severity; False where nothing moved."""
+        per-vertex severity, ``held`` and ``taper`` (n,) this pose's; False where nothing moved."""
         # Spread over RINGS rings, falling off linearly: a_v = max(a_v, max of its neighbours - step).
         idx = self._ring(np.flatnonzero(strength), RINGS)
         neighbours, starts = self._rows(idx)      # every skin vertex has neighbours: no empty row
         step = 1.0 / (RINGS + 1)
         for _ in range(RINGS):
             strength[idx] = np.maximum(strength[idx], np.maximum.reduceat(strength[neighbours], starts) - step)
-        strength *= self._taper
+        strength *= taper
         idx = idx[strength[idx] > 0]
         if not len(idx):
             return False
@@ -209,7 +216,9 @@ class SurfaceGuard:
         u = x - self.rest
         smooth = u.copy()
         average = self._average[support]
+        pinned = np.flatnonzero(held & ~self._held)
         for _ in range(SMOOTHING_STEPS):
             smooth[support] = average @ smooth
+            smooth[pinned] = u[pinned]             # held for this pose: keep their own motion
         x[idx] += strength[idx, None] * (smooth[idx] - u[idx])
         return True

@@ -279,7 +279,7 @@ class MuscleLayer:
         """The rig layer function: the muscle offsets (``x`` is ignored: linear superposition)."""
         return self.skin_offsets()
 
-    def finish(self, x: np.ndarray) -> np.ndarray:
+    def finish(self, x: np.ndarray, pinned: np.ndarray | None = None) -> np.ndarray:
         return x
 
     def attach(self, rig) -> None:

@@ -158,6 +158,11 @@ class ControlPointLayer(ValueLayer):
             return None
         return self._pose(d)
 
+    def pinned_vertices(self) -> np.ndarray:
+        """(k,) the vertices of the control points the user moved: they go exactly where they were
+        dragged (the FAP layer's surface guard would smooth a steep drag 1.7 mm short of the pointer)."""
+        return np.asarray(self.points.vertices, np.int64)[self.displacements().any(axis=1)]
+
     # ------------------------------------------------------------ settings
     @property
     def kernel(self) -> Kernel:
