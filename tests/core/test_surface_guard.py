@@ -13,15 +13,12 @@ import pytest
 
 from core.layers.fap.surface_guard import SurfaceGuard
 from core.mesh_quality import FaceQualityProbe, _local_frames, _normals, principal_stretches
+from tests.core.test_blend_quality import _flat_grid
 
 
-def _grid(nx: int = 25, ny: int = 25, step_mm: float = 1.0):
-    x, y = np.meshgrid(np.arange(nx) * step_mm, np.arange(ny) * step_mm)
-    v = np.column_stack([x.ravel(), y.ravel(), np.zeros(nx * ny)])
-    i, j = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1))
-    a = (j * nx + i).ravel()
-    tris = np.concatenate([np.column_stack([a, a + 1, a + nx + 1]), np.column_stack([a, a + nx + 1, a + nx])])
-    return v, tris
+def _grid(nx: int = 25, ny: int = 25):
+    """A flat 1 mm grid (test_blend_quality's)."""
+    return _flat_grid(nx, ny, 1.0)
 
 
 def _bump(v: np.ndarray, amplitude_mm: float, width_mm: float = 1.2) -> np.ndarray:

@@ -338,6 +338,21 @@ def strain_severity(x, rest, tris, inv, rest_normals, measurable, big0, big1, sm
 
 
 @_JIT
+def _next_ring(order, where, start, count, indptr, indices):  # pragma: no cover - compiled
+    """Append to ``order`` (and mark in ``where``) the unmarked neighbours of order[start:count];
+    the new count."""
+    for i in range(start, count):
+        v = order[i]
+        for k in range(indptr[v], indptr[v + 1]):
+            w = indices[k]
+            if where[w] < 0:
+                where[w] = count
+                order[count] = w
+                count += 1
+    return count
+
+
+@_JIT
 def guard_smooth(x, rest, indptr, indices, weights, held, taper, strength, rings, steps):  # pragma: no cover - compiled
     """The surface guard's smoothing (``surface_guard.SurfaceGuard.apply`` after the severity), in
     place: ``strength`` (n,) the per-vertex severity (0 where no breaking triangle touches), spread
@@ -357,16 +372,7 @@ def guard_smooth(x, rest, indptr, indices, weights, held, taper, strength, rings
     step = 1.0 / (rings + 1)
     start = 0
     for _ in range(rings):
-        end = count
-        for i in range(start, end):
-            v = order[i]
-            for k in range(indptr[v], indptr[v + 1]):
-                w = indices[k]
-                if where[w] < 0:
-                    where[w] = count
-                    order[count] = w
-                    count += 1
-        start = end
+        start, count = count, _next_ring(order, where, start, count, indptr, indices)
         spread = np.empty(count)
         for i in range(count):
             v = order[i]
@@ -393,16 +399,7 @@ def guard_smooth(x, rest, indptr, indices, weights, held, taper, strength, rings
     # The support of P^steps at the region: ``steps`` more rings.
     start = 0
     for _ in range(steps):
-        end = count
-        for i in range(start, end):
-            v = order[i]
-            for k in range(indptr[v], indptr[v + 1]):
-                w = indices[k]
-                if where[w] < 0:
-                    where[w] = count
-                    order[count] = w
-                    count += 1
-        start = end
+        start, count = count, _next_ring(order, where, start, count, indptr, indices)
     u = np.empty((count, 3))
     for i in range(count):
         v = order[i]

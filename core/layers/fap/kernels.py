@@ -61,7 +61,7 @@ def _warm(k: SimpleNamespace) -> None:
                       -1.0, 2.0, 180, 4, 1.0, 1.0, np.zeros(720), 1.0, True, np.zeros(3, np.int64), np.zeros((3, 3)))
     k.spread_pushes(x, rows, rows, np.zeros((3, 3)), np.arange(4, dtype=np.int64), rows, np.ones(3))
     k.strain_severity(x, rest, rows.reshape(1, 3), np.ones((1, 3)), np.ones((1, 3)), np.ones(1, bool),
-                      1.7, 1.95, 0.32, 0.26, 0.3, 0.05, np.zeros((0, 3)), np.zeros(0), np.empty(1))
+                      1.7, 1.95, 0.32, 0.26, 0.3, 0.05, np.zeros((0, 3)), rest[:0, 0], np.empty(1))
     ring = np.array([0, 2, 4, 6], np.int64)                   # a triangle's CSR neighbours
     k.guard_smooth(x, rest, ring, np.array([1, 2, 0, 2, 0, 1], np.int64), np.ones(6), np.zeros(3, bool), np.ones(3),
                    np.array([1.0, 0.0, 0.0]), 1, 1)

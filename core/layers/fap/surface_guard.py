@@ -113,8 +113,11 @@ class SurfaceGuard:
 
     @staticmethod
     def _forgotten() -> tuple[np.ndarray, np.ndarray]:
-        """No last pose: the compiled check measures every triangle."""
-        return np.zeros((0, 3)), np.zeros(0)
+        """No last pose: the compiled check measures every triangle (its last result read-only, as
+        every later one: one compiled signature)."""
+        out = np.zeros(0)
+        out.setflags(write=False)
+        return np.zeros((0, 3)), out
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_last": self._forgotten()}     # a cached guard starts afresh
@@ -144,8 +147,8 @@ class SurfaceGuard:
 
     # ------------------------------------------------------------------ per tick
     def severity(self, x: np.ndarray) -> np.ndarray:
-        """(T,) 0..1 how close each skin triangle of the pose ``x`` (n, 3) is to breaking (0 where
-        none of its corners moved). Compiled, only the triangles around vertices that changed since
+        """(T,) 0..1 (read-only) how close each skin triangle of the pose ``x`` (n, 3) is to breaking
+        (0 where none of its corners moved). Compiled, only the triangles around vertices that changed since
         the last call are measured again (a slider moves one region: joy with a brow slider, ~4 ms
         -> ~1 ms); the last pose and its result are one tuple, replaced at once, so two threads that
         share the guard (the window and an export) never mix them."""
@@ -156,8 +159,9 @@ class SurfaceGuard:
             compiled.strain_severity(x, self.rest, self.triangles, self._inv, self._rest_normals, self._checked,
                                      STRETCH_RAMP[0], STRETCH_RAMP[1], SQUEEZE_RAMP[0], SQUEEZE_RAMP[1],
                                      TURN_RAMP[0], TURN_RAMP[1], last_x, last_out, out)
+            out.setflags(write=False)          # kept as the next call's last result: no copy a tick
             self._last = (np.array(x), out)
-            return out.copy()
+            return out
         out = np.zeros(len(self.triangles))
         moved = (x != self.rest).any(axis=1)
         tris = np.flatnonzero(moved[self.triangles].any(axis=1) & self._checked)
