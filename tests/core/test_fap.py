@@ -47,16 +47,18 @@ def test_expression_presets_reproduce_table_b1():
 
 def test_expression_presets_follow_the_facs_action_units_of_thesis_b():
     """Thesis B Table 3.3's units on top of Table B.1: joy = AU 1, 6, 12, 14 (cheeks up, lower lids up
-    narrowing the eyes, corners up and back, no jaw drop); surprise = 1, 2, 5, 15, 16, 20, 26."""
+    narrowing the eyes, corners up and back) with the lips parted (25: MPEG-4's "mouth open", without
+    B.1's jaw drop); surprise = 1, 2, 5, 15, 16, 20, 26."""
     t, b1 = tables.expression_table(), tables.thesis_expression_table()
     fap = {s.name: s.number - 1 for s in tables.fap_specs()}
     joy, surprise, disgust = (tables.expression_id(n) for n in ("joy", "surprise", "disgust"))
-    assert tables.expression_action_units()["joy"].keys() == {1, 6, 12, 14}
+    assert tables.expression_action_units()["joy"].keys() == {1, 6, 12, 14, 25}
     assert tables.expression_action_units()["surprise"].keys() == {1, 2, 5, 15, 16, 20, 26}
     assert t[joy, fap["lift_l_cheek"]] > 0 and t[joy, fap["lift_r_cheek"]] > 0
     assert t[joy, fap["close_b_l_eyelid"]] > 0 > b1[joy, fap["close_b_l_eyelid"]], "Duchenne: lower lids rise"
     assert t[joy, fap["raise_l_cornerlip"]] > 0 and t[joy, fap["stretch_l_cornerlip"]] > 0
     assert t[joy, fap["open_jaw"]] == 0 < b1[joy, fap["open_jaw"]]
+    assert t[joy, fap["lower_t_midlip"]] < 0 and t[joy, fap["raise_b_midlip"]] < 0, "lips part: upper up, lower down"
     # Joy's corner raise is AU 12 in full plus AU 14 at its intensity.
     units, mix = tables.action_unit_table(), tables.expression_action_units()["joy"]
     assert t[joy, fap["raise_l_cornerlip"]] == pytest.approx(

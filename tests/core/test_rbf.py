@@ -182,11 +182,14 @@ def test_emotion_presets_are_their_action_units(layer):
         shipped, built = preset(name), build_emotion(name)
         assert shipped.aus == built.aus and shipped.names == built.names
         np.testing.assert_allclose(shipped.displacements, built.displacements, rtol=0, atol=1e-12)
-    assert preset("joy").aus == (1, 6, 12, 14) and preset("sadness").aus == (1, 4, 15, 23)   # B Table 3.3
+    # B Table 3.3 (joy also parts the lips: AU 25)
+    assert preset("joy").aus == (1, 6, 12, 14, 25) and preset("sadness").aus == (1, 4, 15, 23)
     layer.apply_emotion("joy")
     # Intensities of resources/facs/emotions.csv: AU 12 in full (corner out 4, up 5, back 1) + AU 14 at
-    # 0.6 (out 1.5, back 2): the left corner moves (4.9, 5, -2.2)
+    # 0.6 (out 1.5, back 2): the left corner moves (4.9, 5, -2.2); AU 25 in full lowers the lower lip's
+    # middle 3 mm
     assert [layer.value(f"cp:8.3:{a}") for a in "xyz"] == pytest.approx([4.9, 5.0, -2.2])
+    assert layer.value("cp:8.2:y") == pytest.approx(-3.0)
     # AU 15 in full (out 0.5, down 4) + AU 23 at 0.5 (in 1), the whole at 50 %: (0, -2, 0)
     layer.apply_emotion("sadness", 0.5)
     assert [layer.value(f"cp:8.3:{a}") for a in "xyz"] == pytest.approx([0.0, -2.0, 0.0])
