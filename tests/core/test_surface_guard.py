@@ -66,6 +66,37 @@ def test_held_vertices_never_move_and_the_guard_fades_in_beside_them():
     assert moved[beside].max() < moved[far].max()
 
 
+def _split(v: np.ndarray, tris: np.ndarray, column_x: float):
+    """The grid cut along the column x = ``column_x``: the triangles right of it use copies of the
+    column's vertices (appended), as the default face's head shell meets its face. (vertices, triangles,
+    (k, 2) (copy, original) pairs)."""
+    column = np.flatnonzero(np.abs(v[:, 0] - column_x) < 1e-9)
+    copies = len(v) + np.arange(len(column))
+    index = np.arange(len(v))
+    index[column] = copies
+    right = v[tris].mean(axis=1)[:, 0] > column_x
+    split = tris.copy()
+    split[right] = index[tris[right]]
+    return np.concatenate([v, v[column]]), split, np.stack([copies, column], axis=1)
+
+
+def test_a_seam_that_moves_as_one_is_smoothed_as_one_surface():
+    """Cut through the fold, the two sides were smoothed each on its own: ``joined`` seam copies make
+    the result the uncut grid's, the copies following their originals."""
+    v, tris = _grid()
+    x_whole = _bump(v, 3.0)
+    SurfaceGuard(v, tris, np.zeros(len(v), bool)).apply(x_whole)
+    centre_x = float(v[np.argmin(np.linalg.norm(v - v.mean(axis=0), axis=1)), 0])
+    cut_v, cut_tris, pairs = _split(v, tris, centre_x)
+    x_joined = _bump(cut_v, 3.0)
+    assert SurfaceGuard(cut_v, cut_tris, np.zeros(len(cut_v), bool), pairs).apply(x_joined)
+    np.testing.assert_allclose(x_joined[:len(v)], x_whole, atol=1e-12)
+    np.testing.assert_array_equal(x_joined[pairs[:, 0]], x_joined[pairs[:, 1]])
+    x_apart = _bump(cut_v, 3.0)
+    SurfaceGuard(cut_v, cut_tris, np.zeros(len(cut_v), bool)).apply(x_apart)
+    assert np.abs(x_apart[:len(v)] - x_whole).max() > 0.05       # each side alone: another surface
+
+
 def test_pinned_vertices_stay_exactly_where_their_layer_put_them():
     """A dragged control point is pinned for the pose: the guard smooths around it, not it."""
     v, tris = _grid()

@@ -65,6 +65,7 @@ from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
 from core.layers.fap.surface_guard import SurfaceGuard
 from core.layers.fap.teeth_guard import TeethGuard
+from core.mesh_quality import welded_vertices
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
 
 
@@ -313,7 +314,8 @@ class FapDeformer:
         self._teeth_guard = TeethGuard(face, np.nonzero(skin)[0])
         self._lip_contact = LipContact(face, np.nonzero(skin)[0])
         self._memos = self._step_memos()
-        self._surface_guard = SurfaceGuard(face.vertices, skin_triangles, self.lid_zone())
+        self._surface_guard = SurfaceGuard(face.vertices, skin_triangles, self.lid_zone(),
+                                           self._seam_moving_as_one(skin_triangles))
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
         if self._eyes:
@@ -860,6 +862,24 @@ class FapDeformer:
         """(n,) bool: vertices lip contact may move after all offsets (there the layers' offsets do
         not simply add up: lips pressed into each other give way)."""
         return self._lip_contact.zone(self.face.n_vertices)
+
+    def _seam_moving_as_one(self, skin_triangles: np.ndarray) -> np.ndarray:
+        """(k, 2) (copy, original) skin vertex pairs at one rest position whose FAT rows are equal (the
+        face/head-shell seam: 940 of the default face's 1,013 skin pairs; not the closed mouth's two
+        lips, which part), for the surface guard."""
+        welded = welded_vertices(self.face.vertices)
+        copy = np.flatnonzero(welded != np.arange(len(welded)))
+        original = welded[copy]
+        on_skin = np.zeros(len(welded), bool)
+        on_skin[skin_triangles.ravel()] = True
+        copy, original = copy[on_skin[copy] & on_skin[original]], original[on_skin[copy] & on_skin[original]]
+        F = self.matrix.tocsr()
+        apart = np.zeros(len(copy), bool)
+        for axis in range(3):
+            difference = (F[3 * copy + axis] - F[3 * original + axis]).tocsr()
+            difference.eliminate_zeros()
+            apart |= np.diff(difference.indptr) > 0
+        return np.stack([copy[~apart], original[~apart]], axis=1)
 
     def lid_zone(self) -> np.ndarray:
         """(n,) bool: vertices the lid steps may move after all offsets, whatever layer moved the lids

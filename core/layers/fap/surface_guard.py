@@ -23,7 +23,11 @@ Held (never moved, and the guard fades out over ``HOLD_TAPER_RINGS`` rings aroun
 zone, which the lid steps own (smoothed, a closed lid opened 58 % and its skin went into the eyeball).
 Held for one pose: the vertices other layers place exactly (``pinned``: dragged control points; a
 14 mm drag of the mouth corner ended 1.7 mm short of the pointer).
-Seam copies (one position at rest) that coincide in the pose end at one position.
+Seam copies (one position at rest) that coincide in the pose end at one position. Those the caller
+says always move as one (``joined``: the face/head-shell seam, where the FAT gives both copies one row)
+are one vertex of the smoothing: smoothed apart, each copy saw its own side's neighbours only, and a
+thin triangle beside the default face's jaw angle, unstrained by surprise + viseme aa, came out
+stretched 2.15 x (every failing expression + viseme mix but joy's).
 """
 
 from __future__ import annotations
@@ -59,10 +63,12 @@ class SurfaceGuard:
     """The guard of one face (see the module docstring).
 
     rest : (n, 3) mm; skin_triangles : (T, 3) the triangles measured and smoothed over (no parts);
-    held : (n,) bool vertices other steps own.
+    held : (n,) bool vertices other steps own; joined : (k, 2) int (copy, original) seam pairs at one
+    rest position that always move as one (smoothed as one vertex; the copy follows the original).
     """
 
-    def __init__(self, rest: np.ndarray, skin_triangles: np.ndarray, held: np.ndarray):
+    def __init__(self, rest: np.ndarray, skin_triangles: np.ndarray, held: np.ndarray,
+                 joined: np.ndarray | None = None):
         rest = np.array(rest, dtype=float)
         rest.setflags(write=False)         # as the compiled kernel was warmed with (a type of its own)
         tris = np.ascontiguousarray(skin_triangles, dtype=np.int64)
@@ -83,7 +89,15 @@ class SurfaceGuard:
         self._inv[safe, 1] = -frames[safe, 0, 1] / det[safe]
         self._inv[safe, 2] = 1.0 / frames[safe, 1, 1]
         self._rest_normals = np.ascontiguousarray(_normals(rest[tris]))
-        edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+        joined = np.zeros((0, 2), np.int64) if joined is None else np.asarray(joined, np.int64).reshape(-1, 2)
+        # The smoothing's vertex of each vertex: a joined copy's original (the copy has no neighbours of
+        # its own, is held, and takes its original's position after the smoothing).
+        self._joined = joined
+        self._smoothed_as = np.arange(n)
+        self._smoothed_as[joined[:, 0]] = joined[:, 1]
+        graph_tris = self._smoothed_as[tris]
+        edges = np.concatenate([graph_tris[:, [0, 1]], graph_tris[:, [1, 2]], graph_tris[:, [2, 0]]])
+        edges = edges[edges[:, 0] != edges[:, 1]]
         length = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
         weight = scipy.sparse.coo_matrix((1.0 / np.maximum(length, 1e-6), (edges[:, 0], edges[:, 1])),
                                          shape=(n, n)).tocsr()
@@ -105,7 +119,7 @@ class SurfaceGuard:
         # moves: not checked (the lids' zone is ~4,500 of the default face's 61k vertices).
         reach = np.zeros(n, bool)
         reach[self._ring(np.flatnonzero(self._taper > 0), RINGS)] = True
-        self._checked &= reach[tris].any(axis=1)
+        self._checked &= reach[graph_tris].any(axis=1)
         welded = welded_vertices(rest)
         copies = np.flatnonzero(welded != np.arange(n))
         self._copies, self._originals = copies, welded[copies]
@@ -182,12 +196,15 @@ class SurfaceGuard:
         if not len(breaking):
             return False
         strength = np.zeros(len(x))
-        np.maximum.at(strength, self.triangles[breaking].ravel(), np.repeat(severity[breaking], 3))
+        np.maximum.at(strength, self._smoothed_as[self.triangles[breaking].ravel()], np.repeat(severity[breaking], 3))
         held, taper = self._held, self._taper
         if pinned is not None and len(pinned):
+            pinned = self._smoothed_as[np.asarray(pinned, np.int64)]
             held, taper = held.copy(), taper.copy()
             held[pinned], taper[pinned] = True, 0.0
         before = x[self._copies] == x[self._originals]
+        copy, original = self._joined.T
+        follows = (x[copy] == x[original]).all(axis=1)
         compiled = kernels.get()
         if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
             if not compiled.guard_smooth(x, self.rest, self._indptr, self._indices, self._weights, held,
@@ -195,6 +212,7 @@ class SurfaceGuard:
                 return False
         elif not self._smooth(x, strength, held, taper):
             return False
+        x[copy[follows]] = x[original[follows]]
         together = before.all(axis=1)
         if together.any():
             a, b = self._copies[together], self._originals[together]
