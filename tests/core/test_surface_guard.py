@@ -97,6 +97,35 @@ def test_a_seam_that_moves_as_one_is_smoothed_as_one_surface():
     assert np.abs(x_apart[:len(v)] - x_whole).max() > 0.05       # each side alone: another surface
 
 
+def test_skin_on_an_eyeball_slides_on_it_when_smoothed():
+    """A cap of skin lying on a 24 mm ball, folded along the ball's surface: smoothed freely its
+    vertices cut inside the ball; as ``balls`` skin they keep their distance from its centre, and the
+    fold is still undone."""
+    v, tris = _grid()
+    v = v - v.mean(axis=0)
+    radius = 24.0
+    v[:, 2] = np.sqrt(radius ** 2 - v[:, 0] ** 2 - v[:, 1] ** 2)
+    ball_vertex = np.array([[0.0, 0.0, 0.0]])           # the ball's own vertex: its motion is the ball's
+    rest = np.concatenate([v, ball_vertex])
+    centre, anchors = np.zeros(3), np.array([len(v)])
+
+    def on_sphere(x):
+        return x * (radius / np.linalg.norm(x, axis=1))[:, None]
+
+    folded = rest.copy()
+    bump = 3.0 * np.exp(-(v[:, 0] ** 2 + v[:, 1] ** 2) / (2 * 1.2 ** 2))      # _bump's, about the cap's top
+    folded[:len(v)] = on_sphere(v + bump[:, None] * np.array([1.0, 0.0, 0.0]))
+    assert _breaks(v, tris, folded[:len(v)])[0] > 0
+    skin = np.arange(len(v))
+    free = folded.copy()
+    SurfaceGuard(rest, tris, np.zeros(len(rest), bool)).apply(free)
+    assert np.linalg.norm(free[:len(v)], axis=1).min() < radius - 0.01      # chords cut into the ball
+    sliding = folded.copy()
+    assert SurfaceGuard(rest, tris, np.zeros(len(rest), bool), balls=((skin, centre, anchors),)).apply(sliding)
+    np.testing.assert_allclose(np.linalg.norm(sliding[:len(v)], axis=1), radius, atol=1e-9)
+    assert _breaks(v, tris, sliding[:len(v)])[0] == 0
+
+
 def test_pinned_vertices_stay_exactly_where_their_layer_put_them():
     """A dragged control point is pinned for the pose: the guard smooths around it, not it."""
     v, tris = _grid()

@@ -314,8 +314,13 @@ class FapDeformer:
         self._teeth_guard = TeethGuard(face, np.nonzero(skin)[0])
         self._lip_contact = LipContact(face, np.nonzero(skin)[0])
         self._memos = self._step_memos()
-        self._surface_guard = SurfaceGuard(face.vertices, skin_triangles, self.lid_zone(),
-                                           self._seam_moving_as_one(skin_triangles))
+        margins = np.zeros(n, bool)
+        for upper, lower in self._eye_rims:
+            margins[upper] = margins[lower] = True
+        balls = tuple((guard.lid, guard.centre, self._ball_anchors("eyeball_l" if 19 in guard.faps else "eyeball_r"))
+                      for guard in self._lid_guards)
+        self._surface_guard = SurfaceGuard(face.vertices, skin_triangles, margins,
+                                           self._seam_moving_as_one(skin_triangles), balls)
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
         if self._eyes:

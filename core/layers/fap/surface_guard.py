@@ -19,8 +19,12 @@ passes the point where the guard begins to act, and a pose that holds up everywh
 the common case) is left as it was, bit for bit. The ramps reach 1 just inside the bounds, so a pose
 that would break gets the whole smoothing.
 
-Held (never moved, and the guard fades out over ``HOLD_TAPER_RINGS`` rings around them): the lids'
-zone, which the lid steps own (smoothed, a closed lid opened 58 % and its skin went into the eyeball).
+Held (never moved, and the guard fades out over ``HOLD_TAPER_RINGS`` rings around them): the lid
+margins, which the lid steps place (smoothed, a closed lid opened 58 %). The skin the lid guard keeps
+outside an eyeball (``balls``: the lids, the socket, the cheek under the eye) slides on it: smoothed
+like the rest, then put back at its distance from the ball's centre, so what the smoothing would have
+drawn into the ball stays outside it. (Held instead, the cheek lift bunched the skin under the eye
+to 0.06 x its height, and joy failed with it; smoothed freely, joy's skin crossed the eyeball 352 times.)
 Held for one pose: the vertices other layers place exactly (``pinned``: dragged control points; a
 14 mm drag of the mouth corner ended 1.7 mm short of the pointer).
 Seam copies (one position at rest) that coincide in the pose end at one position. Those the caller
@@ -64,11 +68,14 @@ class SurfaceGuard:
 
     rest : (n, 3) mm; skin_triangles : (T, 3) the triangles measured and smoothed over (no parts);
     held : (n,) bool vertices other steps own; joined : (k, 2) int (copy, original) seam pairs at one
-    rest position that always move as one (smoothed as one vertex; the copy follows the original).
+    rest position that always move as one (smoothed as one vertex; the copy follows the original);
+    balls : per eyeball (the skin vertices that slide on it (k,) int, its centre at rest (3,) mm, a
+    few of its own vertices (m,) int whose mean motion is the ball's shift).
     """
 
     def __init__(self, rest: np.ndarray, skin_triangles: np.ndarray, held: np.ndarray,
-                 joined: np.ndarray | None = None):
+                 joined: np.ndarray | None = None,
+                 balls: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...] = ()):
         rest = np.array(rest, dtype=float)
         rest.setflags(write=False)         # as the compiled kernel was warmed with (a type of its own)
         tris = np.ascontiguousarray(skin_triangles, dtype=np.int64)
@@ -120,6 +127,8 @@ class SurfaceGuard:
         reach = np.zeros(n, bool)
         reach[self._ring(np.flatnonzero(self._taper > 0), RINGS)] = True
         self._checked &= reach[graph_tris].any(axis=1)
+        self._balls = tuple((np.asarray(skin, np.int64), np.asarray(centre, float), np.asarray(anchors, np.int64))
+                            for skin, centre, anchors in balls)
         welded = welded_vertices(rest)
         copies = np.flatnonzero(welded != np.arange(n))
         self._copies, self._originals = copies, welded[copies]
@@ -205,6 +214,7 @@ class SurfaceGuard:
         before = x[self._copies] == x[self._originals]
         copy, original = self._joined.T
         follows = (x[copy] == x[original]).all(axis=1)
+        on_ball = [(skin, x[skin]) for skin, _centre, _anchors in self._balls]
         compiled = kernels.get()
         if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
             if not compiled.guard_smooth(x, self.rest, self._indptr, self._indices, self._weights, held,
@@ -212,6 +222,8 @@ class SurfaceGuard:
                 return False
         elif not self._smooth(x, strength, held, taper):
             return False
+        for (skin, centre, anchors), (_skin, was) in zip(self._balls, on_ball):
+            self._back_on_ball(x, skin, was, centre + (x[anchors] - self.rest[anchors]).mean(axis=0))
         x[copy[follows]] = x[original[follows]]
         together = before.all(axis=1)
         if together.any():
@@ -219,6 +231,19 @@ class SurfaceGuard:
             mean = 0.5 * (x[a] + x[b])
             x[a], x[b] = mean, mean
         return True
+
+    @staticmethod
+    def _back_on_ball(x: np.ndarray, skin: np.ndarray, was: np.ndarray, centre: np.ndarray) -> None:
+        """Put the vertices ``skin`` of ``x`` that the smoothing moved back at the distance from
+        ``centre`` (3,) they had before it (``was`` (k, 3)), in their new direction from it."""
+        moved = np.flatnonzero((x[skin] != was).any(axis=1))
+        if not len(moved):
+            return
+        idx = skin[moved]
+        direction = x[idx] - centre
+        length = np.linalg.norm(direction, axis=1)
+        radius = np.linalg.norm(was[moved] - centre, axis=1)
+        x[idx] = centre + direction * (radius / np.maximum(length, _EPS))[:, None]
 
     def _smooth(self, x: np.ndarray, strength: np.ndarray, held: np.ndarray, taper: np.ndarray) -> bool:
         """The numpy path of the smoothing (``compiled_steps.guard_smooth``): ``strength`` (n,) the
