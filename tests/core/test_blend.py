@@ -321,7 +321,10 @@ def test_builtin_library_on_the_default_face_through_a_project(default_rig, tmp_
         assert rig.ensure_layers(["blend:joy"]) == ["blend"]            # the registered factory finds it
         rig.set_values({"blend:joy": 80.0})
         moved = np.linalg.norm(np.array(rig.vertices()) - rig.face.vertices, axis=1)
-        assert 5.0 < moved.max() < 40.0                                   # the mouth opens by millimetres
+        # Joy moves the cheeks and mouth corners by millimetres (80 % of the library's joy: 4.75 mm at
+        # most since the surface guard smooths the raised cheek under the eye; the FAP preset's cheek
+        # moves 9.2 mm at 100 %, 10.1 before)
+        assert 4.0 < moved.max() < 40.0
         for part in ("eyeball_l", "eyeball_r", "teeth_upper"):
             assert moved[rig.face.parts[part]].max() == 0.0               # parts that stay with the skull
         path = tmp_path / "blend.mimica"

@@ -65,8 +65,8 @@ from core.layers.fap.lip_contact import LipContact
 from core.layers.fap.step_memo import StepMemo
 from core.layers.fap.surface_guard import SurfaceGuard
 from core.layers.fap.teeth_guard import TeethGuard
-from core.mesh_quality import welded_vertices
 from core.layers.fap.template import BaseTemplate, DenseTemplate, TemplateError, densify, load_template, mouth_side
+from core.mesh_quality import welded_vertices
 
 
 def dijkstra(*args, **kwargs):
@@ -177,6 +177,8 @@ GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over 
 # 14 crossing pairs per eye at close_t -300, generated identity 23): that slider end is eased to the
 # value where the crossings begin (FapDeformer._lid_crease_limit), from this share of it on, so
 # fear's -200 still passes as authored (from 0.7 of it, the global ease, it would have to reach 286).
+# Since the surface guard lets the lid's skin slide on the eyeball, neither face crosses at -300 (their
+# limit is none); the check stays for faces that still would.
 LID_OPENING_EASE_START = 0.85
 CREASE_REASON = "the lid would fold through its crease"
 # Bisection steps of that value: 300 / 2^7 = 2.3 IRISD (each step poses and checks the face: 0.12 s
