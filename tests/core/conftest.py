@@ -54,6 +54,17 @@ def default_rig():
     return FaceRig(load_default_face())
 
 
+@pytest.fixture(scope="session")
+def generated_rig():
+    """A FaceRig on the generated identity of ``benchmarks/face_quality.py`` (Mimica's generator,
+    seed 7: other proportions than the built-in face; about 35 s to build; reset what you change)."""
+    from core.default_face import generate_face
+    from core.default_face.params import FaceParameters
+    from core.rig import FaceRig
+
+    return FaceRig(generate_face(FaceParameters.random(np.random.default_rng(7), spread=0.8)))
+
+
 def run_fresh_python(code: str, env: dict | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
     """Run ``code`` in a fresh interpreter from the repository root (what this process imported or
     loaded, e.g. numba, does not leak into it); ``env`` replaces the environment."""

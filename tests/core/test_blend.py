@@ -117,7 +117,7 @@ def test_blend_key_through_the_rig_snapshot_restore_and_copy(default_rig, monkey
     rig = default_rig
     # Random millimetre offsets break the skin everywhere: the surface guard would smooth them (not
     # additive); this checks how the layers compose, so it is left out.
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None: False)
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
     rig.reset()
     rest = rig.face.vertices
     rng = np.random.default_rng(3)

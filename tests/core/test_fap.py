@@ -283,7 +283,7 @@ def test_the_teeth_guard_leaves_the_neutral_face_and_small_motions_alone(rig, mo
     pose's mouth corner a little, left out: test_surface_guard)."""
     rig.reset_faps()
     assert np.array_equal(rig.vertices(), rig.face.vertices)
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None: False)
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
     rig.set_faps({3: 300, 6: 100})
     plain = rig.face.vertices + rig.deformer.displacement(rig.effective_fap_values())
     # Equal up to the rounding of the in-place FAT product (each term added to the vertex in turn).
@@ -475,7 +475,7 @@ def test_lid_contact_scales_only_when_lids_overlap():
 
 def test_expression_intensity_scales_the_displacement(rig, monkeypatch):
     # The surface guard smooths joy's strained mouth corners (not linear): left out (test_surface_guard).
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None: False)
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
     rig.reset_faps()
     rig.set_expression("joy", 1.0)
     full = rig.vertices() - rig.face.vertices
@@ -538,7 +538,7 @@ def test_lips_pressed_at_a_sliders_end_do_not_pass_through_each_other(rig, numbe
     rig.reset()
     rig.set_fap(number, end)
     assert FaceQualityProbe(rig.face).measure(rig.vertices()).lip_intersections == 0    # guarded too
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None: False)
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
     rig.touch()
     posed = rig.vertices()
     values = rig.deformer.limited(rig.effective_fap_values())
@@ -800,7 +800,7 @@ def test_lid_fap_first_tick_moves_the_skin_by_its_own_size_not_a_jump(default_ri
 
 
 def test_finish_steps_replayed_from_their_memo_give_the_same_vertices_bit_for_bit(default_rig):
-    """The lid, lip and teeth steps are skipped when their inputs are unchanged (core.layers.fap.step_memo):
+    """The lid, lip, teeth and mouth-smoothing steps are skipped when their inputs are unchanged (step_memo):
     over slider ticks that move one FAP at a time (brows leave the mouth's steps alone, lips the
     lids'), each pose equals one computed with every step run afresh."""
     import copy

@@ -73,7 +73,7 @@ def test_slider_ends_that_folded_the_skin_no_longer_do(rig, number, value, monke
     assert abs(rig.faps.limited_values()[number - 1]) < abs(value)      # eased
     assert rig.fap_value(number) == value                               # the slider keeps what was asked
     assert probe.surface(rig.vertices())[0] == 0
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None: False)
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
     raw = rig.deformer.deform(rig.effective_fap_values())
     assert probe.surface(raw)[0] > 0
     rig.reset()
@@ -92,7 +92,7 @@ def test_slider_ends_that_smeared_the_texture_no_longer_do(rig, number, value, m
     rig.set_fap(number, value)
     folded, big, small = probe.surface(rig.vertices())
     assert folded == 0 and big <= MAX_STRETCH and small >= MIN_STRETCH
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None: False)      # the limit alone
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)      # the limit alone
     raw = rig.deformer.deform(rig.effective_fap_values())
     assert probe.surface(raw)[1] > MAX_STRETCH or probe.surface(raw)[2] < MIN_STRETCH   # the check can fail
     assert "texture would smear" in rig.deformer.limit_note(number)

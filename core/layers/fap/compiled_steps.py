@@ -231,7 +231,8 @@ def push_out_of_row(x, skin, rest, slack_squared, clearance, rotation, shift, tu
 def spread_pushes(x, watched, slots, offsets, indptr, indices, data):  # pragma: no cover
     """Move the watched vertices around pushed ones part way (in place): ``slots`` (k,) are
     the pushed vertices' places in ``watched`` (m,), ``offsets`` (k, 3) mm their pushes, and
-    the spread matrix (m, m) is given by its CSC arrays; pushed vertices keep their own push."""
+    the spread matrix (m, m) is given by its CSC arrays; a pushed vertex takes the others' spread
+    on top of its own push, not its own again (continuous as its push falls to 0)."""
     m = watched.shape[0]
     around = np.zeros((m, 3))
     reached = np.zeros(m, np.bool_)
@@ -239,13 +240,13 @@ def spread_pushes(x, watched, slots, offsets, indptr, indices, data):  # pragma:
         s = slots[j]
         for e in range(indptr[s], indptr[s + 1]):
             r = indices[e]
+            if r == s:
+                continue
             w = data[e]
             around[r, 0] += w * offsets[j, 0]
             around[r, 1] += w * offsets[j, 1]
             around[r, 2] += w * offsets[j, 2]
             reached[r] = True
-    for j in range(slots.shape[0]):
-        reached[slots[j]] = False
     for r in range(m):
         if reached[r]:
             v = watched[r]

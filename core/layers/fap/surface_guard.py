@@ -133,7 +133,9 @@ class SurfaceGuard:
         welded = welded_vertices(rest)
         copies = np.flatnonzero(welded != np.arange(n))
         self._copies, self._originals = copies, welded[copies]
-        self._last = self._forgotten()
+        # The last pose and result of each region's check (None: every triangle; else a region's
+        # mask bytes): the finish step checks the whole skin, then the mouth again after the teeth.
+        self._last: dict = {}
 
     @staticmethod
     def _forgotten() -> tuple[np.ndarray, np.ndarray]:
@@ -144,7 +146,7 @@ class SurfaceGuard:
         return np.zeros((0, 3)), out
 
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_last": self._forgotten()}     # a cached guard starts afresh
+        return {**self.__dict__, "_last": {}}     # a cached guard starts afresh
 
     def _rows(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(neighbours of the vertices ``idx``, concatenated; where each one's list starts in it)."""
@@ -170,25 +172,40 @@ class SurfaceGuard:
         return np.unique(np.concatenate([np.asarray(idx, np.int64), *self._rings(idx, rings)]))
 
     # ------------------------------------------------------------------ per tick
-    def severity(self, x: np.ndarray) -> np.ndarray:
+    def severity(self, x: np.ndarray, region: np.ndarray | None = None) -> np.ndarray:
         """(T,) 0..1 (read-only) how close each skin triangle of the pose ``x`` (n, 3) is to breaking
-        (0 where none of its corners moved). Compiled, only the triangles around vertices that changed since
-        the last call are measured again (a slider moves one region: joy with a brow slider, ~4 ms
-        -> ~1 ms); the last pose and its result are one tuple, replaced at once, so two threads that
-        share the guard (the window and an export) never mix them."""
+        (0 where none of its corners moved, and outside ``region`` (T,) bool when given). Compiled,
+        only the triangles around vertices that changed since the last call for that region are
+        measured again (a slider moves one region: joy with a brow slider, ~4 ms -> ~1 ms); the last
+        pose and its result are one tuple, replaced at once, so two threads that share the guard (the
+        window and an export) never mix them."""
+        checked = self._checked if region is None else self._checked & region
         compiled = kernels.get()
         if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
-            last_x, last_out = self._last
-            out = np.empty(len(self.triangles))
-            compiled.strain_severity(x, self.rest, self.triangles, self._inv, self._rest_normals, self._checked,
-                                     STRETCH_RAMP[0], STRETCH_RAMP[1], SQUEEZE_RAMP[0], SQUEEZE_RAMP[1],
-                                     TURN_RAMP[0], TURN_RAMP[1], last_x, last_out, out)
-            out.setflags(write=False)          # kept as the next call's last result: no copy a tick
-            self._last = (np.array(x), out)
+            slot = None if region is None else region.tobytes()
+            last_x, last_out = self._last.get(slot) or self._forgotten()
+            if region is None:
+                out = np.empty(len(self.triangles))
+                compiled.strain_severity(x, self.rest, self.triangles, self._inv, self._rest_normals, checked,
+                                         STRETCH_RAMP[0], STRETCH_RAMP[1], SQUEEZE_RAMP[0], SQUEEZE_RAMP[1],
+                                         TURN_RAMP[0], TURN_RAMP[1], last_x, last_out, out)
+                out.setflags(write=False)          # kept as the next call's last result: no copy a tick
+                self._last[slot] = (np.array(x), out)
+                return out
+            # A region measures its own triangles only (the mouth's: a tenth of the face's).
+            tris, corners, inv, normals, measured = self._region_arrays(slot, region)
+            part = np.empty(len(tris))
+            compiled.strain_severity(x, self.rest, corners, inv, normals, measured, STRETCH_RAMP[0],
+                                     STRETCH_RAMP[1], SQUEEZE_RAMP[0], SQUEEZE_RAMP[1], TURN_RAMP[0], TURN_RAMP[1],
+                                     last_x, last_out, part)
+            part.setflags(write=False)
+            self._last[slot] = (np.array(x), part)
+            out = np.zeros(len(self.triangles))
+            out[tris] = part
             return out
         out = np.zeros(len(self.triangles))
         moved = (x != self.rest).any(axis=1)
-        tris = np.flatnonzero(moved[self.triangles].any(axis=1) & self._checked)
+        tris = np.flatnonzero(moved[self.triangles].any(axis=1) & checked)
         if not len(tris):
             return out
         corners = x[self.triangles[tris]]
@@ -197,11 +214,51 @@ class SurfaceGuard:
         out[tris] = np.maximum.reduce([_ramp(big, STRETCH_RAMP), _ramp(small, SQUEEZE_RAMP), _ramp(turn, TURN_RAMP)])
         return out
 
-    def apply(self, x: np.ndarray, pinned: np.ndarray | None = None) -> bool:
+    def _region_arrays(self, slot: bytes, region: np.ndarray) -> tuple[np.ndarray, ...]:
+        """A region's (triangle indices, corners, rest-frame inverses, rest normals, checked), kept per
+        region (gathering them took half the region's check)."""
+        found = self.__dict__.setdefault("_regions", {}).get(slot)
+        if found is None:
+            tris = np.flatnonzero(region)
+            found = self._regions[slot] = (tris, *(np.ascontiguousarray(a[tris]) for a in (
+                self.triangles, self._inv, self._rest_normals, self._checked)))
+        return found
+
+    def region(self, vertices: np.ndarray) -> np.ndarray:
+        """(T,) bool the skin triangles with a corner among ``vertices`` (k,) int: a ``region`` of
+        :meth:`apply`."""
+        mask = np.zeros(len(self.rest), bool)
+        mask[np.asarray(vertices, np.int64)] = True
+        return mask[self.triangles].any(axis=1)
+
+    def footprint(self, region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(reads, writes): sorted vertex indices :meth:`apply` with ``region`` may read and move (for
+        a ``StepMemo``): the smoothing moves vertices within ``RINGS`` rings of the region's corners
+        (with their seam partners) and reads ``SMOOTHING_STEPS`` rings past those, and the eyeballs'
+        anchors."""
+        corners = self._smoothed_as[np.unique(self.triangles[region])]
+        moved = self._with_partners(self._ring(corners, RINGS))
+        anchors = [anchors for _skin, _centre, anchors in self._balls]
+        reads = np.unique(np.concatenate([self._ring(self._smoothed_as[moved], SMOOTHING_STEPS), moved, *anchors]))
+        return self._with_partners(reads), moved
+
+    def _with_partners(self, idx: np.ndarray) -> np.ndarray:
+        """Sorted ``idx`` with every vertex at one rest position with one of them (seam copies, joined or
+        not: :meth:`apply` puts them together)."""
+        inside = np.zeros(len(self.rest), bool)
+        inside[idx] = True
+        inside[self._originals[inside[self._copies]]] = True
+        inside[self._copies[inside[self._originals]]] = True
+        inside[self._joined.ravel()[inside[self._joined[:, ::-1].ravel()]]] = True
+        return np.flatnonzero(inside)
+
+    def apply(self, x: np.ndarray, pinned: np.ndarray | None = None, region: np.ndarray | None = None) -> bool:
         """Smooth the pose ``x`` (n, 3) in place where it would break; False (and ``x`` untouched)
         where every triangle holds. ``pinned`` ((k,) int): vertices another layer places exactly (a
-        dragged control point), held for this pose (the smoothing around them takes their motion in)."""
-        severity = self.severity(x)
+        dragged control point), held for this pose (the smoothing around them takes their motion in).
+        ``region`` ((T,) bool, :meth:`region`): only these triangles' strain is smoothed (the smoothing
+        still reaches ``RINGS`` rings past them)."""
+        severity = self.severity(x, region)
         breaking = np.flatnonzero(severity > 0)
         if not len(breaking):
             return False

@@ -313,7 +313,9 @@ class TeethGuard:
 
     def _spread(self, x: np.ndarray, pushes) -> None:
         """Let the skin around pushed vertices follow their pushes part way, fading over
-        ``SPREAD_RINGS`` rings (in place; pushed vertices keep their own push)."""
+        ``SPREAD_RINGS`` rings (in place). A pushed vertex takes the others' spread on top of its own
+        push (not its own push again): as its push falls to 0 it moves as an unpushed one. (Kept at its
+        own push alone, a vertex just touching the hull lost its neighbours' spread: 0.024 mm jumps.)"""
         n = len(self.watched)
         total = np.zeros((n, 3))
         pushed = np.zeros(n, dtype=bool)
@@ -330,9 +332,10 @@ class TeethGuard:
         rows = self._spread_indices[entries]
         weights = self._spread_data[entries]
         column = np.repeat(np.arange(len(slot)), lengths)
+        others = rows != slot[column]           # a pushed vertex's own column entry: its push again
+        rows, weights, column = rows[others], weights[others], column[others]
         reached = np.zeros(n, dtype=bool)
         reached[rows] = True
-        reached[slot] = False          # already where they must be
         moved = np.flatnonzero(reached)
         around = np.stack([np.bincount(rows, weights * np.take(total[:, k], column), minlength=n)[moved]
                            for k in range(3)], axis=1)
