@@ -196,9 +196,10 @@ def test_the_compiled_guard_is_the_numpy_one(monkeypatch):
 def test_a_region_smooths_only_its_own_strain():
     """With a region, only strain on its triangles is smoothed: of two folding bumps, the one outside
     the region stays as it was, bit for bit, and the region's own is unfolded as by a whole pass;
-    each region keeps its own last check (a region pass between two whole ones changes nothing)."""
+    each region keeps its own last check (after region passes, a whole pass gives a fresh guard's)."""
     v, tris = _grid(41, 25)
     guard = SurfaceGuard(v, tris, np.zeros(len(v), bool))
+
     def bump(centre_x):        # _bump's push, centred at x = centre_x on the grid's middle row
         g = np.exp(-np.sum((v - [centre_x, v[:, 1].mean(), 0.0]) ** 2, axis=1) / (2 * 1.2 ** 2))
         return 3.0 * g[:, None] * np.array([1.0, 0.0, 0.0])
@@ -227,7 +228,7 @@ def test_a_region_smooths_only_its_own_strain():
 def test_the_teeth_pushes_are_smoothed_at_the_mouth(generated_rig):
     """On the generated identity, joy + viseme FF pushed one upper-lip vertex 1.1 mm out of the teeth
     beside neighbours pushed 0.14 mm: its triangles stretched 2.39 x. The mouth is smoothed again
-    after the teeth guard: within bounds, nothing in the teeth, and the lips still apart."""
+    after the teeth guard: within bounds, nothing in the teeth, and the lips not crossing."""
     rig = generated_rig
     probe = FaceQualityProbe(rig.face)
     rig.reset()
