@@ -54,6 +54,12 @@ def default_rig():
     return FaceRig(load_default_face())
 
 
+def without_surface_guard(monkeypatch, rig) -> None:
+    """Leave the FAP layer's surface guard out of ``rig`` for one test (its smoothing is not
+    additive: for checks of how offsets sum, or of what a limit does alone)."""
+    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
+
+
 @pytest.fixture(scope="session")
 def generated_rig():
     """A FaceRig on the generated identity of ``benchmarks/face_quality.py`` (Mimica's generator,

@@ -18,7 +18,7 @@ from core.layers.blend.layer import BlendLayer
 from core.layers.blend.library import ExpressionLibrary, LibraryError, build_library, rigid_align
 from core.layers.blend.transfer import DeformationTransfer, LocalAffineTransfer, transfer_bbox, transfer_library
 from core.registration.icp import rotation_about_axis
-from tests.core.conftest import make_grid_face
+from tests.core.conftest import make_grid_face, without_surface_guard
 
 SCALE_MM = 200.0
 
@@ -117,7 +117,7 @@ def test_blend_key_through_the_rig_snapshot_restore_and_copy(default_rig, monkey
     rig = default_rig
     # Random millimetre offsets break the skin everywhere: the surface guard would smooth them (not
     # additive); this checks how the layers compose, so it is left out.
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
+    without_surface_guard(monkeypatch, rig)
     rig.reset()
     rest = rig.face.vertices
     rng = np.random.default_rng(3)

@@ -10,6 +10,7 @@ from core.layers.fap.fat import lid_contact
 from core.layers.fap.template import TemplateError, densify, load_template
 from core.rig import FaceRig
 from core.subdivision import boundary_edges, subdivide
+from tests.core.conftest import without_surface_guard
 
 
 # ------------------------------------------------------------------ tables (no face needed)
@@ -283,7 +284,7 @@ def test_the_teeth_guard_leaves_the_neutral_face_and_small_motions_alone(rig, mo
     pose's mouth corner a little, left out: test_surface_guard)."""
     rig.reset_faps()
     assert np.array_equal(rig.vertices(), rig.face.vertices)
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
+    without_surface_guard(monkeypatch, rig)
     rig.set_faps({3: 300, 6: 100})
     plain = rig.face.vertices + rig.deformer.displacement(rig.effective_fap_values())
     # Equal up to the rounding of the in-place FAT product (each term added to the vertex in turn).
@@ -475,7 +476,7 @@ def test_lid_contact_scales_only_when_lids_overlap():
 
 def test_expression_intensity_scales_the_displacement(rig, monkeypatch):
     # The surface guard smooths joy's strained mouth corners (not linear): left out (test_surface_guard).
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
+    without_surface_guard(monkeypatch, rig)
     rig.reset_faps()
     rig.set_expression("joy", 1.0)
     full = rig.vertices() - rig.face.vertices
@@ -538,7 +539,7 @@ def test_lips_pressed_at_a_sliders_end_do_not_pass_through_each_other(rig, numbe
     rig.reset()
     rig.set_fap(number, end)
     assert FaceQualityProbe(rig.face).measure(rig.vertices()).lip_intersections == 0    # guarded too
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
+    without_surface_guard(monkeypatch, rig)
     rig.touch()
     posed = rig.vertices()
     values = rig.deformer.limited(rig.effective_fap_values())

@@ -7,6 +7,7 @@ import pytest
 
 from core.layers.fap import tables
 from core.layers.fap.limits import EASE_START, keeping, soft_limit
+from tests.core.conftest import without_surface_guard
 
 
 def test_soft_limit_is_the_identity_inside_and_eases_smoothly_toward_the_limit():
@@ -73,7 +74,7 @@ def test_slider_ends_that_folded_the_skin_no_longer_do(rig, number, value, monke
     assert abs(rig.faps.limited_values()[number - 1]) < abs(value)      # eased
     assert rig.fap_value(number) == value                               # the slider keeps what was asked
     assert probe.surface(rig.vertices())[0] == 0
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
+    without_surface_guard(monkeypatch, rig)
     raw = rig.deformer.deform(rig.effective_fap_values())
     assert probe.surface(raw)[0] > 0
     rig.reset()
@@ -92,7 +93,7 @@ def test_slider_ends_that_smeared_the_texture_no_longer_do(rig, number, value, m
     rig.set_fap(number, value)
     folded, big, small = probe.surface(rig.vertices())
     assert folded == 0 and big <= MAX_STRETCH and small >= MIN_STRETCH
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)      # the limit alone
+    without_surface_guard(monkeypatch, rig)      # the limit alone
     raw = rig.deformer.deform(rig.effective_fap_values())
     assert probe.surface(raw)[1] > MAX_STRETCH or probe.surface(raw)[2] < MIN_STRETCH   # the check can fail
     assert "texture would smear" in rig.deformer.limit_note(number)

@@ -206,7 +206,7 @@ def test_a_region_smooths_only_its_own_strain():
 
     left, right = bump(10.0), bump(30.0)
     both = v + left + right
-    region = guard.region(np.flatnonzero(v[:, 0] < v[:, 0].mean()))
+    region = guard.region("left", np.flatnonzero(v[:, 0] < v[:, 0].mean()))
     x = both.copy()
     assert guard.apply(x, region=region)
     far_right = v[:, 0] > v[:, 0].mean() + 2.0

@@ -11,6 +11,7 @@ from core.animation import ProjectAnimation
 from core.formats.project import FaceRef, Project, RigSettings, load_project, save_project
 from core.rig import FaceRig
 from core.timeline import Timeline
+from tests.core.conftest import without_surface_guard
 
 
 @pytest.fixture
@@ -51,7 +52,7 @@ def test_a_project_saves_and_reloads_their_values(rig, tmp_path):
 
 def test_layers_add_to_the_faps_and_a_copied_rig_poses_alike(rig, monkeypatch):
     # The surface guard smooths this pose's strained mouth corner (not additive): left out here.
-    monkeypatch.setattr(rig.deformer._surface_guard, "apply", lambda x, pinned=None, region=None: False)
+    without_surface_guard(monkeypatch, rig)
     rig.ensure_layers(["cp:8.3:y", "waters:zygomatic_major:left"])
     rig.set_values({"fap:3": 200.0})
     faps_only = rig.vertices().copy()

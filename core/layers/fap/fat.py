@@ -324,9 +324,9 @@ class FapDeformer:
                       for guard in self._lid_guards)
         self._surface_guard = SurfaceGuard(face.vertices, skin_triangles, margins,
                                            self._seam_moving_as_one(skin_triangles), balls)
-        self._mouth_triangles = self._surface_guard.region(self._teeth_guard.watched)
+        self._mouth = self._surface_guard.region("mouth", self._teeth_guard.watched)
         if len(self._teeth_guard.watched):
-            reads, writes = self._surface_guard.footprint(self._mouth_triangles)
+            reads, writes = self._surface_guard.footprint(self._mouth)
             teeth = self._memos["teeth"]
             self._memos["mouth"] = StepMemo(np.union1d(reads, teeth.reads), np.union1d(writes, teeth.writes))
         self._head_pivot = self._estimate_head_pivot()
@@ -1136,7 +1136,7 @@ class FapDeformer:
     def _smooth_mouth(self, x: np.ndarray, pinned: np.ndarray | None) -> None:
         """The surface guard again over the mouth's skin, then the teeth guard again where it acted
         (see :meth:`finish`)."""
-        if self._surface_guard.apply(x, pinned, self._mouth_triangles):
+        if self._surface_guard.apply(x, pinned, self._mouth):
             self._teeth_guard.apply(x)
 
     def deform(self, values: np.ndarray) -> np.ndarray:

@@ -36,6 +36,8 @@ stretched 2.15 x (every failing expression + viseme mix but joy's).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import scipy.sparse
 
@@ -43,7 +45,7 @@ from core.layers.fap import kernels
 from core.mesh_quality import _EPS, MAX_STRETCH, MIN_STRETCH, _local_frames, _normals, principal_stretches, \
     welded_vertices
 
-__all__ = ["SurfaceGuard"]
+__all__ = ["GuardRegion", "SurfaceGuard"]
 
 # (where the guard starts, where it is at full strength): full just inside core.mesh_quality's bounds,
 # starting far enough before them that the face's motion stays monotone as a pose grows (starting at
@@ -61,6 +63,22 @@ def _ramp(value: np.ndarray, ramp: tuple[float, float]) -> np.ndarray:
     """0 at ramp[0], 1 at ramp[1] (either direction), clipped, C0."""
     start, full = ramp
     return np.clip((value - start) / (full - start), 0.0, 1.0)
+
+
+class GuardRegion(NamedTuple):
+    """Some of a guard's triangles, whose strain alone :meth:`SurfaceGuard.apply` smooths, with their
+    rows gathered once (:meth:`SurfaceGuard.region`).
+
+    name : the region's own slot of the guard's incremental check; triangles : (t,) int indices;
+    corners, inverses, normals, checked : those triangles' rows of the guard's arrays.
+    """
+
+    name: str
+    triangles: np.ndarray
+    corners: np.ndarray
+    inverses: np.ndarray
+    normals: np.ndarray
+    checked: np.ndarray
 
 
 class SurfaceGuard:
@@ -133,8 +151,8 @@ class SurfaceGuard:
         welded = welded_vertices(rest)
         copies = np.flatnonzero(welded != np.arange(n))
         self._copies, self._originals = copies, welded[copies]
-        # The last pose and result of each region's check (None: every triangle; else a region's
-        # mask bytes): the finish step checks the whole skin, then the mouth again after the teeth.
+        # The last pose and result of each check, by region name (None: every triangle): the finish
+        # step checks the whole skin, then the mouth again after the teeth.
         self._last: dict = {}
 
     @staticmethod
@@ -172,98 +190,91 @@ class SurfaceGuard:
         return np.unique(np.concatenate([np.asarray(idx, np.int64), *self._rings(idx, rings)]))
 
     # ------------------------------------------------------------------ per tick
-    def severity(self, x: np.ndarray, region: np.ndarray | None = None) -> np.ndarray:
+    def severity(self, x: np.ndarray, region: GuardRegion | None = None) -> np.ndarray:
         """(T,) 0..1 (read-only) how close each skin triangle of the pose ``x`` (n, 3) is to breaking
-        (0 where none of its corners moved, and outside ``region`` (T,) bool when given). Compiled,
-        only the triangles around vertices that changed since the last call for that region are
-        measured again (a slider moves one region: joy with a brow slider, ~4 ms -> ~1 ms); the last
-        pose and its result are one tuple, replaced at once, so two threads that share the guard (the
-        window and an export) never mix them."""
-        checked = self._checked if region is None else self._checked & region
-        compiled = kernels.get()
-        if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
-            slot = None if region is None else region.tobytes()
-            last_x, last_out = self._last.get(slot) or self._forgotten()
-            if region is None:
-                out = np.empty(len(self.triangles))
-                compiled.strain_severity(x, self.rest, self.triangles, self._inv, self._rest_normals, checked,
-                                         STRETCH_RAMP[0], STRETCH_RAMP[1], SQUEEZE_RAMP[0], SQUEEZE_RAMP[1],
-                                         TURN_RAMP[0], TURN_RAMP[1], last_x, last_out, out)
-                out.setflags(write=False)          # kept as the next call's last result: no copy a tick
-                self._last[slot] = (np.array(x), out)
-                return out
-            # A region measures its own triangles only (the mouth's: a tenth of the face's).
-            tris, corners, inv, normals, measured = self._region_arrays(slot, region)
-            part = np.empty(len(tris))
-            compiled.strain_severity(x, self.rest, corners, inv, normals, measured, STRETCH_RAMP[0],
-                                     STRETCH_RAMP[1], SQUEEZE_RAMP[0], SQUEEZE_RAMP[1], TURN_RAMP[0], TURN_RAMP[1],
-                                     last_x, last_out, part)
-            part.setflags(write=False)
-            self._last[slot] = (np.array(x), part)
-            out = np.zeros(len(self.triangles))
-            out[tris] = part
-            return out
+        (0 where none of its corners moved, and outside ``region`` when given). Compiled, only the
+        triangles around vertices that changed since the last call for that region are measured again
+        (a slider moves one region: joy with a brow slider, ~4 ms -> ~1 ms); the last pose and its
+        result are one tuple, replaced at once, so two threads that share the guard (the window and
+        an export) never mix them."""
+        if region is None:
+            return self._measure(x, None)
         out = np.zeros(len(self.triangles))
-        moved = (x != self.rest).any(axis=1)
-        tris = np.flatnonzero(moved[self.triangles].any(axis=1) & checked)
-        if not len(tris):
-            return out
-        corners = x[self.triangles[tris]]
-        big, small = principal_stretches(self._rest_frames[tris], corners)
-        turn = np.einsum("ij,ij->i", _normals(corners), self._rest_normals[tris])
-        out[tris] = np.maximum.reduce([_ramp(big, STRETCH_RAMP), _ramp(small, SQUEEZE_RAMP), _ramp(turn, TURN_RAMP)])
+        out[region.triangles] = self._measure(x, region)
         return out
 
-    def _region_arrays(self, slot: bytes, region: np.ndarray) -> tuple[np.ndarray, ...]:
-        """A region's (triangle indices, corners, rest-frame inverses, rest normals, checked), kept per
-        region (gathering them took half the region's check)."""
-        found = self.__dict__.setdefault("_regions", {}).get(slot)
-        if found is None:
-            tris = np.flatnonzero(region)
-            found = self._regions[slot] = (tris, *(np.ascontiguousarray(a[tris]) for a in (
-                self.triangles, self._inv, self._rest_normals, self._checked)))
-        return found
+    def _measure(self, x: np.ndarray, region: GuardRegion | None) -> np.ndarray:
+        """The severity of ``region``'s triangles (t,) (every triangle's (T,) when None)."""
+        if region is None:
+            tris, inverses, normals, checked = self.triangles, self._inv, self._rest_normals, self._checked
+        else:
+            tris, inverses, normals, checked = region.corners, region.inverses, region.normals, region.checked
+        compiled = kernels.get()
+        if compiled is not None and x.dtype == np.float64 and x.flags.c_contiguous:
+            slot = None if region is None else region.name
+            last_x, last_out = self._last.get(slot) or self._forgotten()
+            out = np.empty(len(tris))
+            compiled.strain_severity(x, self.rest, tris, inverses, normals, checked,
+                                     STRETCH_RAMP[0], STRETCH_RAMP[1], SQUEEZE_RAMP[0], SQUEEZE_RAMP[1],
+                                     TURN_RAMP[0], TURN_RAMP[1], last_x, last_out, out)
+            out.setflags(write=False)          # kept as the next call's last result: no copy a tick
+            self._last[slot] = (np.array(x), out)
+            return out
+        out = np.zeros(len(tris))
+        moved = (x != self.rest).any(axis=1)
+        some = np.flatnonzero(moved[tris].any(axis=1) & checked)
+        if not len(some):
+            return out
+        frames = self._rest_frames[some if region is None else region.triangles[some]]
+        corners = x[tris[some]]
+        big, small = principal_stretches(frames, corners)
+        turn = np.einsum("ij,ij->i", _normals(corners), normals[some])
+        out[some] = np.maximum.reduce([_ramp(big, STRETCH_RAMP), _ramp(small, SQUEEZE_RAMP), _ramp(turn, TURN_RAMP)])
+        return out
 
-    def region(self, vertices: np.ndarray) -> np.ndarray:
-        """(T,) bool the skin triangles with a corner among ``vertices`` (k,) int: a ``region`` of
-        :meth:`apply`."""
+    def region(self, name: str, vertices: np.ndarray) -> GuardRegion:
+        """The region ``name`` of :meth:`apply`: the skin triangles with a corner among ``vertices``
+        (k,) int."""
         mask = np.zeros(len(self.rest), bool)
         mask[np.asarray(vertices, np.int64)] = True
-        return mask[self.triangles].any(axis=1)
+        tris = np.flatnonzero(mask[self.triangles].any(axis=1))
+        return GuardRegion(name, tris, *(np.ascontiguousarray(a[tris]) for a in (
+            self.triangles, self._inv, self._rest_normals, self._checked)))
 
-    def footprint(self, region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def footprint(self, region: GuardRegion) -> tuple[np.ndarray, np.ndarray]:
         """(reads, writes): sorted vertex indices :meth:`apply` with ``region`` may read and move (for
         a ``StepMemo``): the smoothing moves vertices within ``RINGS`` rings of the region's corners
         (with their seam partners) and reads ``SMOOTHING_STEPS`` rings past those, and the eyeballs'
         anchors."""
-        corners = self._smoothed_as[np.unique(self.triangles[region])]
+        corners = self._smoothed_as[np.unique(region.corners)]
         moved = self._with_partners(self._ring(corners, RINGS))
         anchors = [anchors for _skin, _centre, anchors in self._balls]
         reads = np.unique(np.concatenate([self._ring(self._smoothed_as[moved], SMOOTHING_STEPS), moved, *anchors]))
         return self._with_partners(reads), moved
 
     def _with_partners(self, idx: np.ndarray) -> np.ndarray:
-        """Sorted ``idx`` with every vertex at one rest position with one of them (seam copies, joined or
-        not: :meth:`apply` puts them together)."""
+        """Sorted ``idx`` with every vertex at one rest position with one of them (seam copies, the
+        joined ones among them: :meth:`apply` puts them together)."""
         inside = np.zeros(len(self.rest), bool)
         inside[idx] = True
         inside[self._originals[inside[self._copies]]] = True
         inside[self._copies[inside[self._originals]]] = True
-        inside[self._joined.ravel()[inside[self._joined[:, ::-1].ravel()]]] = True
         return np.flatnonzero(inside)
 
-    def apply(self, x: np.ndarray, pinned: np.ndarray | None = None, region: np.ndarray | None = None) -> bool:
+    def apply(self, x: np.ndarray, pinned: np.ndarray | None = None, region: GuardRegion | None = None) -> bool:
         """Smooth the pose ``x`` (n, 3) in place where it would break; False (and ``x`` untouched)
         where every triangle holds. ``pinned`` ((k,) int): vertices another layer places exactly (a
         dragged control point), held for this pose (the smoothing around them takes their motion in).
-        ``region`` ((T,) bool, :meth:`region`): only these triangles' strain is smoothed (the smoothing
-        still reaches ``RINGS`` rings past them)."""
-        severity = self.severity(x, region)
-        breaking = np.flatnonzero(severity > 0)
-        if not len(breaking):
+        ``region`` (:meth:`region`): only its triangles' strain is smoothed (the smoothing still reaches
+        ``RINGS`` rings past them)."""
+        severity = self._measure(x, region)
+        some = np.flatnonzero(severity > 0)
+        if not len(some):
             return False
+        severity = severity[some]
+        breaking = some if region is None else region.triangles[some]
         strength = np.zeros(len(x))
-        np.maximum.at(strength, self._smoothed_as[self.triangles[breaking].ravel()], np.repeat(severity[breaking], 3))
+        np.maximum.at(strength, self._smoothed_as[self.triangles[breaking].ravel()], np.repeat(severity, 3))
         held, taper = self._held, self._taper
         if pinned is not None and len(pinned):
             pinned = self._smoothed_as[np.asarray(pinned, np.int64)]
