@@ -180,6 +180,9 @@ CORNER_REGION = UPPER_LIP + LOWER_LIP + ["5.1", "5.3", "10.7", "2.13", "9.1", "2
 # ... with a round top (the weight near the core held through the relaxation, not only the two core
 # points: a corner pinned alone became a cone and the skin beside it folded).
 CORNER = {"round_top": True, "pinned": ["2.11", "2.13", "10.7"]}
+# The mid-lip FAPs' fields are rounded at their feature point (FapDeformer's _rounded_tip): relaxed
+# against a point held at 1 they were cones.
+MID_LIP = {"symmetric": True, "round_tip": True}
 LOWER_MARGIN = ["3.7", "el.lo", "3.3", "el.li", "3.11"]
 UPPER_CORNER = (["2.4", "8.3", "2.6", "8.5", "8.10"], ["2.4", "8.3"], 4.0,
                 {"symmetric": True, "scale": JAW_CORNER_WEIGHT})
@@ -188,18 +191,24 @@ UPPER_CORNER = (["2.4", "8.3", "2.6", "8.5", "8.10"], ["2.4", "8.3"], 4.0,
 # full value and the falloff runs from them (the FAP's own FP by default, as in thesis A).
 LEFT_REGIONS = {
     3: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, JAW_EXTRA),
-    4: (UPPER_LIP, ["2.2"], 8.0, {"symmetric": True}),
-    5: (LOWER_LIP, ["2.3"], 8.0, {"symmetric": True}),
+    4: (UPPER_LIP, ["2.2"], 8.0, MID_LIP),
+    5: (LOWER_LIP, ["2.3"], 8.0, MID_LIP),
     6: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
     8: (UPPER_LIP, ["2.6"], 2.5, {}),
     10: (LOWER_LIP, ["2.8"], 2.5, {}),
     12: (CORNER_REGION, ["2.4", "8.3"], 3.0, CORNER),
     14: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, JAW_EXTRA),
     15: (LOWER_LIP + ["2.11", "2.10", "2.1", "2.13", "5.1"], JAW_CORE, 6.0, JAW_EXTRA),
-    16: (LOWER_LIP, ["2.3", "8.2"], 3.0, {"symmetric": True}),
-    17: (UPPER_LIP, ["2.2", "8.1"], 3.0, {"symmetric": True}),
+    16: (LOWER_LIP, ["2.3", "8.2"], 3.0, MID_LIP),
+    17: (UPPER_LIP, ["2.2", "8.1"], 3.0, MID_LIP),
     18: (["2.10", "2.11", "2.1", "8.2", "8.7", "2.8", "2.3"], ["2.10"], 3.0, {"symmetric": True}),
-    19: (["3.7", "el.uo", "3.1", "el.ui", "3.11", "el.ao", "3.13", "el.ai"], ["3.7", "el.uo", "3.1", "el.ui", "3.11"],
+    # The upper lid reaches up to the brow line (4.1-4.3-4.5) and out to the temple's 10.9, where its
+    # border taper holds it: a closed lid covers the eye opening (~11 mm), and the skin between the
+    # margin and the crease (el.ao-3.13-el.ai, 4 mm) alone stretched 3.1x; up to the brow 1.97x (default
+    # face) and 2.00x (generated identity), with the temple 1.96x and 1.94x. (Also down the nose's side
+    # to 9.7, the skin beside the inner corner squeezed to 0.22.)
+    19: (["3.7", "el.uo", "3.1", "el.ui", "3.11", "el.ao", "3.13", "el.ai", "4.1", "4.3", "4.5", "10.9"],
+         ["3.7", "el.uo", "3.1", "el.ui", "3.11"],
          1.5, {"chain": True, "profile": "opening", "opposite": ["3.7", "el.lo", "3.3", "el.li", "3.11"],
                "tilt": 0.12}),
     21: (["3.7", "el.lo", "3.3", "el.li", "3.11", "el.bo", "3.9", "el.bi"], ["3.7", "el.lo", "3.3", "el.li", "3.11"],
@@ -218,8 +227,8 @@ LEFT_REGIONS = {
     # (el.bo-3.9-el.bi, 8 mm above 5.3) it pushed the skin there into the lid (AU 6 lifts it ~10 mm).
     41: (["5.3", "5.1", "el.bo", "3.9", "el.bi", "10.9", "10.7", "9.1", "9.13", "9.5"] + LOWER_MARGIN, ["5.3"], 3.0,
          {"pinned": LOWER_MARGIN}),
-    51: (["8.1", "8.10", "8.5", "2.2", "2.6", "9.15"], ["8.1"], 3.0, {"symmetric": True}),
-    52: (["8.2", "8.7", "2.3", "2.8", "2.10"], ["8.2"], 3.0, {"symmetric": True}),
+    51: (["8.1", "8.10", "8.5", "2.2", "2.6", "9.15"], ["8.1"], 3.0, MID_LIP),
+    52: (["8.2", "8.7", "2.3", "2.8", "2.10"], ["8.2"], 3.0, MID_LIP),
     53: (UPPER_LIP + LOWER_LIP + ["5.1"], ["2.4", "8.3"], 3.0, {}),
     55: (["8.5", "8.10", "8.1", "8.3", "2.6", "2.4", "2.2", "9.1", "9.5"], ["8.5"], 2.5, {}),
     57: (["8.7", "8.2", "8.3", "2.8", "2.4", "2.3", "2.11", "2.10"], ["8.7"], 2.5, {}),
@@ -272,6 +281,8 @@ def region_table(tri: np.ndarray) -> list[dict]:
                 entry["pinned"] = vextra["pinned"]
             if vextra.get("round_top"):
                 entry["round_top"] = True
+            if vextra.get("round_tip"):
+                entry["round_tip"] = True
             if vextra.get("scale"):
                 entry["scale"] = vextra["scale"]
             if vextra.get("tilt"):

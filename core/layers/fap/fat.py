@@ -34,7 +34,9 @@ Then ``x = rest + F · (fap_values ∘ fapu)`` with F of shape (3n, 68), mm per 
 Several FAPs on one point add their displacements. The exception is lid contact: when an upper
 and a lower lid of one eye together close more than the opening (close_t + close_b > 1024 IRISD),
 both are scaled down so that they meet (``lid_contact``); the slider values are kept. Before that a
-raised cheek carries its lower lid up (``carried_lower_lids``: AU 6 narrows the eye from below). After every
+raised cheek carries its lower lid up (``carried_lower_lids``: AU 6 narrows the eye from below), and
+a lower lid closed past its reach hands the rest to its upper lid (``lower_lid_handover``). The lid
+columns are fitted to the face's own eye opening (``fit_lids_to_rims``). After every
 layer's offset, lips moved into each other press on each other instead (``lip_contact.LipContact``:
 both give way by half the overlap), and skin that ended inside a row of teeth is pushed back out
 over it (``teeth_guard.TeethGuard``: the teeth move rigidly with the jaw, the skin only part way);
@@ -185,6 +187,40 @@ CREASE_REASON = "the lid would fold through its crease"
 # Bisection steps of that value: 300 / 2^7 = 2.3 IRISD (each step poses and checks the face: 0.12 s
 # at 59k vertices, so a cold build pays about 1.7 s for both eyes).
 CREASE_BISECTION_STEPS = 7
+# The lid FAPs' columns are fitted to the face's own eye opening (fit_lids_to_rims): the template's
+# smoothed margins overshot the real rims toward the corners by 10-20 % on the default face, and the
+# closed lid's rim, lifted back alone, folded its triangles (close_t/b_eyelid 1024: 5 and 7 folds).
+# The fit's scale is averaged along the eye over this width (mm, Gaussian sigma) and only read where
+# both the wanted and the template's travel exceed LID_FIT_MIN_MM (the corners' are noise).
+LID_FIT_SIGMA_MM = 1.0
+LID_FIT_MIN_MM = 1.0
+# A lid closed alone passes the other's rim by this much (mm), which the upper-stops-on-lower step
+# takes back: the fit's residual (about 1 % at the lid centre) otherwise left the closed eye a slit.
+LID_FIT_OVERLAP_MM = 0.1
+# ... and kept within these bounds (a scan's rims that disagree with its landmarks more than this are
+# better left to the template's margin and the upper-stops-on-lower step).
+LID_FIT_SCALE_RANGE = (0.6, 1.6)
+# A lower lid rises at most about LOWER_LID_REACH IRISD by itself; closed further, the upper lid comes
+# down to meet it (lower_lid_handover), so the eye still closes at 1024. Measured alone (face_quality's
+# probe; default face / generated identity): the lower lid's skin stretched 1.79 / 1.82x at 400,
+# 1.95 / 1.99 at 500, 2.14 / 2.17 at 600 and 2.90 / 2.96 at 1024 with folds (a real lower lid rises
+# a few millimetres; AU 6's cheek pushes it ~4). The handover starts at LOWER_LID_HANDOVER, above every
+# preset's lower lid (250) and the usual cheek carry.
+LOWER_LID_REACH = 450.0
+LOWER_LID_HANDOVER = 300.0
+HANDOVER_NOTE = (f"the lower lid rises at most {LOWER_LID_REACH:.0f} by itself (its skin would smear); "
+                 f"from {LOWER_LID_HANDOVER:.0f} on the upper lid comes down to meet it, so the eye still "
+                 "closes at 1024")
+# Closed lids: within LID_CONTACT_MM of the lower rim the upper rim is brought up to LID_TUCK_MM in
+# front of it, moving at most LID_TUCK_MAX_MM (blended in by the gap, so it does not pop; a library
+# pose whose lower lid stood 0.8 mm in front of the upper near the outer corner had that rim pulled
+# out, 2.5x stretched, when the whole difference was made up; the generated identity's lower lid closed
+# at 1024 meets its upper lid 0.22 mm in front of it); an eye corner stays below the line across it
+# by this share of its rest depth (FapDeformer._find_canthus_triangles).
+LID_CONTACT_MM = 0.5
+LID_TUCK_MM = 0.2
+LID_TUCK_MAX_MM = 0.45
+CANTHUS_KEPT = 0.5
 # (cheek lift, lower lid) FAP pairs: a raised cheek carries its eye's lower lid up (see lid_values).
 CHEEK_LIDS = ((41, 21), (42, 22))
 # The lower lid rises at least this many IRISD per ENS of cheek lift, a smaller share than FACS's
@@ -233,6 +269,63 @@ def carried_lower_lids(values: np.ndarray) -> np.ndarray:
         if carry > 0:
             values[lower - 1] += smooth_ramp(carry - max(float(values[lower - 1]), 0.0), CHEEK_CARRY_BLEND)
     return values
+
+
+def lower_lid_handover(values: np.ndarray) -> np.ndarray:
+    """(68,) FAP values with each lower lid's closing eased toward LOWER_LID_REACH and what it gives
+    up added to its upper lid, in place: above LOWER_LID_HANDOVER = h the lower lid rises
+    h + (R - h) tanh((v - h) / (R - h)) (C1, never past R), so upper + lower closing is unchanged and
+    lid contact still closes the eye at 1024."""
+    span = LOWER_LID_REACH - LOWER_LID_HANDOVER
+    for upper, lower in LID_PAIRS:
+        value = float(values[lower - 1])
+        if value > LOWER_LID_HANDOVER:
+            eased = LOWER_LID_HANDOVER + span * math.tanh((value - LOWER_LID_HANDOVER) / span)
+            values[lower - 1] = eased
+            values[upper - 1] += value - eased
+    return values
+
+
+def fit_lids_to_rims(F: scipy.sparse.csr_matrix, vertices: np.ndarray, rims: Sequence[tuple[np.ndarray, np.ndarray]],
+                     fapu_vector: np.ndarray, skip: frozenset[int] = frozenset()) -> scipy.sparse.csr_matrix:
+    """(3n, 68) FAT ``F`` with each lid FAP's column scaled so that at 1024 IRISD its lid margin
+    reaches the other lid's rim all along the eye, not only at the lid centre.
+
+    ``rims``: per eye (upper rim, lower rim) vertex indices of the skin's eye opening (``vertices``
+    (n, 3) mm); ``fapu_vector`` (68,) mm per FAP unit; ``skip``: FAP numbers left as they are (an
+    eye closed at rest). A column's rows are scaled by a smooth function of x (the ratio of the wanted
+    to the template's travel on the rim, averaged over LID_FIT_SIGMA_MM), so the skin above a rim
+    vertex moves in proportion with it."""
+    F = F.tocsc(copy=True)
+    for pair in LID_PAIRS:
+        for side, number in enumerate(pair):
+            if number in skip:
+                continue
+            lo, hi = F.indptr[number - 1], F.indptr[number]
+            rows, values = F.indices[lo:hi], F.data[lo:hi]
+            column_y = np.zeros(len(vertices))
+            on_y = rows % 3 == 1
+            column_y[rows[on_y] // 3] = values[on_y]
+            # The eye this lid belongs to: the rim its column moves most.
+            eye = max(rims, key=lambda r: np.abs(column_y[r[side]]).sum(), default=None)
+            if eye is None or not np.abs(column_y[eye[side]]).any():
+                continue
+            own, other = eye[side], eye[1 - side]
+            order = np.argsort(vertices[other, 0])
+            target = np.interp(vertices[own, 0], vertices[other, 0][order], vertices[other, 1][order])
+            wanted = target - vertices[own, 1]
+            wanted += np.sign(wanted) * LID_FIT_OVERLAP_MM
+            travel = column_y[own] * fapu_vector[number - 1] * 1024.0
+            usable = ((np.abs(wanted) > LID_FIT_MIN_MM) & (np.abs(travel) > LID_FIT_MIN_MM)
+                      & (wanted * travel > 0))
+            if not usable.any():
+                continue
+            x, ratio = vertices[own[usable], 0], wanted[usable] / travel[usable]
+            weight = np.exp(-0.5 * ((x[:, None] - x[None, :]) / LID_FIT_SIGMA_MM) ** 2)
+            smooth = np.clip(weight @ ratio / weight.sum(axis=1), *LID_FIT_SCALE_RANGE)
+            order = np.argsort(x)
+            values *= np.interp(vertices[rows // 3, 0], x[order], smooth[order])
+    return F.tocsr()
 
 
 def smooth_ramp(u: float, width: float) -> float:
@@ -300,20 +393,26 @@ class FapDeformer:
         F = relax_columns(F, face.vertices, skin_triangles,
                           np.array([self.fapu.get(s.unit, 0.0) for s in self.specs]), self.specs,
                           sorted(set(range(1, N_FAPS + 1)) - set(LIDS_AND_CHEEKS)), preset_reach(presets))
+        self.fapu_vector = np.array([self.fapu.get(s.unit, 0.0) for s in self.specs])
+        self._eye_rims = self._eye_rims_of_skin()
+        # Eyes closed at rest (a scan taken with them shut): their lids already meet (lid_contact).
+        self._closed_lid_pairs = tuple(pair for eye, pair in (("l", LID_PAIRS[0]), ("r", LID_PAIRS[1]))
+                                       if eye in {line.eye for line in closed_lid_lines(face)})
+        F = fit_lids_to_rims(F, face.vertices, self._eye_rims, self.fapu_vector,
+                             frozenset(n for pair in self._closed_lid_pairs for n in pair))
         F = F + self._lower_teeth_rows()
         F = F + self._cavity_rows(F)
         self.matrix = F.tocsr()
         self.matrix.eliminate_zeros()
         self.pair_overlaps = self._paired_lip_overlaps()
-        self.fapu_vector = np.array([self.fapu.get(s.unit, 0.0) for s in self.specs])
         self._rest = face.vertices.ravel()
         self._eyes = self._eyeball_pivots()
-        # Eyes closed at rest (a scan taken with them shut): their lids already meet (lid_contact).
-        self._closed_lid_pairs = tuple(pair for eye, pair in (("l", LID_PAIRS[0]), ("r", LID_PAIRS[1]))
-                                       if eye in {line.eye for line in closed_lid_lines(face)})
         self._pitch_centres = self._eyeball_pitch_centres()
         self._lid_guards = self._lid_guards_over_eyeballs()
-        self._eye_rims = self._eye_rims_of_skin()
+        self._canthus_triangles = self._find_canthus_triangles()
+        self._rest_lid_gaps = [face.vertices[upper, 1] - np.interp(face.vertices[upper, 0], face.vertices[lower, 0],
+                                                                   face.vertices[lower, 1])
+                               for upper, lower in self._eye_rims]
         self._teeth_guard = TeethGuard(face, np.nonzero(skin)[0])
         self._lip_contact = LipContact(face, np.nonzero(skin)[0])
         self._memos = self._step_memos()
@@ -736,6 +835,43 @@ class FapDeformer:
                                    self.face.vertices[lid], float(np.median(_radius_profile(ball - centre)))))
         return guards
 
+    def _find_canthus_triangles(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """Per eye (as ``_eye_rims``): (upper rim vertex, eye corner, skin vertex across the corner
+        (k,) int, and how far the corner must stay below the line from the rim vertex to the skin
+        vertex (k,) mm: CANTHUS_KEPT of its rest depth), one row per skin triangle of those three.
+
+        Where the lower rim rises steeply into a corner (the default face's outer canthus: 0.44 mm in
+        its last 0.42 mm), an upper rim vertex beside the corner that closes onto it passes below the
+        corner, and the thin triangle spanning the corner turned over (close_t_eyelid 1024: one fold
+        per eye). Held at the line instead, the rim vertex left that triangle and the next ones
+        squeezed to 0.14 and stretched 2.3x; a real canthus moves with the closing lid."""
+        face, out = self.face, []
+        rest = face.vertices
+        for upper, lower in self._eye_rims:
+            rims = np.zeros(face.n_vertices, bool)
+            rims[upper] = rims[lower] = True
+            on_upper = np.zeros(face.n_vertices, bool)
+            on_upper[upper] = True
+            rows = []
+            for corner in lower[[0, -1]]:                  # ordered by x: the two corners
+                for tri in face.triangles[(face.triangles == corner).any(axis=1)]:
+                    others = [v for v in tri if v != corner]
+                    rim = [v for v in others if on_upper[v]]
+                    beside = [v for v in others if not rims[v]]
+                    if len(rim) != 1 or len(beside) != 1:
+                        continue
+                    c, b = rim[0], beside[0]
+                    run = rest[b, 0] - rest[c, 0]
+                    if (rest[corner, 0] - rest[c, 0]) * (rest[corner, 0] - rest[b, 0]) >= 0:
+                        continue                           # the corner must lie between them in x
+                    depth = rest[c, 1] + (rest[b, 1] - rest[c, 1]) * (rest[corner, 0] - rest[c, 0]) / run - rest[corner, 1]
+                    if depth > 0:
+                        rows.append((c, corner, b, CANTHUS_KEPT * depth))
+            rows = np.array(rows, float).reshape(-1, 4)
+            out.append((rows[:, 0].astype(np.int64), rows[:, 1].astype(np.int64), rows[:, 2].astype(np.int64),
+                        rows[:, 3]))
+        return out
+
     def _in_any_part(self) -> np.ndarray:
         """(n,) bool: vertices of a named part (eyeballs, teeth, mouth cavity), not skin."""
         mask = np.zeros(self.face.n_vertices, bool)
@@ -748,10 +884,12 @@ class FapDeformer:
         and guards), the lip contact and the teeth guard."""
         empty = np.zeros(0, np.int64)
         lid_writes = np.concatenate([upper for upper, _lower in self._eye_rims]
-                                    + [guard.lid for guard in self._lid_guards] + [empty])
+                                    + [guard.lid for guard in self._lid_guards] + [empty]
+                                    + [corner for _rim, corner, _beside, _depth in self._canthus_triangles])
         # The lid guards also read the eyeballs (a layer that carries a ball along carries its guard).
         balls = [self._ball_anchors(name) for name in self._eyes] if self._lid_guards else []
-        lid_reads = np.concatenate([lower for _upper, lower in self._eye_rims] + balls + [lid_writes])
+        lid_reads = np.concatenate([lower for _upper, lower in self._eye_rims] + balls + [lid_writes]
+                                   + [beside for _rim, _corner, beside, _depth in self._canthus_triangles])
         lips = self._lip_contact
         lip_writes = np.concatenate([lips.upper, lips.lower]) if lips.active else empty
         lip_reads = np.concatenate([lips.upper_rim, lips.lower_rim, lip_writes]) if lips.active else empty
@@ -959,8 +1097,11 @@ class FapDeformer:
             if np.isfinite(value):
                 past = f"; the presets go to {reach:.0f}" if abs(reach) > abs(value) else ""
                 ends.setdefault((why or FOLD_REASON, past), []).append(f"{value:.0f}")
-        return "; ".join(f"beyond {' and '.join(values)} {why}{past}: eased{' past that' if past else ''}"
-                         for (why, past), values in ends.items()) or None
+        notes = [f"beyond {' and '.join(values)} {why}{past}: eased{' past that' if past else ''}"
+                 for (why, past), values in ends.items()]
+        if number in (lower for _upper, lower in LID_PAIRS) and number not in self.closed_lid_faps:
+            notes.append(HANDOVER_NOTE)
+        return "; ".join(notes) or None
 
     def displacement(self, values: np.ndarray) -> np.ndarray:
         """(n, 3) mm: the FAT's offsets for (68,) effective FAP values (FAP units), lids in contact."""
@@ -978,7 +1119,8 @@ class FapDeformer:
         R the eyeball's radius) and its lower lid by ``LOWER_LID_FOLLOW`` x it (``LIDS_FOLLOW_UP``
         when it turns up); the FAP units come from the FAT's own offset of each lid margin. Without
         it the cornea passed through the lids (324 crossings at 30 degrees down). A raised cheek then
-        carries its lower lid up (:func:`carried_lower_lids`)."""
+        carries its lower lid up (:func:`carried_lower_lids`), and a lower lid closed past its reach
+        hands the rest to its upper lid (:func:`lower_lid_handover`)."""
         last = self.__dict__.get("_last_lid_values")
         if last is not None and last[0] is values:
             return last[1]      # the FAP layer passes one array to the product and to finish
@@ -995,7 +1137,7 @@ class FapDeformer:
                     up_follow, low_follow = (UPPER_LID_FOLLOW, LOWER_LID_FOLLOW) if drop > 0 else LIDS_FOLLOW_UP
                     out[upper - 1] += up_follow * drop / up_gain
                     out[lower - 1] -= low_follow * drop / low_gain
-        out = lid_contact(carried_lower_lids(out), self.__dict__.get("_closed_lid_pairs", ()))
+        out = lid_contact(lower_lid_handover(carried_lower_lids(out)), self.__dict__.get("_closed_lid_pairs", ()))
         if isinstance(values, np.ndarray) and not values.flags.writeable:
             self._last_lid_values = (values, out)   # one tuple: safe for two threads sharing a deformer
         return out
@@ -1043,9 +1185,25 @@ class FapDeformer:
         face's disgust 1,104 crossing pairs, because these steps waited for a lid FAP)."""
         face_rest = self._rest.reshape(-1, 3) if self._rest is not None else None
         if values[18:22].any() or _moved(x, face_rest, *(rows for rims in self._eye_rims for rows in rims)):
-            for upper, lower in self._eye_rims:
+            for (upper, lower), rest_gap, (rim, corner, beside, depth) in zip(self._eye_rims, self._rest_lid_gaps,
+                                                                               self._canthus_triangles):
                 y_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 1])
                 x[upper, 1] = np.maximum(x[upper, 1], y_lower)
+                # A canthus comes down with a lid closed onto it: the corner stays below the line from
+                # the rim vertex beside it to the skin across it (see _find_canthus_triangles).
+                if len(rim):
+                    run = x[beside, 0] - x[rim, 0]
+                    line = x[rim, 1] + (x[beside, 1] - x[rim, 1]) * (x[corner, 0] - x[rim, 0]) / run
+                    np.minimum.at(x[:, 1], corner, line - depth)
+                # Closed lids: the upper margin rests just in front of the lower one (touching at one
+                # depth, their rows crossed wherever the two rims' vertices interleave).
+                # (Not near a corner at rest, where the rims are that close: by how much the gap closed.)
+                gap = x[upper, 1] - y_lower
+                contact = (np.clip(1.0 - gap / LID_CONTACT_MM, 0.0, 1.0)
+                           * np.clip(1.0 - gap / np.maximum(rest_gap, 1e-9), 0.0, 1.0))
+                if contact.any():
+                    z_lower = np.interp(x[upper, 0], x[lower, 0], x[lower, 2])
+                    x[upper, 2] += contact * np.clip(z_lower + LID_TUCK_MM - x[upper, 2], 0.0, LID_TUCK_MAX_MM)
         if (values[18:22].any() or values[40:42].any() or values[30:38].any()
                 or any(not np.array_equal(x[guard.lid], guard.rest) for guard in self._lid_guards)):
             compiled = kernels.get()
