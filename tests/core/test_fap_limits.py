@@ -140,7 +140,8 @@ def test_an_upper_lid_opened_to_its_slider_end_no_longer_folds_through_its_creas
     template = load_template()
     up_to_the_crease = {19: [28, 57, 63, 64, 65, 87], 20: [37, 51, 78, 79, 134, 135]}
     narrow = dataclasses.replace(template, regions=tuple(
-        {**r, "triangles": up_to_the_crease[r["fap"]]} if r["fap"] in up_to_the_crease else r for r in template.regions))
+        {**r, "triangles": up_to_the_crease[r["fap"]]} if r["fap"] in up_to_the_crease else r
+        for r in template.regions))
     old = FapDeformer(rig.face, template=narrow)
     guard = old._surface_guard
     monkeypatch.setattr(old, "_surface_guard", SurfaceGuard(rig.face.vertices, guard.triangles, old.lid_zone(),

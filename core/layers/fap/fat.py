@@ -289,7 +289,8 @@ def lower_lid_handover(values: np.ndarray) -> np.ndarray:
 def fit_lids_to_rims(F: scipy.sparse.csr_matrix, vertices: np.ndarray, rims: Sequence[tuple[np.ndarray, np.ndarray]],
                      fapu_vector: np.ndarray, skip: frozenset[int] = frozenset()) -> scipy.sparse.csr_matrix:
     """(3n, 68) FAT ``F`` with each lid FAP's column scaled so that at 1024 IRISD its lid margin
-    reaches the other lid's rim all along the eye, not only at the lid centre.
+    reaches the other lid's rim (LID_FIT_OVERLAP_MM past it) all along the eye, not only at the lid
+    centre.
 
     ``rims``: per eye (upper rim, lower rim) vertex indices of the skin's eye opening (``vertices``
     (n, 3) mm); ``fapu_vector`` (68,) mm per FAP unit; ``skip``: FAP numbers left as they are (an
@@ -864,7 +865,8 @@ class FapDeformer:
                     run = rest[b, 0] - rest[c, 0]
                     if (rest[corner, 0] - rest[c, 0]) * (rest[corner, 0] - rest[b, 0]) >= 0:
                         continue                           # the corner must lie between them in x
-                    depth = rest[c, 1] + (rest[b, 1] - rest[c, 1]) * (rest[corner, 0] - rest[c, 0]) / run - rest[corner, 1]
+                    line = rest[c, 1] + (rest[b, 1] - rest[c, 1]) * (rest[corner, 0] - rest[c, 0]) / run
+                    depth = line - rest[corner, 1]
                     if depth > 0:
                         rows.append((c, corner, b, CANTHUS_KEPT * depth))
             rows = np.array(rows, float).reshape(-1, 4)
