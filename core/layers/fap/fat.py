@@ -82,6 +82,7 @@ def dijkstra(*args, **kwargs):
 
 N_FAPS = tables.N_FAPS
 LID_PAIRS = ((19, 21), (20, 22))  # (upper, lower) per eye
+LOWER_LIDS = frozenset(lower for _upper, lower in LID_PAIRS)
 OUTSIDE_FADE_MM = 20.0
 # Relaxation steps of each region's weights (see _relax); measured by benchmarks/face_quality.py on
 # the default face: folded triangles over all FAP extremes and presets 21,813 -> 5,367, lip
@@ -286,6 +287,13 @@ def lower_lid_handover(values: np.ndarray) -> np.ndarray:
     return values
 
 
+def rim_height_at(x: np.ndarray, rim: np.ndarray) -> np.ndarray:
+    """(m,) mm: the height y of the polyline through ``rim`` (k, 3) points, taken in order of x, at
+    ``x`` (m,) mm (held at its ends beyond them)."""
+    order = np.argsort(rim[:, 0])
+    return np.interp(x, rim[order, 0], rim[order, 1])
+
+
 def fit_lids_to_rims(F: scipy.sparse.csr_matrix, vertices: np.ndarray, rims: Sequence[tuple[np.ndarray, np.ndarray]],
                      fapu_vector: np.ndarray, skip: frozenset[int] = frozenset()) -> scipy.sparse.csr_matrix:
     """(3n, 68) FAT ``F`` with each lid FAP's column scaled so that at 1024 IRISD its lid margin
@@ -312,9 +320,7 @@ def fit_lids_to_rims(F: scipy.sparse.csr_matrix, vertices: np.ndarray, rims: Seq
             if eye is None or not np.abs(column_y[eye[side]]).any():
                 continue
             own, other = eye[side], eye[1 - side]
-            order = np.argsort(vertices[other, 0])
-            target = np.interp(vertices[own, 0], vertices[other, 0][order], vertices[other, 1][order])
-            wanted = target - vertices[own, 1]
+            wanted = rim_height_at(vertices[own, 0], vertices[other]) - vertices[own, 1]
             wanted += np.sign(wanted) * LID_FIT_OVERLAP_MM
             travel = column_y[own] * fapu_vector[number - 1] * 1024.0
             usable = ((np.abs(wanted) > LID_FIT_MIN_MM) & (np.abs(travel) > LID_FIT_MIN_MM)
@@ -411,8 +417,7 @@ class FapDeformer:
         self._pitch_centres = self._eyeball_pitch_centres()
         self._lid_guards = self._lid_guards_over_eyeballs()
         self._canthus_triangles = self._find_canthus_triangles()
-        self._rest_lid_gaps = [face.vertices[upper, 1] - np.interp(face.vertices[upper, 0], face.vertices[lower, 0],
-                                                                   face.vertices[lower, 1])
+        self._rest_lid_gaps = [face.vertices[upper, 1] - rim_height_at(face.vertices[upper, 0], face.vertices[lower])
                                for upper, lower in self._eye_rims]
         self._teeth_guard = TeethGuard(face, np.nonzero(skin)[0])
         self._lip_contact = LipContact(face, np.nonzero(skin)[0])
@@ -912,9 +917,9 @@ class FapDeformer:
     def _eye_rims_of_skin(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per eye: (upper rim, lower rim) vertex indices of the skin's eye opening, ordered by x.
 
-        The lid profile comes from the template's margins, which are a smoothed copy of the face's
-        rim; near the corners that can leave the closed rims up to a millimetre apart or crossed.
-        ``deform`` therefore lifts any upper-rim vertex that ends below the lower rim.
+        The lid columns are fitted to these rims (:func:`fit_lids_to_rims`), and ``_close_lids``
+        still lifts any upper-rim vertex that ends below the lower rim (a lid moved by other FAPs
+        too, a pose from another layer).
         """
         face = self.face
         from core.subdivision import boundary_edges
@@ -1101,7 +1106,7 @@ class FapDeformer:
                 ends.setdefault((why or FOLD_REASON, past), []).append(f"{value:.0f}")
         notes = [f"beyond {' and '.join(values)} {why}{past}: eased{' past that' if past else ''}"
                  for (why, past), values in ends.items()]
-        if number in (lower for _upper, lower in LID_PAIRS) and number not in self.closed_lid_faps:
+        if number in LOWER_LIDS and number not in self.closed_lid_faps:
             notes.append(HANDOVER_NOTE)
         return "; ".join(notes) or None
 
