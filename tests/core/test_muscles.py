@@ -10,7 +10,10 @@ from core.default_face import load_default_face
 from core.layers.muscles import (ForceFileError, ForceSet, MuscleLayer, SolverDiverged, control_keys, load_force_set,
                           muscle_specs, preset, preset_names, save_force_set)
 from core.layers.muscles.kernels import HAVE_NUMBA, SpringKernels
+from core.layers.muscles import muscles as muscles_module
 from core.layers.muscles.model import load_definitions
+from core.layers.muscles.specs import spec_by_name
+from core.mesh_quality import _local_frames, principal_stretches
 from core.layers.muscles.solver import State
 
 MIRROR_PAIRS = [("8.3", "8.4"), ("8.5", "8.6"), ("8.7", "8.8"), ("2.4", "2.5"), ("2.6", "2.7"), ("2.8", "2.9")]
@@ -174,13 +177,15 @@ def test_linear_muscle_pulls_P_toward_R_and_only_inside_its_cylinder(fresh):
     f = fresh.solver.muscle_force(frame, act)
     pushed = np.nonzero(np.linalg.norm(f, axis=1) > 0)[0]
     assert set(pushed) <= set(mus.nodes) and len(pushed) > 3
-    # every pushed vertex is inside the finite cylinder around P -> R
+    # every pushed vertex is inside the finite cylinder around P -> R, continued behind P by the insertion
     p, r = mus.P.position(m, m.rest), mus.R.position(m, m.rest)
     u = (r - p) / np.linalg.norm(r - p)
     q = m.rest[pushed]
     t = (q - p) @ u
     across = np.linalg.norm(q - p - t[:, None] * u, axis=1)
-    assert np.all(t >= 0) and np.all(t <= np.linalg.norm(r - p)) and np.all(across < mus.radius_cm)
+    behind = fresh.muscles.insertion_cm
+    assert behind > 0 and np.any(t < 0)
+    assert np.all(t >= -behind) and np.all(t <= np.linalg.norm(r - p)) and np.all(across < mus.radius_cm)
     fresh.set_force(*key, 30.0)
     assert fresh.solve().converged
     x = fresh._state.x
@@ -189,6 +194,36 @@ def test_linear_muscle_pulls_P_toward_R_and_only_inside_its_cylinder(fresh):
     assert moved @ u > 0.8 * np.linalg.norm(moved)  # and mostly along the muscle
     mirror = fresh.muscles.linear[control_keys().index(("risorius", "right"))]
     assert np.linalg.norm(mirror.P.position(m, x) - mirror.P.position(m, m.rest)) < 0.1 * np.linalg.norm(moved)
+
+
+def test_insertion_spreads_the_pull_behind_the_mobile_end_and_keeps_its_total(fresh, monkeypatch):
+    """The thesis cylinder (no insertion) ends at P; the insertion moves part of the same total pull
+    behind P, so the heaviest node pulls less and the corner's skin stretches less in a smile."""
+    m, muscles = fresh.model, fresh.muscles
+    area = m.area_scale
+    for mus in muscles.linear:
+        monkeypatch.setattr(muscles, "insertion_cm", 0.0)
+        nodes, weight = muscles._cylinder(mus.P, mus.R, mus.radius_cm, spec_by_name()[mus.key[0]].lip)
+        monkeypatch.undo()
+        p, r = mus.P.position(m, m.rest), mus.R.position(m, m.rest)
+        assert np.all((m.rest[nodes] - p) @ (r - p) >= 0)     # thesis C: nothing behind P
+        assert (mus.weight * area[mus.nodes]).sum() == pytest.approx((weight * area[nodes]).sum(), rel=1e-9)
+        assert mus.weight.max() < weight.max()
+
+    def corner_stretch(layer):
+        layer.apply(preset("discreet_smile"))
+        assert layer.solve().converged
+        T = layer.model.triangles
+        rest, posed = layer.model.skin_mm[T], layer.tissue_skin()[T]
+        near = np.linalg.norm(rest.mean(axis=1) - layer.face.landmark_position("8.3"), axis=1) < 6.0
+        big, _ = principal_stretches(_local_frames(rest[near]), posed[near])
+        return big.max()
+
+    definitions = dict(load_definitions(), insertion={"spread": 0.0, "unit": "MW"})
+    monkeypatch.setattr(muscles_module, "load_definitions", lambda: definitions)
+    thesis = MuscleLayer(fresh.face, level=2)
+    assert thesis.muscles.insertion_cm == 0.0
+    assert corner_stretch(fresh) < corner_stretch(thesis) - 0.1
 
 
 # ------------------------------------------------------------------ presets

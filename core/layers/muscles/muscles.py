@@ -11,6 +11,12 @@ directed along the muscle toward R; vertices outside the finite cylinder (|QS| >
 P or R) get nothing. f_P = force (thesis units) x ``force_unit_dyn`` x s_Q (the node's area
 scale, see ``model``), so the total pull does not depend on the mesh resolution.
 
+Insertion (beyond thesis C, ``insertion`` in the data): the cylinder continues past P, away from R,
+over a length e (0.2 MW) with the along-falloff (cos(pi |PS| / e) + 1)/2, and all weights are scaled
+so the muscle's total pull (sum of weight x s_Q) is the thesis's. The corner muscles insert into the
+modiolus and blend with the orbicularis oris; ending at P put their whole pull on the corner's few
+nodes, and the corner's skin stretched 2.2-2.4x in the smiles. e = 0 is eqs. 3.13-3.15 exactly.
+
 Orbicularis oris (eqs. 3.17-3.18): vertices within d of the ring are pulled toward the centre
 c = (corner_l + corner_r)/2 moved forward by ``protrusion`` (0.6 MW) with
     f_Q = gain · (d_c / d_m) · s_Q · ring falloff · f,
@@ -87,6 +93,8 @@ class MuscleSet:
         face, fapu = model.face, model.fapu
         mirror = d["mirror"]
         self.keys = control_keys()
+        insertion = d.get("insertion", {"spread": 0.0, "unit": "MW"})
+        self.insertion_cm = float(insertion["spread"]) * fapu[insertion["unit"]] / 10.0
         self.linear: list[LinearMuscle] = []
         for m in d["linear"]:
             for side in SIDES:
@@ -116,6 +124,8 @@ class MuscleSet:
         return SurfaceAnchor(int(tri[0]), bary[0])
 
     def _cylinder(self, P: SurfaceAnchor, R: SurfaceAnchor, radius: float, lip: str):
+        """(nodes (k,), weights (k,)): eq. 3.15's falloff in the cylinder P -> R and over the insertion
+        behind P, scaled so the total pull (sum of weight x area scale) is the thesis cylinder's."""
         m = self.model
         x = m.rest
         p, r = P.position(m, x), R.position(m, x)
@@ -123,18 +133,27 @@ class MuscleSet:
         axis = r - p
         length = float(np.linalg.norm(axis))
         u = axis / length
-        t = (q - p) @ u                      # |PS| (signed)
+        t = (q - p) @ u                      # |PS| (signed: < 0 behind P)
         foot = p + t[:, None] * u
         across = np.linalg.norm(q - foot, axis=1)  # |QS|
-        inside = (t >= 0) & (t <= length) & (across < radius)
+        behind = self.insertion_cm
+        inside = (t >= -behind) & (t <= length) & (across < radius)
         if lip == "upper":
             inside &= m.lip >= 0
         elif lip == "lower":
             inside &= m.lip <= 0
         elif lip != "both":
             raise MuscleModelError(f"muscle lip must be 'upper', 'lower' or 'both', got {lip!r}")
-        w = (np.cos(np.pi * across / radius) + 1) / 2 * (np.cos(np.pi * t / length) + 1) / 2
-        nodes = np.nonzero(inside & (w > 1e-9))[0]
+        along = (np.cos(np.pi * np.clip(t, 0.0, length) / length) + 1) / 2
+        if behind > 0:
+            along = np.where(t < 0, (np.cos(np.pi * np.minimum(-t / behind, 1.0)) + 1) / 2, along)
+        w = (np.cos(np.pi * np.minimum(across / radius, 1.0)) + 1) / 2 * along * inside
+        area = m.area_scale[:m.n]
+        pull = (w * (t >= 0) * area).sum()
+        if not pull > 0:             # nothing in the thesis cylinder: the caller says so
+            return np.zeros(0, int), np.zeros(0)
+        w = w * (pull / (w * area).sum())
+        nodes = np.nonzero(w > 1e-9)[0]
         return nodes, w[nodes]
 
     def _ring_weights(self, ring: list[SurfaceAnchor], radius: float, outside_fraction: float):
