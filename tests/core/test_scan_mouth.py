@@ -72,17 +72,6 @@ def test_the_jaw_opens_the_scans_mouth_instead_of_stretching_its_lips(registrati
     assert (_edge_growth(face.vertices, animated.vertices(registration.face.vertices), skin) == 0).all()
 
 
-def _donor(face):
-    """The face whose mouth parts ``animated_scan`` placed (the default face, by vertex count)."""
-    from core.default_face import load_default_face
-
-    for full_head in (True, False):
-        donor = load_default_face(full_head=full_head)
-        if all(len(donor.parts[n]) == len(face.parts[n]) for n in ("teeth_upper", "teeth_lower")):
-            return donor
-    raise AssertionError("no default face has these teeth")
-
-
 def _pair_distances(points):
     """(k,) distances between every 23rd point and the next sample (a fixed subset of pairs)."""
     sample = points[::23]
@@ -118,7 +107,9 @@ def test_teeth_and_cavity_sit_behind_the_lips_and_the_lower_teeth_follow_the_jaw
     # Each row of teeth keeps the donor's shape (one similarity, then moved back as one): pushed point
     # by point below the skin closest to them, which behind closed lips is often the lips' inner
     # surface, LeePerrySmith's arches tore into shards between parted lips.
-    donor = _donor(face)
+    from core.default_face import load_default_face
+
+    donor = load_default_face(full_head=False)           # animated_scan's donor when none is given
     for name in ("teeth_upper", "teeth_lower"):
         ratio = _pair_distances(face.vertices[face.parts[name]]) / _pair_distances(donor.vertices[donor.parts[name]])
         assert ratio.std() < 1e-9 * ratio.mean(), name

@@ -144,10 +144,10 @@ class MuscleSet:
             inside &= m.lip <= 0
         elif lip != "both":
             raise MuscleModelError(f"muscle lip must be 'upper', 'lower' or 'both', got {lip!r}")
-        along = (np.cos(np.pi * np.clip(t, 0.0, length) / length) + 1) / 2
+        along = (np.cos(np.pi * t / length) + 1) / 2
         if behind > 0:
-            along = np.where(t < 0, (np.cos(np.pi * np.minimum(-t / behind, 1.0)) + 1) / 2, along)
-        w = (np.cos(np.pi * np.minimum(across / radius, 1.0)) + 1) / 2 * along * inside
+            along = np.where(t < 0, (np.cos(np.pi * t / behind) + 1) / 2, along)
+        w = (np.cos(np.pi * across / radius) + 1) / 2 * along * inside
         area = m.area_scale[:m.n]
         pull = (w * (t >= 0) * area).sum()
         if not pull > 0:             # nothing in the thesis cylinder: the caller says so
