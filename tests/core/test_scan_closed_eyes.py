@@ -227,3 +227,40 @@ def test_the_eyeball_stays_behind_the_scans_own_closed_lid(closed_registration, 
 
         assert smallest_gap(_eyeball_part(canonical, default_face, line)) < 0          # through the crease
         assert smallest_gap(_eyeball_part(canonical, default_face, line, creased)) > EYEBALL_BEHIND_MM - 0.05
+
+
+@pytest.fixture(scope="module")
+def one_eye_shut(default_face):
+    """The animated scan of the default face with only its right eye shut (upper lid at 1024 IRISD)."""
+    from core.cache import DiskCache
+    from core.registration.pipeline import register_scan
+    from core.registration.scan_mouth import animated_scan
+    from core.registration.virtual_scanner import scan_face
+    from core.rig import FaceRig
+
+    rig = FaceRig(default_face, cache=DiskCache())
+    rig.set_faps({20: 1024.0})
+    face = default_face.with_vertices(np.array(rig.vertices()))
+    scan = scan_face(face, n_target=30_000, rng=np.random.default_rng(5)).face
+    return animated_scan(register_scan(scan, scan.landmarks, template="mpeg4_80"))
+
+
+def test_one_shut_eye_has_its_lids_guarded_over_its_eyeball(one_eye_shut):
+    """The eyeball added behind a scan's one shut eye keeps that eye's lid skin outside it as the lid
+    FAPs and the expressions open it and as the brows come down onto it (the guard once waited for both
+    eyeballs: the lowered brows crossed it 42 times); gaze, which turns both eyes, stays off."""
+    from core.layers.fap.fat import FapDeformer
+    from core.mesh_quality import FaceQualityProbe
+    from core.rig import FaceRig
+
+    face = one_eye_shut.face
+    assert "eyeball_r" in face.parts and "eyeball_l" not in face.parts
+    deformer = FapDeformer(face, dense=one_eye_shut.dense, binding=one_eye_shut.binding())
+    assert [guard.faps for guard in deformer._lid_guards] == [(20, 22, 42)]
+    assert not {23, 24, 25, 26} & set(deformer.animated_faps)
+    rig = FaceRig(face, deformer)
+    probe = FaceQualityProbe(face)
+    for pose in ({20: -300.0}, {32: -400.0, 34: -400.0, 36: -400.0}, "surprise", "fear"):
+        rig.reset()
+        rig.set_faps(pose) if isinstance(pose, dict) else rig.set_expression(pose, 1.0)
+        assert probe.measure(rig.vertices()).lid_intersections == 0, pose

@@ -413,7 +413,10 @@ class FapDeformer:
         self.matrix.eliminate_zeros()
         self.pair_overlaps = self._paired_lip_overlaps()
         self._rest = face.vertices.ravel()
+        # Every separate eyeball guards its lids; gaze (FAPs 23-26) turns both eyes, so it needs two (a
+        # scan with one eye shut has one: the eyeball added behind that lid).
         self._eyes = self._eyeball_pivots()
+        self._gaze = len(self._eyes) == 2
         self._pitch_centres = self._eyeball_pitch_centres()
         self._lid_guards = self._lid_guards_over_eyeballs()
         self._canthus_triangles = self._find_canthus_triangles()
@@ -436,7 +439,7 @@ class FapDeformer:
             self._memos["mouth"] = StepMemo(np.union1d(reads, teeth.reads), np.union1d(writes, teeth.writes))
         self._head_pivot = self._estimate_head_pivot()
         animated = [s.number for s in self.specs if s.thesis]
-        if self._eyes:
+        if self._gaze:
             animated += [23, 24, 25, 26]
         animated += [48, 49, 50]
         self.animated_faps = tuple(sorted(animated))
@@ -746,7 +749,7 @@ class FapDeformer:
             A = np.column_stack([2 * p, np.ones(len(p))])
             sol, *_ = np.linalg.lstsq(A, (p ** 2).sum(axis=1), rcond=None)
             out[name] = (idx, sol[:3])
-        return out if len(out) == 2 else {}
+        return out
 
     def _eyeball_pitch_centres(self) -> dict[str, np.ndarray]:
         """part name -> the eyeball's pitch pivot (3,): the centre of a least-squares axis-aligned
@@ -1006,9 +1009,9 @@ class FapDeformer:
             w = self.binding @ self.template_weights[number]
         else:
             w = np.zeros(self.face.n_vertices)
-        if number in (23, 25) and self._eyes:
+        if number in (23, 25) and self._gaze:
             w[self._eyes["eyeball_l"][0]] = 1.0
-        if number in (24, 26) and self._eyes:
+        if number in (24, 26) and self._gaze:
             w[self._eyes["eyeball_r"][0]] = 1.0
         if number in (48, 49, 50):
             w[:] = 1.0
@@ -1134,7 +1137,7 @@ class FapDeformer:
         out = np.array(values, dtype=float)
         # Both eyes' lid margins are needed to know which rim belongs to which eye (a face whose eye
         # corners are not marked has none): without them the lids stay put.
-        if self._eyes and len(self._eye_rims) == 2 and out[24:26].any():
+        if self._gaze and len(self._eye_rims) == 2 and out[24:26].any():
             for name, pitch, upper, lower in (("eyeball_l", 25, 19, 21), ("eyeball_r", 26, 20, 22)):
                 if not out[pitch - 1]:
                     continue
@@ -1276,7 +1279,7 @@ class FapDeformer:
             if "mouth" in memos:
                 memos["mouth"].run(x, lambda y: self._smooth_mouth(y, pinned),
                                    b"" if pinned is None else np.asarray(pinned, np.int64).tobytes())
-        if self._eyes:
+        if self._gaze:
             for name, (yaw, pitch) in (("eyeball_l", (23, 25)), ("eyeball_r", (24, 26))):
                 a, b = values[yaw - 1] * tables.ANGLE_UNIT, values[pitch - 1] * tables.ANGLE_UNIT
                 if a or b:
