@@ -178,6 +178,14 @@ def match(scan: Face, to_model: np.ndarray, ctx: ModelContext, params: MatchPara
         if used.mouth_opening:
             passes += [mouth_opening_pass, lip_order_pass]
         est = PixelEstimates.empty(P)
+        if is_fixed.any():
+            # The user's points are where they were given, with full evidence: the passes that read a
+            # neighbour's pixel see them there (the closed mouth's lip order reads the outer corners and
+            # lips; with those fixed and left without a pixel it did nothing, and an inner corner stayed
+            # 13 mm above its outer one on a Surrey Face Model scan), and predictions lean on them.
+            pixel, peak = est.working()
+            pixel[is_fixed], peak[is_fixed] = pctx.greedy_px[is_fixed], 1.0
+            est = est.apply(PixelMoves.take(pixel, peak, np.nonzero(is_fixed)[0]))
         edge_points = opening_points(ctx.template)
         on_opening = np.zeros(P, bool)
         for pixel_pass in passes:

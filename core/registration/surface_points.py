@@ -16,12 +16,13 @@ if TYPE_CHECKING:
 def pixels_to_surface(ctx: MatchContext, est: PixelEstimates) -> SurfaceMoves:
     """Each point with a pixel (col, row; truncated to the pixel holding it) on the covered scan
     raster moves to the surface point seen there; source "refined" when it has evidence (peak > 0),
-    else "prediction". Evidence is not part of the moves (the caller takes ``est.peak`` for all)."""
+    else "prediction". Evidence is not part of the moves (the caller takes ``est.peak`` for all).
+    Fixed points keep their given place (their pixel is only for the passes to read)."""
     raster = ctx.scan_raster
     H, W = raster.triangle.shape
     index, tri, bary, pos, source = [], [], [], [], []
     for i in range(len(est.pixel)):
-        if not np.all(np.isfinite(est.pixel[i])):
+        if ctx.fixed[i] or not np.all(np.isfinite(est.pixel[i])):
             continue
         c, r = int(est.pixel[i, 0]), int(est.pixel[i, 1])
         if not (0 <= r < H and 0 <= c < W):

@@ -55,6 +55,21 @@ def test_fixed_landmarks_are_kept(scan, detection):
     assert d.sources[name] == "fixed" and d.confidence[name] == 1.0
 
 
+def test_fixed_mouth_corners_steer_the_inner_corners_beside_them(scan, detection):
+    """A user who corrects the outer mouth corners (8.3 / 8.4, here 8 mm lower on the scan) and detects
+    again gets the closed mouth's inner corners (2.4 / 2.5) beside them, as the model has them: the
+    lip order pass reads the fixed points too (it once saw no pixel for them and left the inner
+    corners where the patches found them, 8 mm away)."""
+    scale = scale_of(scan)
+    fixed = {n: scan.surface_point(detection.positions[n] + np.array([0.0, -8.0, 0.0])) for n in ("8.3", "8.4")}
+    d = detect_landmarks(scan, template="a48", fixed=fixed)
+    for inner, outer in (("2.4", "8.3"), ("2.5", "8.4")):
+        given = np.array(fixed[outer].barycentric) @ scan.vertices[scan.triangles[fixed[outer].triangle]]
+        expected = given + (detection.positions[inner] - detection.positions[outer])
+        assert np.linalg.norm(d.positions[inner] - expected) < 0.05 * scale, inner
+        assert np.linalg.norm(d.positions[inner] - detection.positions[inner]) > 5.0, inner
+
+
 def test_no_texture_falls_back_to_geometry(scan):
     bare = Face(scan.vertices, scan.triangles, landmarks=scan.landmarks)
     d = detect_landmarks(bare, template="a48")
