@@ -794,7 +794,14 @@ class Binding:
     distance: np.ndarray
 
 
-def bind_scan(scan: Face, canonical: Face, *, near_mm: float = 2.0, fade_mm: float = 10.0) -> Binding:
+#: Scan vertices beyond the canonical face fade from its motion to none over this distance, mm. The
+#: fade's steepest slope (1.5 / FADE_MM per mm) times the border's motion is how much the skin there
+#: is squeezed or stretched: a Surrey Face Model scan's temple, 6 mm up with the brows in surprise,
+#: collapsed to 0.01 of its height over 10 mm (0.39 over 20 mm; open_jaw's chin 2.06x -> 1.80x).
+FADE_MM = 20.0
+
+
+def bind_scan(scan: Face, canonical: Face, *, near_mm: float = 2.0, fade_mm: float = FADE_MM) -> Binding:
     """Bind every scan vertex to the closest point of ``canonical`` (see the module docstring)."""
     ts = TriangleSet(canonical.vertices, canonical.triangles)
     # Exact for vertices near the canonical surface (k nearest centroids); far ones fade out anyway.

@@ -80,6 +80,26 @@ def test_carry_back_rest_and_jaw(scan, registration):
     assert disp[near_chin].mean() > 3.0 and disp[forehead].max() < 1e-6
 
 
+def test_skin_beyond_the_canonical_face_follows_it_without_crumpling(scan, registration):
+    """Scan skin beyond the canonical face's outline fades from its motion to none: over 10 mm the
+    brows raised to their maximum squeezed the forehead's edge to 0.16 of its height (a Surrey Face
+    Model scan's temple collapsed to 0.01 in surprise) and the open jaw stretched the neck 1.77x."""
+    from core.mesh_quality import _local_frames, principal_stretches
+    from core.rig import FaceRig
+
+    carry = registration.carry_back()
+    beyond = (carry.binding.distance[scan.triangles] > 2.0).any(axis=1)
+    assert beyond.sum() > 1000
+    corners = scan.triangles[beyond]
+    rest = _local_frames(scan.vertices[corners])
+    rig = FaceRig(registration.face)
+    for pose, low, high in (({n: 400.0 for n in range(31, 37)}, 0.4, 1.5), ({3: 1400.0}, 0.7, 1.5)):
+        rig.reset()
+        rig.set_faps(pose)
+        big, small = principal_stretches(rest, carry.apply(rig.vertices())[corners])
+        assert small.min() > low and big.max() < high, pose
+
+
 def test_missing_landmarks_are_a_clear_error(scan):
     with pytest.raises(CorrespondenceError, match="missing"):
         dense_correspondence(scan, {"9.3": scan.landmark_position("9.3")}, template="a48")
