@@ -26,6 +26,12 @@ eyeball sits behind the closed lid (the canonical face's and the scan's own), so
 the scan's own eye onto it. (The FAP units measure a closed eye's IRISD0 as an open eye's of its
 width, and the lid's opening shape is an open eye's: ``core.layers.fap``.)
 
+An open eye's own surface (scanned eyeball, or the smooth sheet of a model without eyes) is bound to
+the template's eye-opening covers, which the FAPs do not move: it stood still while the lids closed
+onto it. It is hidden (scan triangles mostly on the covers), the skin still partly on them follows
+its own lid's margin, and the default face's eyeball sits behind the opening, placed by the eye's
+corners and lid centres, so the lids close over it and gaze turns it.
+
 The texture of the added parts is the default face's, appended below the scan's texture image.
 """
 
@@ -39,7 +45,7 @@ import scipy.sparse
 from scipy.spatial import cKDTree
 
 from core.face import Face, SurfacePoint
-from core.layers.fap.closed_eyes import LidLine, closed_eye_side, closed_lid_lines, lid_point_sides
+from core.layers.fap.closed_eyes import LidLine, closed_eye_side, closed_lid_lines, lid_point_sides, open_eye_lines
 from core.layers.fap.template import DenseTemplate
 from core.registration.correspondence import Registration, _adjacency, boundary_loops
 from core.registration.folds import similarity
@@ -61,6 +67,9 @@ EYEBALL_PARTS = {"l": "eyeball_l", "r": "eyeball_r"}
 #: Landmarks placing a donor eyeball: the eye's corners and the brow above it (the lid centres are
 #: not used: the donor's eye is open, the scan's closed).
 EYE_POINTS = {"l": ("3.7", "3.11", "4.1", "4.3", "4.5"), "r": ("3.12", "3.8", "4.2", "4.4", "4.6")}
+#: ... behind an open eye: its corners and lid centres (the opening it shows through; by the brows, a
+#: Surrey Face Model scan's eyeball sat 2-3 mm high, its iris half under the upper lid).
+OPEN_EYE_POINTS = {"l": ("3.7", "3.11", "3.1", "3.3"), "r": ("3.12", "3.8", "3.2", "3.4")}
 #: Canonical vertices up to this many rings from a closed eye's lid margins go with the nearer lid.
 LID_RINGS = 8
 #: A closed eye's cut stays on skin less than this far behind its crease, mm: LeePerrySmith's lids on
@@ -154,9 +163,7 @@ def canonical_lid_labels(canonical: Face, dense: DenseTemplate | None,
         return closed_eye_side(canonical, lines=lines).astype(np.int8), identity
     base = dense.template
     support = dense.base_coords > 1e-12
-    covered = sorted(base.eye_opening_triangles)
-    others = [i for i in range(len(base.triangles)) if i not in base.eye_opening_triangles]
-    cover = dense.in_base_triangles(covered) & ~dense.in_base_triangles(others)
+    cover = _eye_covers(canonical, dense)
     target = np.arange(n)
     labels = np.zeros(n, np.int8)
     for line in lines:
@@ -183,6 +190,18 @@ def canonical_lid_labels(canonical: Face, dense: DenseTemplate | None,
                 target[snapped] = margin_ids[gaps.argmin(axis=1)]
     carry = scipy.sparse.csr_matrix((np.ones(n), (np.arange(n), target)), shape=(n, n))
     return labels, carry
+
+
+def _eye_covers(canonical: Face, dense: DenseTemplate, lines: list[LidLine] | None = None) -> np.ndarray:
+    """(N,) bool: canonical vertices inside the template's eye-opening covers (on no other template
+    triangle), within the lid band of one of ``lines`` when given."""
+    base = dense.template
+    covered = sorted(base.eye_opening_triangles)
+    others = [i for i in range(len(base.triangles)) if i not in base.eye_opening_triangles]
+    cover = dense.in_base_triangles(covered) & ~dense.in_base_triangles(others)
+    if lines is None:
+        return cover
+    return cover & np.any([line.height(canonical.vertices)[1] for line in lines], axis=0)
 
 
 @dataclass(frozen=True)
@@ -495,16 +514,19 @@ def _own_lid_rows(matrix: scipy.sparse.csr_matrix, side: np.ndarray, lid_labels:
     return scipy.sparse.csr_matrix((data, (rows, cols)), shape=matrix.shape)
 
 
-def _eyeball_part(canonical: Face, donor: Face, line: LidLine, scan: Face | None = None):
+def _eyeball_part(canonical: Face, donor: Face, line: LidLine, scan: Face | None = None, open_eye: bool = False):
     """(vertices, triangles, uv, {part: local ids}) of the donor's eyeball for the closed eye of
     ``line``, placed by a similarity on the eye's corners and brow and moved straight back until it
     is EYEBALL_BEHIND_MM behind the closed lid everywhere: the canonical face's and the ``scan``'s
     own lid skin (:func:`_lid_points`). The scan's crease lies 2-3 mm behind the canonical face,
     which spans it: placed by the canonical face alone, the eyeball reached 1.7 mm through
     LeePerrySmith's crease, and the FAP layer's lid guard pushed the crease's vertices out of it one
-    by one as the lid opened, a saw-toothed margin. None when the donor lacks it."""
+    by one as the lid opened, a saw-toothed margin. ``open_eye``: placed by the eye's corners and
+    lid centres instead (behind the scan's own eye surface, which the caller hides). None when the
+    donor lacks it."""
     name = EYEBALL_PARTS[line.eye]
-    points = [p for p in EYE_POINTS[line.eye] if p in canonical.landmarks and p in donor.landmarks]
+    points = [p for p in (OPEN_EYE_POINTS if open_eye else EYE_POINTS)[line.eye]
+              if p in canonical.landmarks and p in donor.landmarks]
     if name not in donor.parts or len(points) < 3:
         return None
     ids, _, triangles = _donor_parts(donor, (name,))
@@ -562,7 +584,13 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
     lid_lines = [along_crease(line, scan.vertices, scan.triangles)
                  for line in closed_lid_lines(canonical) if EYEBALL_PARTS[line.eye] not in scan.parts]
     fitted = registration.projection.dense if registration.projection is not None else None
-    lid_labels, lid_carry = canonical_lid_labels(canonical, fitted, lid_lines)
+    # Open eyes get the donor's eyeball too, behind the scan's own eye surface, which is hidden: bound
+    # to the template's eye-opening covers (which the FAPs do not move) it stood still while the lids
+    # closed onto it and squeezed the skin between (a Surrey Face Model scan's lower lids 0.04x in joy).
+    open_lines = [line for line in open_eye_lines(canonical)
+                  if EYEBALL_PARTS[line.eye] not in scan.parts and EYEBALL_PARTS[line.eye] in donor.parts] \
+        if fitted is not None and len(fitted.vertices) == canonical.n_vertices else []
+    lid_labels, lid_carry = canonical_lid_labels(canonical, fitted, lid_lines + open_lines)
     cut_labels = np.where(labels != 0, labels, lid_labels).astype(np.int8)
     triangles, copy_of, copy_rows = _cut_lips(scan, matrix, labels)
     interior = _mouth_interior(scan, canonical, registration.template)
@@ -575,6 +603,12 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
     lid_side = np.zeros(len(skin.positions), np.int64)
     if lid_lines:
         triangles, lid_side = _cut_lids(skin, triangles, lid_lines)
+    if open_lines:
+        on_cover = _eye_covers(canonical, fitted, open_lines).astype(float)
+        share = (skin.rows @ on_cover) / np.maximum(np.asarray(skin.rows.sum(axis=1)).ravel(), 1e-12)
+        # Hidden where every corner is mostly on the covers (hiding a triangle with any such corner, or
+        # by the corners' mean share, squeezed the lid margin's skin more as the lids closed).
+        triangles = triangles[~(share[triangles] > 0.5).all(axis=1)]
     n_scan, n_copies = scan.n_vertices, len(skin.positions) - scan.n_vertices
     vertices = [skin.positions]
     skin_uv, colours = skin.uv, skin.colours
@@ -587,8 +621,8 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
             canonical, canonical.landmark_positions(present), donor, donor.landmark_positions(present))
         seen = _seen_from_the_front(skin.positions, triangles, part_vertices, forward)
         added.append((part_vertices, part_triangles[~seen[part_triangles].any(axis=1)], part_uv, part_ids))
-    for line in lid_lines:
-        eyeball = _eyeball_part(canonical, donor, line, scan)
+    for line in lid_lines + open_lines:
+        eyeball = _eyeball_part(canonical, donor, line, scan, open_eye=line in open_lines)
         if eyeball is not None:
             added.append(eyeball)
     offset = n_scan + n_copies
@@ -672,7 +706,9 @@ def scan_animation(registration: Registration, cache=None, progress=None) -> Fac
         return canonical
     shown = animated.face
     n_mouth = sum(len(shown.parts.get(name, ())) for name in MOUTH_PARTS)
-    closed = [eye for eye, part in EYEBALL_PARTS.items() if part in shown.parts and part not in registration.scan.parts]
+    added = {eye for eye, part in EYEBALL_PARTS.items() if part in shown.parts and part not in registration.scan.parts}
+    closed = [line.eye for line in closed_lid_lines(canonical) if line.eye in added]
+    opened = sorted(added - set(closed))
     eyes = {("l",): "the left eye was closed: it is cut along its lid line and has an eyeball behind it",
             ("r",): "the right eye was closed: it is cut along its lid line and has an eyeball behind it",
             ("l", "r"): "both eyes were closed: they are cut along their lid lines and have eyeballs behind them"}
@@ -682,6 +718,10 @@ def scan_animation(registration: Registration, cache=None, progress=None) -> Fac
              + (f", mouth cavity and teeth added ({n_mouth} vertices)." if n_mouth else ".")]
     if closed:
         notes.append(f"The scan's {eyes[tuple(sorted(closed))]}; the eyelid sliders (FAPs 19-22) open them.")
+    if opened:
+        which = {("l",): "left eye shows", ("r",): "right eye shows", ("l", "r"): "eyes show"}[tuple(opened)]
+        notes.append(f"The scan's open {which} Mimica's eyeball behind the lids (its own eye surface is hidden), "
+                     "so the eyelid sliders close over it and the gaze sliders (FAPs 23-26) turn it.")
     shown.metadata = dataclasses.replace(shown.metadata, notes=notes)
     if animated.dense is not None and cache is not None:
         from core.layers.fap.fat import FapDeformer

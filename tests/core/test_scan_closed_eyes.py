@@ -231,10 +231,9 @@ def test_the_eyeball_stays_behind_the_scans_own_closed_lid(closed_registration, 
 
 @pytest.fixture(scope="module")
 def one_eye_shut(default_face):
-    """The animated scan of the default face with only its right eye shut (upper lid at 1024 IRISD)."""
+    """The default face with only its right eye shut (upper lid at 1024 IRISD), scanned and registered."""
     from core.cache import DiskCache
     from core.registration.pipeline import register_scan
-    from core.registration.scan_mouth import animated_scan
     from core.registration.virtual_scanner import scan_face
     from core.rig import FaceRig
 
@@ -242,20 +241,54 @@ def one_eye_shut(default_face):
     rig.set_faps({20: 1024.0})
     face = default_face.with_vertices(np.array(rig.vertices()))
     scan = scan_face(face, n_target=30_000, rng=np.random.default_rng(5)).face
-    return animated_scan(register_scan(scan, scan.landmarks, template="mpeg4_80"))
+    return register_scan(scan, scan.landmarks, template="mpeg4_80")
 
 
-def test_one_shut_eye_has_its_lids_guarded_over_its_eyeball(one_eye_shut):
-    """The eyeball added behind a scan's one shut eye keeps that eye's lid skin outside it as the lid
-    FAPs and the expressions open it and as the brows come down onto it (the guard once waited for both
-    eyeballs: the lowered brows crossed it 42 times); gaze, which turns both eyes, stays off."""
+def test_open_eyes_get_an_eyeball_behind_their_own_hidden_eye_surface(one_eye_shut):
+    """An open eye's own scanned surface is hidden and the donor's eyeball sits behind the opening
+    (bound to the template's eye covers, which the FAPs do not move, the scan's eye stood still while
+    the lids closed onto it); the shut eye is cut along its lid line as before. Both eyeballs turn with
+    gaze, and the open eye's lid closes over its eyeball at 1024 IRISD (with the scan's own eye surface
+    in the opening, 218 lid crossing pairs and 167 folded triangles; now about a tenth of that)."""
     from core.layers.fap.fat import FapDeformer
     from core.mesh_quality import FaceQualityProbe
+    from core.registration.scan_mouth import animated_scan
     from core.rig import FaceRig
 
-    face = one_eye_shut.face
+    animated = animated_scan(one_eye_shut)
+    face = animated.face
+    assert {"eyeball_l", "eyeball_r"} <= set(face.parts)
+    # Through the open left eye a ray meets the eyeball; the shut right eye still hides its own.
+    assert _first_part_hit(face, face.vertices, _lid_centres(face, face.vertices)) == ["eyeball_l", "skin"]
+    deformer = FapDeformer(face, dense=animated.dense, binding=animated.binding())
+    assert {23, 24, 25, 26} <= set(deformer.animated_faps)
+    rig = FaceRig(face, deformer)
+    probe = FaceQualityProbe(face)
+    assert probe.measure(face.vertices, eyes=True).eye_openness["left"] > 0.5
+    rig.set_fap(19, 1024.0)
+    closed = probe.measure(rig.vertices(), eyes=True)
+    assert closed.eye_openness["left"] < 0.02
+    assert closed.lid_intersections <= 30 and closed.folded_triangles <= 20
+
+
+def test_one_eyeball_has_its_lids_guarded(default_face, one_eye_shut):
+    """A face with one eyeball (here: the donor offers only the right one, for the shut right eye)
+    keeps that eye's lid skin outside it as the lid FAPs and the expressions open it and as the brows
+    come down onto it (the guard once waited for both eyeballs: the lowered brows crossed it 42 times);
+    gaze, which turns both eyes, stays off."""
+    from core.face import Face
+    from core.layers.fap.fat import FapDeformer
+    from core.mesh_quality import FaceQualityProbe
+    from core.registration.scan_mouth import animated_scan
+    from core.rig import FaceRig
+
+    d = default_face
+    donor = Face(d.vertices, d.triangles, uv=d.uv, texture=d.texture, landmarks=d.landmarks,
+                 parts={name: ids for name, ids in d.parts.items() if name != "eyeball_l"})
+    animated = animated_scan(one_eye_shut, donor)
+    face = animated.face
     assert "eyeball_r" in face.parts and "eyeball_l" not in face.parts
-    deformer = FapDeformer(face, dense=one_eye_shut.dense, binding=one_eye_shut.binding())
+    deformer = FapDeformer(face, dense=animated.dense, binding=animated.binding())
     assert [guard.faps for guard in deformer._lid_guards] == [(20, 22, 42)]
     assert not {23, 24, 25, 26} & set(deformer.animated_faps)
     rig = FaceRig(face, deformer)

@@ -89,6 +89,16 @@ class LidLine:
 
 def closed_lid_lines(face: Face) -> list[LidLine]:
     """The lid lines of ``face``'s closed eyes (none for open eyes, or without the eye landmarks)."""
+    return _lid_lines(face, closed=True)
+
+
+def open_eye_lines(face: Face) -> list[LidLine]:
+    """The same frame for ``face``'s open eyes (their "lid line" runs between the open lids): the
+    eye's corners, width, up (v) and outward (w) directions, for placing an eyeball behind it."""
+    return _lid_lines(face, closed=False)
+
+
+def _lid_lines(face: Face, closed: bool) -> list[LidLine]:
     names = set(face.landmark_names)
     lines = []
     for eye, (top, bottom, outer, inner, brows) in EYES.items():
@@ -97,7 +107,7 @@ def closed_lid_lines(face: Face) -> list[LidLine]:
             continue
         p_top, p_bottom, p_outer, p_inner = face.landmark_positions([top, bottom, outer, inner])
         width = float(np.linalg.norm(p_inner - p_outer))
-        if width <= 0 or np.linalg.norm(p_top - p_bottom) >= CLOSED_EYE_GAP * width:
+        if width <= 0 or (np.linalg.norm(p_top - p_bottom) < CLOSED_EYE_GAP * width) != closed:
             continue
         u = (p_inner - p_outer) / width
         centre = (p_outer + p_inner) / 2
@@ -108,7 +118,7 @@ def closed_lid_lines(face: Face) -> list[LidLine]:
         v /= np.linalg.norm(v)
         w = np.cross(u, v)
         middle = (p_top + p_bottom) / 2
-        if (middle - centre) @ w < 0:   # the closed lid bulges out of the face, over the eyeball
+        if (middle - centre) @ w < 0:   # the lids bulge out of the face, over the eyeball
             w = -w
         rel = middle - p_outer
         lines.append(LidLine(eye, p_outer, u, v, w, width, float(rel @ u), float(rel @ v)))
