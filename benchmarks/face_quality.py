@@ -23,7 +23,10 @@ and ``<identity>: failures=<k>/<poses> (<s> s)``, and at the end
 
 (the failing poses over all identities; goal 0). Identities: the default face; a generated identity
 of other proportions (Mimica's generator, seed 7); and, when ``../shared/data/sfm`` is present, a
-Surrey Face Model identity (a face made by others) registered onto the canonical topology.
+Surrey Face Model identity (a face made by others): a virtual scan of it, registered and animated as
+the window animates a scan (``sfm``: the scan itself at full resolution, lips cut, mouth parts added,
+moved through its canonical face by the registration's binding), or its canonical face alone
+(``sfm-canonical``: the registration's intermediate mesh, shown only when a scan cannot be cut).
 
 ``--clean-ranges`` also prints, per FAP and identity, how much of each end of its slider range the
 surface survives alone (no fold, stretch within limits; intersections not counted), by bisection on
@@ -37,7 +40,7 @@ Contact sheets (front + three-quarter, by ``app.render``) go to ``--sheets DIR``
 ``--families expressions visemes`` keeps only the poses of those families (faps, expressions,
 visemes, mixes, muscles, blends; the neutral pose is in expressions).
 
-Usage: python benchmarks/face_quality.py [--identities default generated sfm] [--no-mixes]
+Usage: python benchmarks/face_quality.py [--identities default generated sfm sfm-canonical] [--no-mixes]
        [--no-muscles] [--no-blends] [--families F ...] [--clean-ranges] [--sheets DIR | --no-sheets] [--tile PX]
        [--sheet-format jpg]
 """
@@ -63,27 +66,57 @@ CLOSING_LIDS = {19: "left", 20: "right"}
 FAMILIES = ("faps", "expressions", "visemes", "mixes", "muscles", "blends")
 
 
-def identity_face(name: str):
-    """The Face of an identity name (see the module docstring)."""
+IDENTITIES = ("default", "generated", "sfm", "sfm-canonical")
+# MPEG-4 lid centres from the ibug points either side of the pupil on each lid (``ibug_to_sfm.txt``:
+# 38/39 and 41/42 are the right eye's upper and lower lid, 44/45 and 47/48 the left eye's).
+SFM_LID_IBUG = {"3.1": (44, 45), "3.3": (47, 48), "3.2": (38, 39), "3.4": (41, 42)}
+
+
+def identity_rig(name: str):
+    """The FaceRig of an identity name (see the module docstring)."""
     from core.default_face import generate_face, load_default_face
     from core.default_face.params import FaceParameters
+    from core.rig import FaceRig
 
     if name == "default":
-        return load_default_face()
+        return FaceRig(load_default_face())
     if name == "generated":
-        return generate_face(FaceParameters.random(np.random.default_rng(7), spread=0.8))
-    if name == "sfm":
-        import evaluate_landmarks_sfm as sfm
-        from core.registration.pipeline import detect_landmarks, register_scan
-        from core.registration.synthetic import poses
+        return FaceRig(generate_face(FaceParameters.random(np.random.default_rng(7), spread=0.8)))
+    if name in ("sfm", "sfm-canonical"):
+        from core.layers.fap.fat import FapDeformer
+        from core.registration.scan_mouth import animated_scan
 
-        model = sfm.load_sfm(SFM_DIR)
-        surface = sfm.refine_topology(model)
-        case = next(iter(sfm.make_scans(model, surface, 1, 0, [0.0], [list(poses())[0]], textured=False)))
-        # The model's truth has 21 points; detection finds the rest, steered by them (as bench_correspondence).
-        landmarks = detect_landmarks(case.face, fixed=dict(case.face.landmarks)).landmarks
-        return register_scan(case.face, landmarks).face
-    raise SystemExit(f"unknown identity {name!r}: choose default, generated or sfm")
+        registration = sfm_registration()
+        if name == "sfm-canonical":
+            return FaceRig(registration.face)
+        # What the window shows and animates for a scan (scan_mouth.scan_animation builds the same
+        # deformer and leaves it in the disk cache for the window's rig).
+        scan = animated_scan(registration)
+        return FaceRig(scan.face, FapDeformer(scan.face, dense=scan.dense, binding=scan.binding()))
+    raise SystemExit(f"unknown identity {name!r}: choose one of {', '.join(IDENTITIES)}")
+
+
+def sfm_registration():
+    """The registered virtual scan of a Surrey Face Model identity (person 1, seed 0, neutral)."""
+    import evaluate_landmarks_sfm as sfm
+    from core.registration.pipeline import detect_landmarks, register_scan
+    from core.registration.synthetic import poses
+
+    model = sfm.load_sfm(SFM_DIR)
+    surface = sfm.refine_topology(model)
+    case = next(iter(sfm.make_scans(model, surface, 1, 0, [0.0], [list(poses())[0]], textured=False)))
+    # The model's truth has 21 points, and its lid centres: the middle of its two ibug points on each
+    # lid (its eyes have no relief, so detection can only guess them: a lid 5 mm off closes the eye or
+    # puts the eyeball's opening on the cheek). Detection finds the rest, steered by them (as
+    # bench_correspondence).
+    fixed = dict(case.face.landmarks)
+    shape = sfm.refine_vertices(model, surface, sfm.identity(model, 1, 0))
+    frame = case.transform[:3, :3], case.transform[:3, 3]
+    for name, (a, b) in SFM_LID_IBUG.items():
+        middle = (shape[model.ibug[a]] + shape[model.ibug[b]]) / 2 @ frame[0].T + frame[1]
+        fixed[name] = case.face.surface_point(middle)
+    landmarks = detect_landmarks(case.face, fixed=fixed).landmarks
+    return register_scan(case.face, landmarks)
 
 
 Pose = tuple[str, str, Callable, tuple[str, ...]]   # family, label, apply(rig), eyes that must close
@@ -171,11 +204,10 @@ def clean_ranges(name: str, rig, probe) -> None:
 
 def run_identity(name: str, args) -> tuple[int, int]:
     from core.mesh_quality import MAX_STRETCH, MIN_STRETCH, FaceQualityProbe
-    from core.rig import FaceRig
 
     t0 = time.perf_counter()
-    face = identity_face(name)
-    rig = FaceRig(face)
+    rig = identity_rig(name)
+    face = rig.face
     probe = FaceQualityProbe(face)
     if args.clean_ranges:
         clean_ranges(name, rig, probe)
@@ -241,7 +273,7 @@ def run_identity(name: str, args) -> tuple[int, int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--identities", nargs="+", default=["default", "generated", "sfm"])
+    parser.add_argument("--identities", nargs="+", choices=IDENTITIES, default=["default", "generated", "sfm"])
     parser.add_argument("--no-mixes", dest="mixes", action="store_false")
     parser.add_argument("--no-muscles", dest="muscles", action="store_false")
     parser.add_argument("--no-blends", dest="blends", action="store_false")
@@ -252,9 +284,10 @@ def main() -> None:
     parser.add_argument("--tile", type=int, default=240, help="pixels per view in the contact sheets")
     parser.add_argument("--sheet-format", choices=("png", "jpg"), default="png")
     args = parser.parse_args()
-    if "sfm" in args.identities and not SFM_DIR.is_dir():
-        print(f"sfm: skipped ({SFM_DIR} not found)")
-        args.identities.remove("sfm")
+    for name in ("sfm", "sfm-canonical"):
+        if name in args.identities and not SFM_DIR.is_dir():
+            print(f"{name}: skipped ({SFM_DIR} not found)")
+            args.identities.remove(name)
     total = 0
     for name in args.identities:
         total += run_identity(name, args)[0]

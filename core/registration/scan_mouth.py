@@ -607,7 +607,8 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
         on_cover = _eye_covers(canonical, fitted, open_lines).astype(float)
         share = (skin.rows @ on_cover) / np.maximum(np.asarray(skin.rows.sum(axis=1)).ravel(), 1e-12)
         # Hidden where every corner is mostly on the covers (hiding a triangle with any such corner, or
-        # by the corners' mean share, squeezed the lid margin's skin more as the lids closed).
+        # by the corners' mean share, squeezed the lid margin's skin more as the lids closed; clipping
+        # the triangles along share 0.5 left slivers that stretched 800x).
         triangles = triangles[~(share[triangles] > 0.5).all(axis=1)]
     n_scan, n_copies = scan.n_vertices, len(skin.positions) - scan.n_vertices
     vertices = [skin.positions]
