@@ -91,6 +91,11 @@ BEHIND_SKIN_MM = 1.0
 PUSH_ROUNDS = 4
 #: A scan's own mouth interior: its triangles more than INTERIOR_MM behind the canonical lips (within
 #: INTERIOR_REACH_MM of them) are hidden.
+#: Scanner gaps between a closed mouth's lips this small (boundary loops of at most HOLE_MAX_VERTICES
+#: vertices, no wider than HOLE_MM in any direction, mm; ~5 mm on a Surrey Face Model scan) are closed
+#: before it is animated; a scanned open mouth is wider.
+HOLE_MM = 15.0
+HOLE_MAX_VERTICES = 60
 INTERIOR_MM = 1.5
 INTERIOR_RINGS = 10
 INTERIOR_REACH_MM = 30.0
@@ -280,11 +285,67 @@ def _mouth_interior(scan: Face, canonical: Face, template_name: str) -> np.ndarr
     return inside[scan.triangles].all(axis=1) & (facing[scan.triangles].sum(axis=1) < 0)
 
 
-def _cut_lips(scan: Face, matrix: scipy.sparse.csr_matrix, canonical_labels: np.ndarray):
-    """(triangles, copy_of (k,), copy rows (k, N)) of the scan cut between upper and lower lip."""
+def _with_lip_slits_closed(scan: Face, lip_side: np.ndarray) -> Face:
+    """``scan`` with the slits along its closed mouth's lip line closed by triangles between their
+    existing vertices: small holes (boundary loops no wider than HOLE_MM) with vertices of both lips
+    (``lip_side`` per scan vertex, :func:`_scan_lip_labels`). A scanner leaves them where it cannot
+    see into the lips' fold (a Surrey Face Model scan: 5 mm slits every few mm, through which the
+    added teeth showed white at rest); the lip cut then parts them with the rest of the lip line.
+    (Gaps elsewhere, e.g. in the nose wings' creases, stay: closed across a crease whose sides move
+    apart, their triangles stretched 2.3x in joy.)"""
+    fills = []
+    for loop in boundary_loops(scan.triangles):
+        points = scan.vertices[loop]
+        if (len(loop) < 3 or len(loop) > HOLE_MAX_VERTICES or np.ptp(points, axis=0).max() > HOLE_MM
+                or not ((lip_side[loop] == 1).any() and (lip_side[loop] == -1).any())):
+            continue
+        fills.append(_zip_closed(loop, points, scan.vertex_normals[loop].sum(axis=0)))
+    if not fills:
+        return scan
+    return Face(scan.vertices, np.concatenate([scan.triangles, *fills]), uv=scan.uv, texture=scan.texture,
+                vertex_colors=scan.vertex_colors, landmarks=scan.landmarks, metadata=scan.metadata, parts=scan.parts)
+
+
+def _zip_closed(loop: np.ndarray, points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """(k, 3) triangles closing the boundary loop ``loop`` (points (m, 3) mm): its two sides between
+    the ends of its longest extent are zipped together by the shorter diagonal at each step (a slit's
+    triangles span it across, not along), facing along ``normal`` (the surface's around it)."""
+    centred = points - points.mean(axis=0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    along = centred @ axis
+    first, last = int(np.argmin(along)), int(np.argmax(along))
+    m = len(loop)
+    side_a = [(first + k) % m for k in range((last - first) % m + 1)]
+    side_b = [(first - k) % m for k in range((first - last) % m + 1)]
+    i = j = 0
+    triangles = []
+    while i < len(side_a) - 1 or j < len(side_b) - 1:
+        step_a = j == len(side_b) - 1 or (i < len(side_a) - 1 and np.linalg.norm(points[side_a[i + 1]] - points[side_b[j]])
+                                         <= np.linalg.norm(points[side_a[i]] - points[side_b[j + 1]]))
+        if step_a:
+            triangles.append((side_a[i], side_a[i + 1], side_b[j]))
+            i += 1
+        else:
+            triangles.append((side_a[i], side_b[j + 1], side_b[j]))
+            j += 1
+    local = np.array([t for t in triangles if len(set(t)) == 3], np.int64).reshape(-1, 3)
+    corners = points[local]
+    facing = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) @ normal
+    local[facing < 0] = local[facing < 0][:, ::-1]
+    return loop[local]
+
+
+def _scan_lip_labels(matrix: scipy.sparse.csr_matrix, canonical_labels: np.ndarray) -> np.ndarray:
+    """(n_scan,) +1 upper lip, -1 lower lip, 0 neither: the side most of a scan vertex's binding
+    (``matrix``, scan x canonical) is on (``canonical_labels``, :func:`lip_labels`)."""
     total = np.asarray(matrix.sum(axis=1)).ravel()
     score = (matrix @ canonical_labels.astype(float)) / np.maximum(total, 1e-12)
-    label = np.where(score > 0.5, 1, np.where(score < -0.5, -1, 0))
+    return np.where(score > 0.5, 1, np.where(score < -0.5, -1, 0))
+
+
+def _cut_lips(scan: Face, matrix: scipy.sparse.csr_matrix, canonical_labels: np.ndarray):
+    """(triangles, copy_of (k,), copy rows (k, N)) of the scan cut between upper and lower lip."""
+    label = _scan_lip_labels(matrix, canonical_labels)
     triangles = np.array(scan.triangles)
     corner_labels = label[triangles]
     seam = np.nonzero((corner_labels == 1).any(axis=1) & (corner_labels == -1).any(axis=1))[0]
@@ -575,9 +636,10 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
         from core.default_face import load_default_face
 
         donor = load_default_face(full_head=False)
-    scan, canonical = registration.scan, registration.face
+    canonical = registration.face
     matrix = registration.carry_back().binding.matrix
     labels = lip_labels(canonical.triangles, registration.template)
+    scan = _with_lip_slits_closed(registration.scan, _scan_lip_labels(matrix, labels))
     # Closed eyes are cut along their lid line (after the lips: the cut splits the triangles it
     # crosses) and get the donor's eyeballs behind the lids. cut_labels (lips and lids: far apart, no
     # triangle spans both) keep each lip's and lid's landmarks on its own side.
