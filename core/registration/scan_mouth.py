@@ -9,6 +9,7 @@ triangles between them stretch into a skin web instead of opening. :func:`animat
 * labels each canonical vertex within ``LIP_RINGS`` rings of the inner-lip loop as upper or lower lip
   (whichever half of the loop — split at the inner corners 2.4 / 2.5 — is fewer rings away);
 * labels each scan vertex by the canonical triangle it is bound to (:func:`bind_scan`);
+* closes the slits a scanner left between the closed lips (small holes with vertices of both lips);
 * cuts every scan triangle that has vertices of both lips: it keeps the lip most of its corners
   are on, and its corners of the other lip are replaced by copies (same position and texture
   coordinates) that move like its own lip's corners — a cut along the scan's edges, closed at rest;
@@ -89,13 +90,13 @@ FAP_TEMPLATE = "mpeg4_80"
 #: further back than the donor's, and the cavity's rim would show through it as dark slits).
 BEHIND_SKIN_MM = 1.0
 PUSH_ROUNDS = 4
-#: A scan's own mouth interior: its triangles more than INTERIOR_MM behind the canonical lips (within
-#: INTERIOR_REACH_MM of them) are hidden.
 #: Scanner gaps between a closed mouth's lips this small (boundary loops of at most HOLE_MAX_VERTICES
 #: vertices, no wider than HOLE_MM in any direction, mm; ~5 mm on a Surrey Face Model scan) are closed
 #: before it is animated; a scanned open mouth is wider.
 HOLE_MM = 15.0
 HOLE_MAX_VERTICES = 60
+#: A scan's own mouth interior: its triangles more than INTERIOR_MM behind the canonical lips (within
+#: INTERIOR_REACH_MM of them) are hidden.
 INTERIOR_MM = 1.5
 INTERIOR_RINGS = 10
 INTERIOR_REACH_MM = 30.0
