@@ -344,9 +344,9 @@ def _scan_lip_labels(matrix: scipy.sparse.csr_matrix, canonical_labels: np.ndarr
     return np.where(score > 0.5, 1, np.where(score < -0.5, -1, 0))
 
 
-def _cut_lips(scan: Face, matrix: scipy.sparse.csr_matrix, canonical_labels: np.ndarray):
-    """(triangles, copy_of (k,), copy rows (k, N)) of the scan cut between upper and lower lip."""
-    label = _scan_lip_labels(matrix, canonical_labels)
+def _cut_lips(scan: Face, matrix: scipy.sparse.csr_matrix, label: np.ndarray):
+    """(triangles, copy_of (k,), copy rows (k, N)) of the scan cut between upper and lower lip
+    (``label`` per scan vertex: :func:`_scan_lip_labels`)."""
     triangles = np.array(scan.triangles)
     corner_labels = label[triangles]
     seam = np.nonzero((corner_labels == 1).any(axis=1) & (corner_labels == -1).any(axis=1))[0]
@@ -640,7 +640,8 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
     canonical = registration.face
     matrix = registration.carry_back().binding.matrix
     labels = lip_labels(canonical.triangles, registration.template)
-    scan = _with_lip_slits_closed(registration.scan, _scan_lip_labels(matrix, labels))
+    lip_side = _scan_lip_labels(matrix, labels)
+    scan = _with_lip_slits_closed(registration.scan, lip_side)
     # Closed eyes are cut along their lid line (after the lips: the cut splits the triangles it
     # crosses) and get the donor's eyeballs behind the lids. cut_labels (lips and lids: far apart, no
     # triangle spans both) keep each lip's and lid's landmarks on its own side.
@@ -655,7 +656,7 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
         if fitted is not None and len(fitted.vertices) == canonical.n_vertices else []
     lid_labels, lid_carry = canonical_lid_labels(canonical, fitted, lid_lines + open_lines)
     cut_labels = np.where(labels != 0, labels, lid_labels).astype(np.int8)
-    triangles, copy_of, copy_rows = _cut_lips(scan, matrix, labels)
+    triangles, copy_of, copy_rows = _cut_lips(scan, matrix, lip_side)
     interior = _mouth_interior(scan, canonical, registration.template)
     triangles = triangles[~interior]
     skin = SkinPoints(np.concatenate([scan.vertices, scan.vertices[copy_of]]),
@@ -685,8 +686,8 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
             canonical, canonical.landmark_positions(present), donor, donor.landmark_positions(present))
         seen = _seen_from_the_front(skin.positions, triangles, part_vertices, forward)
         added.append((part_vertices, part_triangles[~seen[part_triangles].any(axis=1)], part_uv, part_ids))
-    for line in lid_lines + open_lines:
-        eyeball = _eyeball_part(canonical, donor, line, scan, open_eye=line in open_lines)
+    for line, open_eye in [(line, False) for line in lid_lines] + [(line, True) for line in open_lines]:
+        eyeball = _eyeball_part(canonical, donor, line, scan, open_eye=open_eye)
         if eyeball is not None:
             added.append(eyeball)
     offset = n_scan + n_copies
