@@ -174,6 +174,13 @@ _PAIR_OUTER = np.array([o - 1 for _i, o in PAIRED_LIP_FAPS])
 LIDS_AND_CHEEKS = (19, 20, 21, 22, 41, 42)
 # FAP indices (n - 1) the lid step reads: lids, cheek lifts, brows.
 LID_GUARD_COLUMNS = np.array([n - 1 for n in LIDS_AND_CHEEKS] + list(range(30, 38)))
+# FAPs whose fields column_relax leaves as bound: the upper lids and the cheek lifts. Spread toward the
+# eye, a cheek's lift pushed its lower lid into the eyeball and the guard folded it (default face,
+# lift_cheek at 400: 7 -> 18 folded triangles; relaxed today its squeeze goes 0.21 -> 0.16). The lower
+# lids are relaxed: a scan's binding steepens their field at the inner canthus (the Surrey Face Model
+# scan: 0.60 mm of close_b_l_eyelid at 320 IRISD across a 0.7 mm triangle squeezed it to 0.18x in joy
+# and its 14 mixes with visemes; relaxed 0.40x, and the lids' own 1024 ends fold less).
+UNRELAXED_FAPS = (19, 20, 41, 42)
 # Eyeball vertices whose mean motion gives the lid guard the ball's shift (see _ball_anchors).
 BALL_ANCHORS = 16
 GUARD_RAMP = 512.0          # closing FAP units (IRISD, ENS for the cheek) over which the lid guard takes hold
@@ -390,16 +397,15 @@ class FapDeformer:
         B3 = scipy.sparse.kron(self.binding, scipy.sparse.identity(3, format="csr"), format="csr")
         F = (B3 @ self.template_matrix).tocsr()
         # Where binding region by region left a ramp on the face steeper than the skin takes at a
-        # slider's end, spread it (column_relax). Not the lids' and cheeks' columns: spread toward the
-        # eye, the lift of a cheek pushed its lower lid into the eyeball and the guard folded it
-        # (face_quality, lift_cheek at 400: 7 -> 18 folded triangles). The brows' are (raise_o_eyebrow
-        # 400 on the default face: stretch 2.16 -> 1.99 beside the temple; surprise 2.29 -> 2.09).
+        # slider's end, spread it (column_relax); not UNRELAXED_FAPS' columns. The brows' are
+        # (raise_o_eyebrow 400 on the default face: stretch 2.16 -> 1.99 beside the temple; surprise
+        # 2.29 -> 2.09).
         skin = ~self._in_any_part()
         skin_triangles = face.triangles[skin[face.triangles].all(axis=1)]
         presets = np.concatenate([tables.expression_table(), tables.viseme_table()])
         F = relax_columns(F, face.vertices, skin_triangles,
                           np.array([self.fapu.get(s.unit, 0.0) for s in self.specs]), self.specs,
-                          sorted(set(range(1, N_FAPS + 1)) - set(LIDS_AND_CHEEKS)), preset_reach(presets))
+                          sorted(set(range(1, N_FAPS + 1)) - set(UNRELAXED_FAPS)), preset_reach(presets))
         self.fapu_vector = np.array([self.fapu.get(s.unit, 0.0) for s in self.specs])
         self._eye_rims = self._eye_rims_of_skin()
         # Eyes closed at rest (a scan taken with them shut): their lids already meet (lid_contact).
