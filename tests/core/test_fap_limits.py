@@ -107,7 +107,6 @@ def test_presets_and_the_lids_are_never_eased(rig):
     lids still close all the way (1024 IRISD)."""
     for row in np.concatenate([tables.expression_table(), tables.viseme_table()]):
         assert np.array_equal(rig.deformer.limited(row), row)
-        assert np.array_equal(rig.deformer.limited(row, row), row)       # as the FAP layer asks
     lids = np.zeros(68)
     lids[18:22] = 1024
     assert np.array_equal(rig.deformer.limited(lids), lids)
@@ -115,38 +114,10 @@ def test_presets_and_the_lids_are_never_eased(rig):
     assert rig.deformer.limit_note(15).startswith("beyond -")
 
 
-def test_a_slider_alone_stops_at_its_own_limit_though_a_preset_goes_past_it(rig):
-    """Where a preset goes past a FAP's clean limit, the preset in use passes as authored, and the
-    slider alone eases into the clean limit (not toward the preset's value: the Surrey Face Model
-    scan's lips crossed there). Expression and viseme mixed pass too."""
-    reach, clean = rig.deformer.preset_reach[:, 1], rig.deformer.clean_limits[:, 1]
-    past = [n for n in rig.animated_faps if np.isfinite(clean[n - 1]) and reach[n - 1] > clean[n - 1]]
-    assert past
-    for n in past:
-        rig.reset()
-        rig.set_fap(n, tables.fap_spec(n).maximum)                       # the slider's end
-        alone = rig.faps.limited_values()[n - 1]
-        assert alone < clean[n - 1] < reach[n - 1]                      # the old ease went past reach
-    table = np.concatenate([tables.expression_table(), tables.viseme_table()])
-    n = past[0]
-    row = table[np.argmax(table[:, n - 1])]
-    rig.reset()
-    assert np.array_equal(rig.deformer.limited(row, row), row)
-    for expression in tables.expression_names()[1:]:
-        for viseme in tables.viseme_names()[1:]:
-            rig.reset()
-            rig.set_expression(expression, 1.0)
-            rig.set_viseme(viseme, 1.0)
-            asked = rig.faps.effective_values()
-            low, high = rig.deformer.preset_reach.T
-            if ((asked >= low) & (asked <= high)).all():     # a mix past every preset's reach eases
-                assert np.array_equal(rig.faps.limited_values(), asked), (expression, viseme)
-    rig.reset()
-
-
 def test_a_preset_just_inside_a_limit_does_not_widen_it():
     """keeping's margin applies only past a limit the preset passes itself: a preset at 100 of a
-    101 limit leaves the limit at 101 (it went to 105, past where the surface breaks)."""
+    101 limit leaves the limit at 101 (it went to 105, past where the surface breaks), and the end
+    moves continuously as a preset's value crosses the limit."""
     limits = np.array([[-np.inf, np.inf]] * 68)
     limits[3] = (-200.0, 101.0)
     presets = np.zeros((1, 68))
@@ -156,7 +127,6 @@ def test_a_preset_just_inside_a_limit_does_not_widen_it():
     far = np.zeros(68)
     far[3] = 800
     assert 100 < soft_limit(far, wide, start)[3] <= 101
-    # Continuous as the preset's value crosses the limit (a timeline animating its weight).
     ends = []
     for value in (100.999, 101.0, 101.001):
         presets[0, 3] = value

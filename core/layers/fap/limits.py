@@ -271,16 +271,15 @@ def keeping(limits: np.ndarray, values: np.ndarray, ease_start=EASE_START,
     and still eases toward the limit; where the preset goes past the limit itself, toward ``margin``
     times that overshoot beyond the preset. So a slider end past every preset moves the face no further
     than the surface (or the preset that already breaks it) allows, and the limits are continuous in
-    ``values`` (``FapDeformer.limited`` widens them by the presets in use, whose weights a timeline
-    animates). ``ease_start``: EASE_START, or (68, 2) per end."""
+    ``values``. ``ease_start``: EASE_START, or (68, 2) per end."""
     out = limits.astype(float).copy()
     start = np.array(np.broadcast_to(np.asarray(ease_start, dtype=float), limits.shape))
     reach = np.abs(preset_reach(values))
     size = np.abs(out)
     widened = reach > start * size                        # never where the limit is infinite
     # The margin grows with the overshoot: as a share of the preset's value, a preset just inside a
-    # limit (100 of 100.7) took the slider's end to 105, past where the surface breaks, and the end
-    # jumped as a preset's weight carried it across the limit.
+    # limit (the Surrey Face Model scan's lower_t_midlip: 100 of 100.7 MNS, where its lips cross) took
+    # the slider's end to 105, past where the surface breaks.
     wide = np.maximum(size, reach + margin * (reach - size))
     out[widened] = np.copysign(wide, out)[widened]
     start[widened] = reach[widened] / wide[widened]
