@@ -525,6 +525,33 @@ def test_lips_pressed_into_each_other_meet_instead_of_crossing(rig):
     rig.reset()
 
 
+def test_lips_that_cross_at_rest_do_not_jump_apart_when_a_pose_presses_them(rig):
+    """A scan's closed lips may cross at rest (the Surrey Face Model scan's rims by ~0.3 mm). A pose
+    that presses them a micron further gives way by about that micron and the separation, not the
+    rest's whole overlap: they jumped 0.35 mm apart at a slider's first touch. A real press still
+    resolves what it added and, pressing a millimetre or more, the rest's overlap too."""
+    from core.layers.fap.lip_contact import SEPARATION_MM, LipContact
+
+    face = rig.face
+    skin = np.setdiff1d(np.arange(face.n_vertices), np.concatenate(list(face.parts.values())))
+    lower_rim = LipContact(face, skin).lower_rim
+    crossed = face.vertices.copy()
+    crossed[lower_rim, 1] += 0.3                                # the lower rim 0.3 mm into the upper lip
+    contact = LipContact(face.with_vertices(crossed), skin)
+    rest_excess = np.maximum(contact._overlap(crossed), 0.0).max()
+    assert contact.active and rest_excess > 0.25
+    for lift, most in ((1e-4, 0.5 * SEPARATION_MM + 1e-3), (2.0, np.inf)):
+        x = crossed.copy()
+        x[contact.lower, 1] += lift * contact.lower_weight[:, None][:, 0]
+        before = x.copy()
+        contact.apply(x)
+        moved = np.linalg.norm(x - before, axis=1).max()
+        assert moved <= most, moved                             # the old code: ~0.17 mm each way
+        assert contact._overlap(x).max() <= rest_excess + 0.05
+    # The 2 mm press resolved, and the rest's overlap with it where the lip rose a millimetre or more.
+    assert moved > 0.5 and contact._overlap(x).max() < rest_excess - 0.05
+
+
 @pytest.mark.parametrize("number", [4, 8, 10, 57])
 def test_lips_pressed_at_a_sliders_end_do_not_pass_through_each_other(rig, number, monkeypatch):
     """Every lip FAP at the end that presses a closed mouth's lips together: the rims meet, and the

@@ -39,6 +39,9 @@ MIN_RIM_VERTICES = 4
 CORNER_TAPER_MM = 3.0
 # Overlaps below this (mm) are rounding, not lips passing through each other.
 TOLERANCE_MM = 1e-6
+# A pose that presses the rims this much (mm) past their rest overlap (a scan's lips crossing at rest)
+# takes that rest overlap away too; less, the same share of it.
+REST_RELEASE_MM = 0.25
 # Pressed rims end this far apart (mm), not exactly touching: rims on one line leave the triangles
 # either side of them cutting through each other wherever the lips' Gaussian give-way differs.
 SEPARATION_MM = 0.05
@@ -85,7 +88,8 @@ class LipContact:
         self.lower, self.lower_weight = _zone(face.vertices, side == -1, self.lower_rim)
         # What overlap the rest face has (two polylines of different vertices touch only roughly):
         # only what a pose adds to it is resolved, so the rest face stays exactly as it is.
-        self.rest_overlap = np.maximum(self._overlap(face.vertices), 0.0) + TOLERANCE_MM
+        self.rest_excess = np.maximum(self._overlap(face.vertices), 0.0)
+        self.rest_overlap = self.rest_excess + TOLERANCE_MM
         lips = np.union1d(self.upper, self.lower)
         self.cell = SHEET_CELL_EDGES * _median_edge(face, lips)
         low, high = face.vertices[lips][:, [0, 2]].min(axis=0), face.vertices[lips][:, [0, 2]].max(axis=0)
@@ -144,10 +148,18 @@ class LipContact:
         if not pressed.any():
             return                      # the common case: lips apart or just touching
         lower = x[self.lower_rim]
-        # Where a pose pressed the lips into each other, all of the overlap goes (the rims end exactly
-        # touching: a rest-sized sliver left would still cut the seam's triangles through each other).
+        # Where a pose pressed the lips into each other, all of the overlap goes and the rims end
+        # SEPARATION_MM apart (a rest-sized sliver left would still cut the seam's triangles through each
+        # other). A scan's lips may cross at rest: their rest overlap goes by the share the pose's own
+        # press is of REST_RELEASE_MM (all of it at once made them jump apart at a slider's first touch:
+        # the Surrey Face Model scan, 0.35 mm at 239 vertices for raise_cornerlip 0.001; kept instead,
+        # its lips crossed at lower_t_midlip's and shift_jaw's ends, 6-7 pairs; released over 1 mm,
+        # 1-2 pairs; over 0.25 mm, lower_t_midlip's 1 pair).
+        added = overlap - self.rest_excess
+        release = np.clip(added / REST_RELEASE_MM, 0.0, 1.0)
         order = np.argsort(lower[:, 0])
-        along, depth = lower[order, 0], np.where(pressed, overlap + SEPARATION_MM, 0.0)[order]
+        along = lower[order, 0]
+        depth = np.where(pressed, added + release * self.rest_excess + SEPARATION_MM, 0.0)[order]
         half_up = 0.5 * np.interp(x[self.upper, 0], along, depth, left=0.0, right=0.0) * self.upper_weight
         half_down = 0.5 * np.interp(x[self.lower, 0], along, depth, left=0.0, right=0.0) * self.lower_weight
         x[self.upper, 1] += half_up
