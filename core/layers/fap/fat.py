@@ -176,7 +176,7 @@ LIDS_AND_CHEEKS = (19, 20, 21, 22, 41, 42)
 LID_GUARD_COLUMNS = np.array([n - 1 for n in LIDS_AND_CHEEKS] + list(range(30, 38)))
 # FAPs whose fields column_relax leaves as bound: the upper lids and the cheek lifts. Spread toward the
 # eye, a cheek's lift pushed its lower lid into the eyeball and the guard folded it (default face,
-# lift_cheek at 400: 7 -> 18 folded triangles; relaxed today its squeeze goes 0.21 -> 0.16). The lower
+# lift_cheek at 400: 7 -> 18 folded triangles; relaxed on 2026-11-30 its squeeze went 0.21 -> 0.16). The lower
 # lids are relaxed: a scan's binding steepens their field at the inner canthus (the Surrey Face Model
 # scan: 0.60 mm of close_b_l_eyelid at 320 IRISD across a 0.7 mm triangle squeezed it to 0.18x in joy
 # and its 14 mixes with visemes; relaxed 0.40x, and the lids' own 1024 ends fold less).
