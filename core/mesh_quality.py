@@ -246,6 +246,14 @@ def _normals(corners: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1), _EPS)[:, None]
 
 
+def height_ratios(corners: np.ndarray) -> np.ndarray:
+    """(m,) each triangle's height over its longest edge divided by that edge, for ``corners``
+    (m, 3, 3): 0.87 equilateral, 0 collinear (a sliver covers no texture however it is posed)."""
+    twice_area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    return twice_area / np.maximum(longest, _EPS) ** 2
+
+
 # ---------------------------------------------------------------------------- per-face probe
 class FaceQualityProbe:
     """Measures poses of one face (see the module docstring).

@@ -49,6 +49,7 @@ from core.face import Face, SurfacePoint
 from core.layers.fap.closed_eyes import LidLine, closed_eye_side, closed_lid_lines, lid_point_sides, open_eye_lines
 from core.layers.fap.template import DenseTemplate
 from core.registration.correspondence import Registration, _adjacency, boundary_loops
+from core.mesh_quality import height_ratios
 from core.registration.folds import similarity
 from core.registration.lid_crease import along_crease
 from core.registration.templates import get_template
@@ -334,13 +335,9 @@ def _zip_closed(loop: np.ndarray, points: np.ndarray, normal: np.ndarray) -> np.
             triangles.append((side_a[i], side_b[j + 1], side_b[j]))
             j += 1
     local = np.array([t for t in triangles if len(set(t)) == 3], np.int64).reshape(-1, 3)
+    local = local[height_ratios(points[local]) >= ZIP_MIN_HEIGHT_SHARE]
     corners = points[local]
-    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
-    # |cross| is the longest edge times the height over it.
-    keep = np.linalg.norm(cross, axis=1) >= ZIP_MIN_HEIGHT_SHARE * longest ** 2
-    local, cross = local[keep], cross[keep]
-    facing = cross @ normal
+    facing = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) @ normal
     local[facing < 0] = local[facing < 0][:, ::-1]
     return loop[local]
 

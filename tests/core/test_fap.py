@@ -542,7 +542,7 @@ def test_lips_that_cross_at_rest_do_not_jump_apart_when_a_pose_presses_them(rig)
     assert contact.active and rest_excess > 0.25
     for lift, most in ((1e-4, 0.5 * SEPARATION_MM + 1e-3), (2.0, np.inf)):
         x = crossed.copy()
-        x[contact.lower, 1] += lift * contact.lower_weight[:, None][:, 0]
+        x[contact.lower, 1] += lift * contact.lower_weight
         before = x.copy()
         contact.apply(x)
         moved = np.linalg.norm(x - before, axis=1).max()

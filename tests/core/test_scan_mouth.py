@@ -189,10 +189,9 @@ def test_closing_the_slits_adds_no_sliver(animated):
     """The slits' closing triangles span them: none joins collinear vertices of one scanner row (the
     synthetic scan's two slits gave 4 triangles 0.007 mm high, whose "stretch" capped the jaw's
     slider at 44 MNS)."""
-    corners = animated.face.vertices[animated.face.triangles]
-    cross = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
-    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
-    assert (cross < 0.01 * longest ** 2).sum() == 0
+    from core.mesh_quality import height_ratios
+
+    assert (height_ratios(animated.face.vertices[animated.face.triangles]) < 0.01).sum() == 0
 
 
 def test_a_slit_left_between_closed_lips_is_closed_and_still_opens_with_the_jaw(registration, jaw_open):
