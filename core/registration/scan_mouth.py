@@ -9,7 +9,8 @@ triangles between them stretch into a skin web instead of opening. :func:`animat
 * labels each canonical vertex within ``LIP_RINGS`` rings of the inner-lip loop as upper or lower lip
   (whichever half of the loop — split at the inner corners 2.4 / 2.5 — is fewer rings away);
 * labels each scan vertex by the canonical triangle it is bound to (:func:`bind_scan`);
-* closes the slits a scanner left between the closed lips (small holes with vertices of both lips);
+* closes the slits a scanner left between the closed lips (small holes with vertices of both lips;
+  where the slit's two sides are on different lips, each lip closes its half up to the slit's middle);
 * cuts every scan triangle that has vertices of both lips: it keeps the lip most of its corners
   are on, and its corners of the other lip are replaced by copies (same position and texture
   coordinates) that move like its own lip's corners — a cut along the scan's edges, closed at rest;
@@ -97,8 +98,9 @@ PUSH_ROUNDS = 4
 HOLE_MM = 15.0
 HOLE_MAX_VERTICES = 60
 #: A closing triangle lower than this share of its longest edge joins collinear vertices of one
-#: scanner row: it covers nothing and is left out (the synthetic scan's two 0.82 mm slits gave 4,
-#: 0.007 mm high, whose "stretch" capped open_jaw's slider at 44 MNS and read 3.8x in joy).
+#: scanner row: it covers nothing and is left out (zipped greedily, the synthetic scan's two 0.82 mm
+#: slits gave 4, 0.007 mm high, whose "stretch" capped open_jaw's slider at 44 MNS and read 3.8x in
+#: joy; the best-shaped strip, _strip, makes none there).
 ZIP_MIN_HEIGHT_SHARE = 0.01
 #: A scan's own mouth interior: its triangles more than INTERIOR_MM behind the canonical lips (within
 #: INTERIOR_REACH_MM of them) are hidden.
@@ -291,55 +293,169 @@ def _mouth_interior(scan: Face, canonical: Face, template_name: str) -> np.ndarr
     return inside[scan.triangles].all(axis=1) & (facing[scan.triangles].sum(axis=1) < 0)
 
 
-def _with_lip_slits_closed(scan: Face, lip_side: np.ndarray) -> Face:
-    """``scan`` with the slits along its closed mouth's lip line closed by triangles between their
-    existing vertices: small holes (boundary loops no wider than HOLE_MM) with vertices of both lips
-    (``lip_side`` per scan vertex, :func:`_scan_lip_labels`). A scanner leaves them where it cannot
-    see into the lips' fold (a Surrey Face Model scan: 5 mm slits every few mm, through which the
-    added teeth showed white at rest); the lip cut then parts them with the rest of the lip line.
-    (Gaps elsewhere, e.g. in the nose wings' creases, stay: closed across a crease whose sides move
-    apart, their triangles stretched 2.3x in joy.)"""
-    fills = []
+def _with_lip_slits_closed(scan: Face, lip_side: np.ndarray,
+                           matrix: scipy.sparse.csr_matrix) -> tuple[Face, np.ndarray, scipy.sparse.csr_matrix]:
+    """(scan, lip_side, matrix) with the slits along its closed mouth's lip line closed: small holes
+    (boundary loops no wider than HOLE_MM) with vertices of both lips (``lip_side`` per scan vertex,
+    :func:`_scan_lip_labels`; ``matrix`` (n, N) the scan's binding). A scanner leaves them where it
+    cannot see into the lips' fold (a Surrey Face Model scan: 5 mm slits every few mm, through which
+    the added teeth showed white at rest). (Gaps elsewhere, e.g. in the nose wings' creases, stay:
+    closed across a crease whose sides move apart, their triangles stretched 2.3x in joy.)
+
+    A slit whose two sides (:func:`_zip_closed`) are on different lips (by most of each side's
+    vertices) is where the lips part: its vertices take their side's lip, and the closing triangles are
+    split along the slit's middle, each side's part going to its own lip, with a vertex per lip on the
+    middle line that moves with its side's vertex. The lips meet there at rest and part there, as
+    Mimica's own lips do. (Kept whole and then cut, a closing triangle reached across to the other
+    lip's rim and was passed through by it as soon as a FAP pressed the lips.) A slit with both sides
+    on one lip is that lip's skin: its closing triangles are cut like the rest of the scan.
+
+    The scan's own vertices keep their ids; the middle-line vertices are appended, with their labels
+    and binding rows."""
+    n = scan.n_vertices
+    fills: list[tuple[int, int, int]] = []
+    edges: list[tuple[int, int]] = []       # per middle-line vertex: its slit edge's two scan vertices
+    sources: list[int] = []                 # ... and the one of its own side (its binding row)
+    labels: list[int] = []
+    side = np.array(lip_side)
     for loop in boundary_loops(scan.triangles):
         points = scan.vertices[loop]
         if (len(loop) < 3 or len(loop) > HOLE_MAX_VERTICES or np.ptp(points, axis=0).max() > HOLE_MM
                 or not ((lip_side[loop] == 1).any() and (lip_side[loop] == -1).any())):
             continue
-        fills.append(_zip_closed(loop, points, scan.vertex_normals[loop].sum(axis=0)))
+        local, chain = _zip_closed(points, scan.vertex_normals[loop].sum(axis=0))
+        score = [lip_side[loop][chain == c].mean() if (chain == c).any() else 0.0 for c in (1, -1)]
+        if score[0] * score[1] >= 0:
+            # Both sides on one lip (a Surrey Face Model scan's slits inside its upper lip, by the
+            # binding): the closing triangles are that lip's skin, cut like the rest where they reach
+            # a vertex of the other. (Split there too, its lip's underside squeezed 0.2x in surprise + oh.)
+            fills += [tuple(loop[t]) for t in local]
+            continue
+        lip_of = {1: 1, -1: -1} if score[0] >= score[1] else {1: -1, -1: 1}
+        for c, lip in lip_of.items():
+            side[loop[chain == c]] = lip
+        middle: dict[tuple[int, int, int], int] = {}
+
+        def on_middle(u: int, v: int, c: int) -> int:
+            """The id of the middle of slit edge (u, v) (loop positions) on chain c's lip."""
+            key = (min(u, v), max(u, v), c)
+            if key not in middle:
+                middle[key] = n + len(sources)
+                edges.append((loop[u], loop[v]))
+                sources.append(loop[u] if chain[u] == c else loop[v])
+                labels.append(lip_of[c])
+            return middle[key]
+
+        # Each closing triangle clipped at the middle of its edges across the slit: chain c's part
+        # keeps its own corners and the slit's ends (chain 0), in the triangle's order (its facing).
+        for triangle in local:
+            for c in (1, -1):
+                polygon = []
+                for k in range(3):
+                    u, v = triangle[k], triangle[(k + 1) % 3]
+                    if chain[u] * c >= 0:
+                        polygon.append(loop[u])
+                    if chain[u] * chain[v] < 0:
+                        polygon.append(on_middle(u, v, c))
+                fills += [(polygon[0], polygon[i], polygon[i + 1]) for i in range(1, len(polygon) - 1)]
     if not fills:
-        return scan
-    return Face(scan.vertices, np.concatenate([scan.triangles, *fills]), uv=scan.uv, texture=scan.texture,
-                vertex_colors=scan.vertex_colors, landmarks=scan.landmarks, metadata=scan.metadata, parts=scan.parts)
+        return scan, lip_side, matrix
+    matrix = _rebound_to_their_lip(matrix, scan.triangles, lip_side, side)
+    pairs = np.array(edges, np.int64).reshape(-1, 2)
+    vertices = np.concatenate([scan.vertices, scan.vertices[pairs].mean(axis=1)])
+    triangles = np.array(fills, np.int64)
+    triangles = triangles[height_ratios(vertices[triangles]) >= ZIP_MIN_HEIGHT_SHARE]
+    uv = None if scan.uv is None else np.concatenate([scan.uv, scan.uv[pairs].mean(axis=1)])
+    colours = None
+    if scan.vertex_colors is not None:
+        halves = scan.vertex_colors[pairs].astype(float).mean(axis=1)
+        colours = np.concatenate([scan.vertex_colors, halves.round().astype(scan.vertex_colors.dtype)])
+    closed = Face(vertices, np.concatenate([scan.triangles, triangles]), uv=uv, texture=scan.texture,
+                  vertex_colors=colours, landmarks=scan.landmarks, metadata=scan.metadata, parts=scan.parts)
+    return (closed, np.concatenate([side, labels]).astype(lip_side.dtype),
+            scipy.sparse.vstack([matrix, matrix[np.array(sources, np.int64)]]).tocsr())
 
 
-def _zip_closed(loop: np.ndarray, points: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """(k, 3) triangles closing the boundary loop ``loop`` (points (m, 3) mm): its two sides between
-    the ends of its longest extent are zipped together by the shorter diagonal at each step (a slit's
-    triangles span it across, not along), facing along ``normal`` (the surface's around it)."""
+def _rebound_to_their_lip(matrix: scipy.sparse.csr_matrix, triangles: np.ndarray, was: np.ndarray,
+                          now: np.ndarray) -> scipy.sparse.csr_matrix:
+    """(n, N) ``matrix`` with each scan vertex whose lip label changed (``was`` -> ``now``, (n,)) bound
+    as the mean of its neighbours already on its new lip (unchanged where it has none). Still bound to
+    the other lip's canonical skin, it would keep moving with that lip (tried on the synthetic scan's
+    slits, split as if their sides were on different lips: a relabelled rim vertex stretched its
+    triangle 3.3x as the jaw opened 30 MNS)."""
+    n = len(was)
+    changed = np.flatnonzero(now != was)
+    if not len(changed):
+        return matrix
+    adjacency, _ = _adjacency(triangles, n)
+    near = adjacency[changed].multiply(was[None, :] == now[changed][:, None]).tocsr()
+    count = np.asarray(near.sum(axis=1)).ravel()
+    rows = scipy.sparse.diags(1.0 / np.maximum(count, 1)) @ near @ matrix
+    found = np.flatnonzero(count > 0)
+    keep = np.ones(n)
+    keep[changed[found]] = 0.0
+    placed = scipy.sparse.csr_matrix((np.ones(len(found)), (changed[found], found)), shape=(n, len(changed)))
+    return (scipy.sparse.diags(keep) @ matrix + placed @ rows).tocsr()
+
+
+def _strip(points: np.ndarray, side_a: list[int], side_b: list[int]) -> list[tuple[int, int, int]]:
+    """The strip of triangles between two chains of ``points`` (m, 3) that start and end together
+    (side_a[0] == side_b[0], side_a[-1] == side_b[-1]) with the best-shaped triangles: the least sum
+    over its triangles of (squared edges) / area (a dynamic programme over the two chains). Zipped
+    greedily by the shorter diagonal, a slit whose end lies in one lip's scanner row fanned from that
+    end along the row: 1-3 % high slivers, crossed by the lip's own skin at the least motion."""
+    la, lb = len(side_a), len(side_b)
+
+    def shape(a: int, b: int, c: int) -> float:
+        if len({a, b, c}) < 3:
+            return 0.0                      # the chains' shared ends: no triangle
+        p = points[[a, b, c]]
+        area = np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])) / 2
+        return float(((p - np.roll(p, 1, axis=0)) ** 2).sum() / max(area, 1e-12))
+
+    cost = np.full((la, lb), np.inf)
+    came = np.zeros((la, lb), np.int8)      # 1: reached by a step along side_a, 2: along side_b
+    cost[0, 0] = 0.0
+    for i in range(la):
+        for j in range(lb):
+            if i and cost[i - 1, j] + shape(side_a[i - 1], side_a[i], side_b[j]) < cost[i, j]:
+                cost[i, j], came[i, j] = cost[i - 1, j] + shape(side_a[i - 1], side_a[i], side_b[j]), 1
+            if j and cost[i, j - 1] + shape(side_a[i], side_b[j], side_b[j - 1]) < cost[i, j]:
+                cost[i, j], came[i, j] = cost[i, j - 1] + shape(side_a[i], side_b[j], side_b[j - 1]), 2
+    triangles = []
+    i, j = la - 1, lb - 1
+    while i or j:
+        if came[i, j] == 1:
+            triangles.append((side_a[i - 1], side_a[i], side_b[j]))
+            i -= 1
+        else:
+            triangles.append((side_a[i], side_b[j], side_b[j - 1]))
+            j -= 1
+    return triangles[::-1]
+
+
+def _zip_closed(points: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(triangles (k, 3), chain (m,)) closing a boundary loop of points (m, 3) mm: its two sides
+    between the ends of its longest extent are joined by a strip of triangles (:func:`_strip`; a
+    slit's triangles span it across, not along), facing along ``normal`` (the surface's around
+    it), as positions in the loop; ``chain`` is +1 on one side, -1 on the other, 0 at the two ends.
+    Triangles lower than ZIP_MIN_HEIGHT_SHARE of their longest edge are left out."""
     centred = points - points.mean(axis=0)
     axis = np.linalg.svd(centred, full_matrices=False)[2][0]
     along = centred @ axis
     first, last = int(np.argmin(along)), int(np.argmax(along))
-    m = len(loop)
+    m = len(points)
     side_a = [(first + k) % m for k in range((last - first) % m + 1)]
     side_b = [(first - k) % m for k in range((first - last) % m + 1)]
-    i = j = 0
-    triangles = []
-    while i < len(side_a) - 1 or j < len(side_b) - 1:
-        step_a = j == len(side_b) - 1 or (i < len(side_a) - 1 and np.linalg.norm(points[side_a[i + 1]] - points[side_b[j]])
-                                         <= np.linalg.norm(points[side_a[i]] - points[side_b[j + 1]]))
-        if step_a:
-            triangles.append((side_a[i], side_a[i + 1], side_b[j]))
-            i += 1
-        else:
-            triangles.append((side_a[i], side_b[j + 1], side_b[j]))
-            j += 1
+    chain = np.zeros(m, np.int64)
+    chain[side_a[1:-1]], chain[side_b[1:-1]] = 1, -1
+    triangles = _strip(points, side_a, side_b)
     local = np.array([t for t in triangles if len(set(t)) == 3], np.int64).reshape(-1, 3)
     local = local[height_ratios(points[local]) >= ZIP_MIN_HEIGHT_SHARE]
     corners = points[local]
     facing = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) @ normal
     local[facing < 0] = local[facing < 0][:, ::-1]
-    return loop[local]
+    return local, chain
 
 
 def _scan_lip_labels(matrix: scipy.sparse.csr_matrix, canonical_labels: np.ndarray) -> np.ndarray:
@@ -647,7 +763,7 @@ def animated_scan(registration: Registration, donor: Face | None = None) -> Anim
     matrix = registration.carry_back().binding.matrix
     labels = lip_labels(canonical.triangles, registration.template)
     lip_side = _scan_lip_labels(matrix, labels)
-    scan = _with_lip_slits_closed(registration.scan, lip_side)
+    scan, lip_side, matrix = _with_lip_slits_closed(registration.scan, lip_side, matrix)
     # Closed eyes are cut along their lid line (after the lips: the cut splits the triangles it
     # crosses) and get the donor's eyeballs behind the lids. cut_labels (lips and lids: far apart, no
     # triangle spans both) keep each lip's and lid's landmarks on its own side.

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.sparse
 
 from core.registration.correspondence import canonical_triangles
 from core.registration.pipeline import register_scan
@@ -227,3 +228,88 @@ def test_a_slit_left_between_closed_lips_is_closed_and_still_opens_with_the_jaw(
     # The jaw still opens it: no skin web across the opening.
     skin = face.triangles[(face.triangles < animated.n_scan + animated.n_copies).all(axis=1)]
     assert _edge_growth(face.vertices, animated.vertices(jaw_open), skin).max() < 1.5
+
+
+def _slit_sheet(upper_row: int):
+    """A flat 20 x 4 grid (1 mm, z = 0; its outer border wider than a slit) with a 4 x 1 mm slit
+    between rows 1 and 2 (x 1..5); rows from ``upper_row`` up are the upper lip (+1), the others the
+    lower lip (-1); each vertex bound to its own canonical vertex."""
+    from core.face import Face
+
+    width = 20
+    xs, ys = np.meshgrid(np.arange(float(width)), np.arange(4.0))
+    vertices = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(4 * width)])
+    triangles = []
+    for row in range(3):
+        for x in range(width - 1):
+            if row == 1 and 1 <= x < 5:
+                continue                                   # the slit
+            a, b = row * width + x, row * width + x + 1
+            triangles += [(a, b, b + width), (a, b + width, a + width)]
+    side = np.where(vertices[:, 1] >= upper_row, 1, -1)
+    return Face(vertices, np.array(triangles)), side, scipy.sparse.identity(4 * width, format="csr")
+
+
+def _area(vertices, triangles):
+    corners = vertices[triangles]
+    return 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
+
+
+def test_a_slit_between_the_lips_is_closed_by_two_halves_meeting_in_its_middle():
+    """A slit whose sides are on different lips is where they part: each lip closes its half, up to
+    a middle line whose vertices move with their own side (kept whole and cut, a closing triangle
+    reached across to the other lip's rim, and pressed lips passed through it at once)."""
+    from core.registration.scan_mouth import _with_lip_slits_closed
+
+    sheet, side, matrix = _slit_sheet(upper_row=2)
+    closed, labels, rows = _with_lip_slits_closed(sheet, side, matrix)
+    fill = closed.triangles[len(sheet.triangles):]
+    assert _area(closed.vertices, fill) == pytest.approx(4.0)          # the whole slit, nothing more
+    middle = np.arange(sheet.n_vertices, closed.n_vertices)
+    assert len(middle) >= 2 * 3 and np.allclose(closed.vertices[middle, 1], 1.5)
+    # Each middle vertex twice (once per lip), moving exactly like the slit vertex of its own lip.
+    for lip in (1, -1):
+        own = middle[labels[middle] == lip]
+        assert len(own) == len(middle) // 2
+        source = rows[own].toarray().argmax(axis=1)
+        assert np.allclose(rows[own].toarray().max(axis=1), 1.0) and (labels[source] == lip).all()
+        assert np.allclose(np.abs(closed.vertices[source, 1] - 1.5), 0.5)
+    # Every closing triangle on the middle line is on one lip: its other corners are that lip's or one
+    # of the slit's two ends (which the lip cut then copies).
+    strangers = set()
+    for triangle in fill[(fill >= sheet.n_vertices).any(axis=1)]:
+        lip = labels[triangle[triangle >= sheet.n_vertices][0]]
+        strangers |= {int(v) for v in triangle if labels[v] != lip}
+    assert len(strangers) <= 2
+
+
+def test_a_slit_inside_one_lip_is_closed_as_that_lips_skin():
+    """Both sides of the slit on the upper lip (one lower-lip vertex at its end): closed by the
+    strip between its own vertices, with no middle line."""
+    from core.registration.scan_mouth import _with_lip_slits_closed
+
+    sheet, side, matrix = _slit_sheet(upper_row=1)
+    side[20 + 1] = -1                                      # the slit's lower left corner
+    closed, labels, rows = _with_lip_slits_closed(sheet, side, matrix)
+    assert closed.n_vertices == sheet.n_vertices and np.array_equal(labels, side)
+    assert _area(closed.vertices, closed.triangles[len(sheet.triangles):]) == pytest.approx(4.0)
+    assert (rows != matrix).nnz == 0
+
+
+def test_pressed_lips_of_a_scan_with_slits_do_not_pass_through_each_other(animated):
+    """The synthetic scan's two slits: zipped greedily from an end that lay in one lip's scanner row,
+    they fanned 1-3 % high slivers along that row, which lower_t_lip_lm crossed from 2 MNS on (5 pairs
+    at 60, a viseme's value). Closed by the best-shaped strip, none."""
+    from core.layers.fap.fat import FapDeformer
+    from core.layers.fap.limits import new_crossings
+    from core.mesh_quality import FaceQualityProbe
+
+    face = animated.face
+    deformer = FapDeformer(face, dense=animated.dense, binding=animated.binding())
+    probe = FaceQualityProbe(face)
+    crosses = new_crossings(face.vertices, probe.lip_tris, probe.welded, 0.0)
+    values = np.zeros(68)
+    for number in (8, 9, 4):
+        values[:] = 0.0
+        values[number - 1] = 60.0
+        assert not crosses(deformer.deform(values)), f"FAP {number} at 60 crosses the lips"
