@@ -92,15 +92,15 @@ def test_rows_groups_labels_units_and_tooltips(dock, rig):
     assert f"beyond {limit:.0f} {reason}: eased" in dock.row(3).toolTip()
     assert "presets go to" not in dock.row(3).toolTip()
     # ... and where a preset goes past the surface's limit (this face's lip corners: joy stretches
-    # them 160 MW), the preset passes as authored and the tooltip says the slider eases past it.
+    # them 160 MW), the preset passes as authored and the tooltip says so; the slider alone eases.
     reach = rig.deformer.preset_reach[:, 1]
     upper = rig.deformer.clean_limits[:, 1]
     past = [n for n in sorted(animated) if f"fap:{n}" in dock.rows and np.isfinite(upper[n - 1])
             and reach[n - 1] > upper[n - 1]]
     assert past
     n = past[0]
-    assert (f"beyond {upper[n - 1]:.0f} {rig.deformer.limit_reasons[n - 1, 1]}; the presets go to "
-            f"{reach[n - 1]:.0f}: eased past that") in dock.row(n).toolTip()
+    assert (f"beyond {upper[n - 1]:.0f} {rig.deformer.limit_reasons[n - 1, 1]}: eased; the presets go to "
+            f"{reach[n - 1]:.0f} as authored") in dock.row(n).toolTip()
     (low, high), (low_why, high_why) = rig.deformer.clean_limits[15 - 1], rig.deformer.limit_reasons[15 - 1]
     assert {low_why, high_why} <= {FOLD_REASON, SMEAR_REASON}
     expected = ([f"beyond {low:.0f} and {high:.0f} {low_why}"] if low_why == high_why else   # one reason: one phrase

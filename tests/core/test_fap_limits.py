@@ -8,6 +8,7 @@ import pytest
 from core.layers.fap import tables
 from core.layers.fap.limits import EASE_START, keeping, soft_limit
 from core.layers.fap.template import load_template
+from core.mesh_quality import FaceQualityProbe
 from tests.core.conftest import without_surface_guard
 
 
@@ -107,11 +108,45 @@ def test_presets_and_the_lids_are_never_eased(rig):
     lids still close all the way (1024 IRISD)."""
     for row in np.concatenate([tables.expression_table(), tables.viseme_table()]):
         assert np.array_equal(rig.deformer.limited(row), row)
+        assert np.array_equal(rig.deformer.limited(row, row), row)       # as the FAP layer asks
     lids = np.zeros(68)
     lids[18:22] = 1024
     assert np.array_equal(rig.deformer.limited(lids), lids)
     assert "1024" not in (rig.deformer.limit_note(19) or "")       # only the opening end is limited
     assert rig.deformer.limit_note(15).startswith("beyond -")
+
+
+def test_a_slider_alone_stops_at_its_own_limit_though_a_preset_goes_past_it(rig):
+    """Where a preset goes past a FAP's limit, the preset in use passes as authored, and the slider
+    alone eases into the limit, which is where the finished pose breaks the skin (the default face's
+    cheek lift: 0.24x squeeze at joy's 220 IRISD, toward which the slider alone used to ease).
+    Expression and viseme mixed pass too."""
+    reach, clean = rig.deformer.preset_reach[:, 1], rig.deformer.clean_limits[:, 1]
+    past = [n for n in rig.animated_faps if np.isfinite(clean[n - 1]) and reach[n - 1] > clean[n - 1]]
+    assert 41 in past and 42 in past
+    for n in past:
+        rig.reset()
+        rig.set_fap(n, tables.fap_spec(n).maximum)                       # the slider's end
+        alone = rig.faps.limited_values()[n - 1]
+        assert alone < clean[n - 1] < reach[n - 1]                      # the old ease went past reach
+    rig.reset()
+    rig.set_fap(41, 400)
+    assert FaceQualityProbe(rig.face).surface_holds(np.array(rig.vertices()))
+    table = np.concatenate([tables.expression_table(), tables.viseme_table()])
+    n = past[0]
+    row = table[np.argmax(table[:, n - 1])]
+    rig.reset()
+    assert np.array_equal(rig.deformer.limited(row, row), row)
+    for expression in tables.expression_names()[1:]:
+        for viseme in tables.viseme_names()[1:]:
+            rig.reset()
+            rig.set_expression(expression, 1.0)
+            rig.set_viseme(viseme, 1.0)
+            asked = rig.faps.effective_values()
+            low, high = rig.deformer.preset_reach.T
+            if ((asked >= low) & (asked <= high)).all():     # a mix past every preset's reach eases
+                assert np.array_equal(rig.faps.limited_values(), asked), (expression, viseme)
+    rig.reset()
 
 
 def test_a_preset_just_inside_a_limit_does_not_widen_it():

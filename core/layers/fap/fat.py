@@ -500,9 +500,10 @@ class FapDeformer:
                         crossing=lips_cross, crossing_reason=NOSTRIL_REASON)
         finished_limits(self.deform, face.vertices, skin_triangles, limits, self.limit_reasons, self.specs,
                         sorted({19, 20, 21, 22} - self.closed_lid_faps), self.preset_reach, sides=(0,))
-        # Where the surface breaks (each FAP alone), for the tooltips; the sliders ease toward
-        # ease_limits, which let every preset pass as authored.
+        # Where the surface breaks (each FAP alone): a slider alone eases toward it, and the presets in
+        # use widen it as far as they ask (limited()); ease_limits let every preset at once pass as authored.
         self.clean_limits = limits
+        self._clean_ease_start = self.ease_start.copy()
         self.ease_limits, self.ease_start = keeping(limits, presets, self.ease_start)
         assert self.matrix.shape == (3 * n, N_FAPS)
 
@@ -1068,10 +1069,21 @@ class FapDeformer:
         """The lid FAPs (19-22) of the eyes closed at rest on this face (a scan taken with them shut)."""
         return frozenset(n for pair in self.__dict__.get("_closed_lid_pairs", ()) for n in pair)
 
-    def limited(self, values: np.ndarray) -> np.ndarray:
+    def limited(self, values: np.ndarray, presets: np.ndarray | None = None) -> np.ndarray:
         """(68,) FAP values eased into this face's clean limits (``limits.soft_limit``): unchanged
-        well inside them, never past them."""
-        return soft_limit(values, self.ease_limits, self.ease_start)
+        well inside them, never past them. ``presets`` (68,): the share of ``values`` the expression
+        and viseme presets in use contribute; the limits widen to let those pass as authored
+        (``limits.keeping``; never wider than ``ease_limits``, which every preset at 100 % passes).
+        Without it, ``ease_limits``.
+
+        Widened for every preset at once, a slider alone went past where its own surface breaks: the
+        default face's cheek lift, whose finished pose squeezes the skin under the eye past 0.25x from
+        about 210 IRISD, eased toward joy's 220 (0.24x there)."""
+        if presets is None:
+            return soft_limit(values, self.ease_limits, self.ease_start)
+        asked = np.clip(presets, self.preset_reach[:, 0], self.preset_reach[:, 1])
+        limits, start = keeping(self.clean_limits, asked[None], self._clean_ease_start)
+        return soft_limit(values, limits, start)
 
     def _lid_crease_limit(self, probe, number: int, side: str) -> float:
         """The opening value (FAP units, negative) of upper-lid FAP ``number`` down to which the
@@ -1105,16 +1117,15 @@ class FapDeformer:
     def limit_note(self, number: int) -> str | None:
         """"beyond 240 the skin would fold: eased" for each slider end of FAP ``number`` that is
         limited on this face, with its reason (fold or texture smear; joined by "; "), and where a
-        preset goes further ("beyond 174 the skin would fold; the presets go to 600: eased past
-        that"); None when no end is limited."""
+        preset goes further ("beyond 174 the skin would fold: eased; the presets go to 600 as
+        authored"); None when no end is limited."""
         ends: dict[str, list[str]] = {}
         for value, why, reach in zip(self.clean_limits[number - 1], self.limit_reasons[number - 1],
                                      self.preset_reach[number - 1]):
             if np.isfinite(value):
-                past = f"; the presets go to {reach:.0f}" if abs(reach) > abs(value) else ""
+                past = f"; the presets go to {reach:.0f} as authored" if abs(reach) > abs(value) else ""
                 ends.setdefault((why or FOLD_REASON, past), []).append(f"{value:.0f}")
-        notes = [f"beyond {' and '.join(values)} {why}{past}: eased{' past that' if past else ''}"
-                 for (why, past), values in ends.items()]
+        notes = [f"beyond {' and '.join(values)} {why}: eased{past}" for (why, past), values in ends.items()]
         if number in LOWER_LIDS and number not in self.closed_lid_faps:
             notes.append(HANDOVER_NOTE)
         return "; ".join(notes) or None

@@ -174,7 +174,7 @@ class FapLayer:
         """(68,) the effective values eased into the face's clean limits: what drives the
         deformation (equal to :meth:`effective_values` well inside the limits)."""
         if self._limited is None:   # offset and finish both ask, once per state
-            self._limited = self.deformer.limited(self.effective_values())
+            self._limited = self.deformer.limited(self.effective_values(), self.preset_values())
             self._limited.setflags(write=False)   # shared by the product and finish (and memoised there)
         return self._limited
 

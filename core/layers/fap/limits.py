@@ -177,8 +177,10 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
     """Tighten ``limits`` / ``reasons`` (68, 2, from :func:`clean_limits`) in place where a FAP alone,
     posed by ``deform(values (68,)) -> (n, 3)`` with every finish step (lid guard, lip contact,
     teeth), folds or smears the skin before its linear limit (or its slider's end): those steps move
-    skin the FAT column does not. Ends a preset (``reach``, :func:`preset_reach`) takes past their
-    limit are left to the preset (the slider eases just past it, see :func:`keeping`).
+    skin the FAT column does not. Where a preset (``reach``, :func:`preset_reach`) goes past the linear
+    limit, the finished pose is checked up to the preset's value plus PRESET_MARGIN instead (the limit
+    may move out to there): the presets pass anyway (:func:`keeping`), the limit says where the slider
+    alone breaks the skin.
     ``sides``: the slider ends checked (0 the lower, 1 the upper). Only triangles the pose moved
     are measured. ``crossing(x (n, 3)) -> bool``, if given, also breaks a pose (the lips' surfaces
     crossing: a fold check does not see a lip rolling under the skin next to it), for
@@ -216,8 +218,18 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
             end = (spec.minimum, spec.maximum)[side]
             limit = limits[number - 1, side]
             far = limit if np.isfinite(limit) else end
-            if far == 0 or abs(reach[number - 1, side]) >= abs(far):
+            asked = reach[number - 1, side]
+            if far == 0 or (abs(asked) >= abs(far) and not np.isfinite(limit)):
                 continue
+            if abs(asked) >= abs(far):
+                # A preset goes past the FAP's linear limit, where the finish steps (the surface guard
+                # above all) may still hold the skin: the finished pose is checked up to the preset's
+                # value and the margin keeping() gives it, so that the slider alone stops where the
+                # finished surface breaks (the Surrey Face Model scan's raise_r_o_eyebrow: linear limit
+                # 50 ENS, unbroken finished at 80; the default face's cheek lift: 215 linear, broken
+                # finished before it).
+                far = np.copysign(min(abs(asked) * (1 + PRESET_MARGIN), abs(end)), asked)
+                limits[number - 1, side] = far
             if breaks(far):
                 good, bad = bisect(lambda share: bool(breaks(far * share)), steps)
                 reasons[number - 1, side] = breaks(far * bad) or FOLD_REASON
@@ -225,7 +237,7 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
                 limits[number - 1, side] = far
             # The crossing test is the dear one (~40 ms): once, where the surface holds, and bisected
             # only when the lips cross there.
-            if crossing is None or far == 0 or abs(reach[number - 1, side]) >= abs(far) or not crosses(far):
+            if crossing is None or far == 0 or abs(asked) >= abs(far) or not crosses(far):
                 continue
             good, _ = bisect(lambda share: crosses(far * share), steps)
             limits[number - 1, side] = far * good
