@@ -418,10 +418,10 @@ def _strip(points: np.ndarray, side_a: list[int], side_b: list[int]) -> list[tup
     cost[0, 0] = 0.0
     for i in range(la):
         for j in range(lb):
-            if i and cost[i - 1, j] + shape(side_a[i - 1], side_a[i], side_b[j]) < cost[i, j]:
-                cost[i, j], came[i, j] = cost[i - 1, j] + shape(side_a[i - 1], side_a[i], side_b[j]), 1
-            if j and cost[i, j - 1] + shape(side_a[i], side_b[j], side_b[j - 1]) < cost[i, j]:
-                cost[i, j], came[i, j] = cost[i, j - 1] + shape(side_a[i], side_b[j], side_b[j - 1]), 2
+            along_a = cost[i - 1, j] + shape(side_a[i - 1], side_a[i], side_b[j]) if i else np.inf
+            along_b = cost[i, j - 1] + shape(side_a[i], side_b[j], side_b[j - 1]) if j else np.inf
+            if min(along_a, along_b) < cost[i, j]:
+                cost[i, j], came[i, j] = (along_a, 1) if along_a <= along_b else (along_b, 2)
     triangles = []
     i, j = la - 1, lb - 1
     while i or j:
