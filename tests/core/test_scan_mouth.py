@@ -313,3 +313,22 @@ def test_pressed_lips_of_a_scan_with_slits_do_not_pass_through_each_other(animat
         values[:] = 0.0
         values[number - 1] = 60.0
         assert not crosses(deformer.deform(values)), f"FAP {number} at 60 crosses the lips"
+
+
+def test_a_slit_vertex_labelled_with_the_other_lip_takes_its_sides_lip_and_moves_with_it():
+    """One vertex of the slit's upper side bound to the lower lip (most of its side on the upper): it
+    takes the upper lip, and is bound as its upper-lip neighbours, so it no longer moves with the jaw."""
+    from core.registration.scan_mouth import _with_lip_slits_closed
+
+    sheet, side, matrix = _slit_sheet(upper_row=2)
+    stray = 2 * 20 + 3                                     # row 2 (the slit's upper side), x = 3
+    side[stray] = -1
+    closed, labels, rows = _with_lip_slits_closed(sheet, side, matrix)
+    assert labels[stray] == 1
+    neighbours = np.unique(sheet.triangles[(sheet.triangles == stray).any(axis=1)])
+    upper = neighbours[(neighbours != stray) & (side[neighbours] == 1)]
+    expected = np.zeros(sheet.n_vertices)
+    expected[upper] = 1.0 / len(upper)
+    np.testing.assert_allclose(rows[stray].toarray().ravel(), expected)
+    others = np.setdiff1d(np.arange(sheet.n_vertices), stray)
+    assert (rows[others] != matrix[others]).nnz == 0                 # every other vertex as it was

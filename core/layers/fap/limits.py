@@ -219,9 +219,11 @@ def finished_limits(deform, rest: np.ndarray, skin_triangles: np.ndarray, limits
             limit = limits[number - 1, side]
             far = limit if np.isfinite(limit) else end
             asked = reach[number - 1, side]
-            if far == 0 or (abs(asked) >= abs(far) and not np.isfinite(limit)):
+            if far == 0:
                 continue
             if abs(asked) >= abs(far):
+                if not np.isfinite(limit):
+                    continue            # a preset at the slider's end: no end left to limit
                 # A preset goes past the FAP's linear limit, where the finish steps (the surface guard
                 # above all) may still hold the skin: the finished pose is checked up to the preset's
                 # value and the margin keeping() gives it, so that the slider alone stops where the
